@@ -1,0 +1,92 @@
+// common.h: device code shared by every kernel file.
+// Constants (TILE_SIZE, NEAR_PLANE, ALPHA_MIN, SH_C*, ...) arrive as -D options from dc4gs_cl/constants.py.
+//
+// Hot loops avoid builtin calls: in the PoCL builds we run on, builtins such as exp, fmin and floor are
+// opaque calls that stop the compiler from vectorising a loop across pixels (7x slower measured in
+// the rasterizer), so the helpers below are plain arithmetic and selects.
+
+#ifndef DC4GS_COMMON_H
+#define DC4GS_COMMON_H
+
+// The camera, passed by value; keep in step with CAMERA_DTYPE in dc4gs_cl/runtime.py.
+typedef struct {
+    float R[9];        // world-to-camera rotation, row-major
+    float t[3];        // world-to-camera translation
+    float fx, fy, cx, cy;   // pixels; pixel (i, j) has its centre at (i + 0.5, j + 0.5)
+    float campos[3];   // camera centre in world coordinates
+    int width, height;
+} Camera;
+
+#define MINF(a, b) ((a) < (b) ? (a) : (b))
+#define MAXF(a, b) ((a) > (b) ? (a) : (b))
+#define CLAMPF(x, lo, hi) MINF(MAXF((x), (lo)), (hi))
+
+// Switches (all on by default; the benchmark turns each off to measure what it saves or costs):
+//   FAST_EXP   our exp below instead of the driver's
+//   ALPHA_CUT  pairs and rows limited to where alpha can reach ALPHA_MIN (exact: no pixel changes)
+//   EARLY_STOP a tile stops walking its list once all its pixels are saturated (exact)
+#ifndef FAST_EXP
+#define FAST_EXP 1
+#endif
+#ifndef ALPHA_CUT
+#define ALPHA_CUT 1
+#endif
+#ifndef EARLY_STOP
+#define EARLY_STOP 1
+#endif
+
+// exp(x) for x <= 0: x = k ln2 + r with |r| <= ln2/2, exp(r) by a degree-5 minimax polynomial, 2^k
+// through the exponent bits. Max relative error 1.8e-7 over [-87, 0] (float32 exp: 2.0e-7); below -87
+// it returns exp(-87) ~ 1.6e-38, far under any alpha threshold. k = (int)(x log2(e) - 0.5) rounds to
+// nearest for x <= 0 with a plain conversion (no floor call).
+inline float exp_nonpositive(float x) {
+#if FAST_EXP
+    x = CLAMPF(x, -87.0f, 0.0f);
+    int k = (int)(x * 1.4426950408889634f - 0.5f);
+    float kf = (float)k;
+    float r = x - kf * 0.693145751953125f - kf * 1.428606765330187e-06f;
+    float p = 1.0f + r * (0.9999997019767761f + r * (0.4999915063381195f + r * (0.1666763573884964f
+              + r * (0.04189793020486832f + r * 0.008290314115583897f))));
+    return p * as_float((k + 127) << 23);
+#else
+    return exp(MINF(x, 0.0f));
+#endif
+}
+
+// Emulated float atomic add (compare-and-swap on the bit pattern): OpenCL 1.2 has no float atomics.
+inline void atomic_add_float(volatile __global float *addr, float v) {
+    union { unsigned int u; float f; } old, upd;
+    old.f = *addr;
+    do {
+        upd.f = old.f + v;
+        unsigned int seen = atomic_cmpxchg((volatile __global unsigned int *)addr, old.u, upd.u);
+        if (seen == old.u) break;
+        old.u = seen;
+    } while (1);
+}
+
+// Tile rectangle [x0, x1) x [y0, y1) covered by the box mean +- half_size (px), clamped to the tile grid.
+// Shared by projection (tile counts) and pair emission, so both always agree.
+inline int4 tile_rect(float2 mean, float2 half_size, int tiles_x, int tiles_y) {
+    float inv = 1.0f / (float)TILE_SIZE;
+    float x0 = CLAMPF((mean.x - half_size.x) * inv, 0.0f, (float)tiles_x);
+    float y0 = CLAMPF((mean.y - half_size.y) * inv, 0.0f, (float)tiles_y);
+    float x1 = CLAMPF((mean.x + half_size.x) * inv + 1.0f, 0.0f, (float)tiles_x);
+    float y1 = CLAMPF((mean.y + half_size.y) * inv + 1.0f, 0.0f, (float)tiles_y);
+    return (int4)((int)x0, (int)y0, (int)x1, (int)y1);   // values are >= 0: truncation is floor
+}
+
+inline int rect_area(int4 r) { return max(r.z - r.x, 0) * max(r.w - r.y, 0); }
+
+// The tiles a Gaussian's pairs go to: its 3-sigma box (the reference rasterizers' rule) cut down to the
+// box where alpha can reach ALPHA_MIN. Tiles outside the second box hold no pixel it could blend, so
+// the image is exactly that of the 3-sigma rule, with fewer pairs to sort and walk.
+inline int4 pair_rect(float2 mean, float radius, float2 alpha_extent, int tiles_x, int tiles_y) {
+#if ALPHA_CUT
+    return tile_rect(mean, (float2)(MINF(radius, alpha_extent.x), MINF(radius, alpha_extent.y)), tiles_x, tiles_y);
+#else
+    return tile_rect(mean, (float2)(radius, radius), tiles_x, tiles_y);
+#endif
+}
+
+#endif

@@ -1,0 +1,73 @@
+// isect.cl: from projected Gaussians to the per-tile, front-to-back lists the rasterizer walks.
+//
+// Two stable sorts replace one sort of 64-bit (tile | depth) keys: the visible Gaussians are sorted by
+// depth once (V keys), their (tile, Gaussian) pairs are emitted in that order, and a stable sort by
+// tile id alone (ceil(log2(tiles)) bits) leaves every tile's pairs front to back.
+// Only Gaussians with pairs take part ("visible" below): culled ones emit no keys at all.
+//   compact_visible:    tiles_touched [N], visible_offset [N] (exclusive scan of tiles_touched != 0), depth [N]
+//                       -> visible_ids [V], depth_keys [V] (uint bits of the positive depth, which sort
+//                       like the floats), counters [4] uint: [1], [2] get the atomic min, max of the keys
+//   gather_tile_counts: ids_by_depth [V], tiles_touched [N] -> counts [V]
+//   emit_pairs:         ids_by_depth [V], pair_offset [V] (exclusive scan of counts), mean2d [N*2],
+//                       radius [N], alpha_extent [N*2] -> tile_of_pair [P], gaussian_of_pair [P]
+//   tile_ranges:        tile_of_pair [P] (sorted by tile) -> ranges [tiles*2] (first pair, end pair);
+//                       the host zero-fills ranges first, so empty tiles stay (0, 0)
+
+#include "common.h"
+
+__kernel __attribute__((reqd_work_group_size(ISECT_WG, 1, 1)))
+void compact_visible(const uint n, __global const uint *tiles_touched, __global const uint *visible_offset,
+                     __global const float *depth, __global uint *visible_ids, __global uint *depth_keys,
+                     __global uint *counters) {
+    __local uint lo[ISECT_WG], hi[ISECT_WG];
+    uint i = get_global_id(0), lid = get_local_id(0);
+    uint kmin = 0xffffffffu, kmax = 0u;
+    if (i < n && tiles_touched[i] > 0) {
+        uint key = as_uint(depth[i]);
+        uint at = visible_offset[i];
+        visible_ids[at] = i;
+        depth_keys[at] = key;
+        kmin = kmax = key;
+    }
+    lo[lid] = kmin;
+    hi[lid] = kmax;
+    for (uint off = ISECT_WG / 2; off > 0; off >>= 1) {
+        barrier(CLK_LOCAL_MEM_FENCE);
+        if (lid < off) { lo[lid] = min(lo[lid], lo[lid + off]); hi[lid] = max(hi[lid], hi[lid + off]); }
+    }
+    if (lid == 0) {
+        atomic_min(&counters[1], lo[0]);
+        atomic_max(&counters[2], hi[0]);
+    }
+}
+
+__kernel void gather_tile_counts(const uint v, __global const uint *ids_by_depth,
+                                 __global const uint *tiles_touched, __global uint *counts) {
+    uint i = get_global_id(0);
+    if (i < v) counts[i] = tiles_touched[ids_by_depth[i]];
+}
+
+__kernel void emit_pairs(const uint v, const int tiles_x, const int tiles_y, __global const uint *ids_by_depth,
+                         __global const uint *pair_offset, __global const float *mean2d,
+                         __global const int *radius, __global const float *alpha_extent,
+                         __global uint *tile_of_pair, __global uint *gaussian_of_pair) {
+    uint i = get_global_id(0);
+    if (i >= v) return;
+    uint g = ids_by_depth[i];
+    int4 rect = pair_rect(vload2(g, mean2d), (float)radius[g], vload2(g, alpha_extent), tiles_x, tiles_y);
+    uint at = pair_offset[i];
+    for (int ty = rect.y; ty < rect.w; ++ty)
+        for (int tx = rect.x; tx < rect.z; ++tx) {
+            tile_of_pair[at] = (uint)(ty * tiles_x + tx);
+            gaussian_of_pair[at] = g;
+            ++at;
+        }
+}
+
+__kernel void tile_ranges(const uint p, __global const uint *tile_of_pair, __global uint *ranges) {
+    uint i = get_global_id(0);
+    if (i >= p) return;
+    uint t = tile_of_pair[i];
+    if (i == 0 || tile_of_pair[i - 1] != t) ranges[2 * t] = i;
+    if (i == p - 1 || tile_of_pair[i + 1] != t) ranges[2 * t + 1] = i + 1;
+}

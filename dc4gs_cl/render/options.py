@@ -1,0 +1,16 @@
+"""Algorithm switches of the forward pipeline. The defaults are exact (or, for the exp, as accurate as
+the driver's); the benchmark turns each off, or the approximation on, to measure it."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class RenderOptions:
+    fast_exp: bool = True              # our polynomial exp (max rel. error 1.8e-7) instead of the driver's
+    alpha_cut: bool = True             # pairs and tile rows only where alpha can reach 1/255 (exact)
+    early_stop: bool = True            # a tile stops once all its pixels are saturated (exact)
+    depth_sort_bits: int | None = None  # approximation: sort only the top bits of the depth keys
+
+    def defines(self) -> dict[str, int]:
+        return {"FAST_EXP": int(self.fast_exp), "ALPHA_CUT": int(self.alpha_cut), "EARLY_STOP": int(self.early_stop)}

@@ -1,0 +1,29 @@
+"""Work shapes per device kind: chosen by measurement on PoCL (CPU) and by the CUDA rasterizers' shapes
+for GPUs. Every kernel variant exists in both shapes, so the tests run both on PoCL."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from ..runtime import Capabilities
+
+
+@dataclass(frozen=True)
+class Tuning:
+    pixels_per_item: int    # rasterizer: pixels one work-item owns (1 .. 256)
+    batch: int              # rasterizer: Gaussians loaded into local memory at a time
+    radix_bits: int         # sort: widest digit per pass
+    sort_blocks: int        # sort: contiguous runs, one work-item each
+    scan_wg: int            # scan: work-group size
+    scan_groups: int        # scan: work-groups (upper bound)
+    isect_wg: int           # compaction: work-group size
+
+    @staticmethod
+    def for_device(caps: Capabilities) -> "Tuning":
+        if caps.is_cpu:
+            # One work-item per tile vectorises across the tile's pixels; sequential runs for the
+            # sort and scan keep each core streaming through memory.
+            cores = max(1, caps.compute_units)
+            return Tuning(pixels_per_item=256, batch=32, radix_bits=8, sort_blocks=4 * cores,
+                          scan_wg=1, scan_groups=4 * cores, isect_wg=64)
+        return Tuning(pixels_per_item=1, batch=256, radix_bits=4, sort_blocks=4096,
+                      scan_wg=256, scan_groups=256, isect_wg=256)

@@ -1,0 +1,211 @@
+"""OpenCL runtime: device choice, context and queue, the program registry, per-stage profiling.
+
+One `Runtime` per process and device. Programs are built once per (kernel file, -D options) and their
+`Kernel` objects kept, so nothing is rebuilt or looked up on the hot path (PoCL and pyopencl also keep
+compiled binaries on disk, so a new process builds fast). `#include "x.h"` lines in kernel files are
+resolved here, textually, so the source text alone decides what the driver caches.
+"""
+from __future__ import annotations
+
+import os
+import re
+from collections import defaultdict
+from dataclasses import dataclass
+from importlib import resources
+
+import numpy as np
+import pyopencl as cl
+
+from .constants import kernel_defines
+from .errors import DeviceError
+
+DEVICE_ENV = "DC4GS_DEVICE"   # same forms as --device: "P:D", "gpu", "cpu" or part of the name
+
+# The device-side camera; keep in step with `Camera` in kernels/common.h.
+CAMERA_DTYPE = np.dtype([("R", np.float32, 9), ("t", np.float32, 3), ("fx", np.float32), ("fy", np.float32),
+                         ("cx", np.float32), ("cy", np.float32), ("campos", np.float32, 3),
+                         ("width", np.int32), ("height", np.int32)])
+
+_INCLUDE = re.compile(r'^\s*#\s*include\s+"([\w.]+)"\s*$', re.M)
+
+
+def kernel_source(name: str) -> str:
+    """Text of kernels/<name> with its local #include lines replaced by the headers' text."""
+    root = resources.files("dc4gs_cl") / "kernels"
+
+    def expand(text: str, seen: tuple[str, ...]) -> str:
+        def sub(m: re.Match) -> str:
+            header = m.group(1)
+            if header in seen:
+                return ""
+            return expand((root / header).read_text(), seen + (header,))
+        return _INCLUDE.sub(sub, text)
+
+    return expand((root / name).read_text(), (name,))
+
+
+def list_devices() -> list[tuple[str, cl.Device]]:
+    """Every OpenCL device as ("P:D", device). Raises DeviceError when no platform exists."""
+    try:
+        platforms = cl.get_platforms()
+    except cl.Error as e:
+        platforms, why = [], str(e)
+    else:
+        why = "no platform reported a device"
+    out = []
+    for pi, p in enumerate(platforms):
+        try:
+            devices = p.get_devices()
+        except cl.Error:
+            continue
+        out += [(f"{pi}:{di}", d) for di, d in enumerate(devices)]
+    if not out:
+        raise DeviceError("No OpenCL device found (" + why + "). Install PoCL for the CPU with "
+                          "`pip install 'pyopencl[pocl]'`, or a GPU vendor's OpenCL driver.")
+    return out
+
+
+def describe(device: cl.Device) -> str:
+    kind = next((name for name, bit in (("GPU", cl.device_type.GPU), ("CPU", cl.device_type.CPU),
+                                        ("accelerator", cl.device_type.ACCELERATOR)) if device.type & bit), "other")
+    return f"{device.platform.name.strip()} | {device.name.strip()} ({kind}, {device.max_compute_units} compute units)"
+
+
+def choose_device(spec: str | None = None) -> tuple[str, cl.Device]:
+    """The device named by `spec` (or $DC4GS_DEVICE): "P:D" indices, "gpu", "cpu", or a case-insensitive
+    part of "platform | device". With neither, the first GPU, else the first CPU, else the first device."""
+    devices = list_devices()
+    spec = spec if spec is not None else os.environ.get(DEVICE_ENV) or None
+    if spec is None:
+        for want in (cl.device_type.GPU, cl.device_type.CPU):
+            for key, d in devices:
+                if d.type & want:
+                    return key, d
+        return devices[0]
+    s = spec.strip().lower()
+    for key, d in devices:
+        if s == key:
+            return key, d
+    kinds = {"gpu": cl.device_type.GPU, "cpu": cl.device_type.CPU, "accelerator": cl.device_type.ACCELERATOR}
+    for key, d in devices:
+        if (s in kinds and d.type & kinds[s]) or (s not in kinds and s in describe(d).lower()):
+            return key, d
+    names = "; ".join(f"{k} {describe(d)}" for k, d in devices)
+    raise DeviceError(f"no OpenCL device matches '{spec}' (devices: {names})")
+
+
+@dataclass(frozen=True)
+class Capabilities:
+    is_cpu: bool
+    compute_units: int
+    max_work_group_size: int
+    local_mem_size: int
+    float_atomic_add: bool     # native global float atomic add (cl_ext_float_atomics); else CAS emulation
+    fp64: bool
+
+    @staticmethod
+    def of(device: cl.Device) -> "Capabilities":
+        ext = device.extensions.split()
+        return Capabilities(
+            is_cpu=bool(device.type & cl.device_type.CPU),
+            compute_units=device.max_compute_units,
+            max_work_group_size=device.max_work_group_size,
+            local_mem_size=device.local_mem_size,
+            float_atomic_add="cl_ext_float_atomics" in ext,
+            fp64="cl_khr_fp64" in ext,
+        )
+
+
+def _format_define(v) -> str:
+    if isinstance(v, bool):
+        return "1" if v else "0"
+    if isinstance(v, float):
+        return f"{v!r}f"
+    return str(v)
+
+
+class Runtime:
+    """Context, in-order queue and the program registry for one device."""
+
+    def __init__(self, device: str | None = None, profiling: bool = False):
+        self.device_key, self.device = choose_device(device)
+        self.context = cl.Context([self.device])
+        props = cl.command_queue_properties.PROFILING_ENABLE if profiling else 0
+        self.queue = cl.CommandQueue(self.context, properties=props)
+        self.profiling = profiling
+        self.caps = Capabilities.of(self.device)
+        self._programs: dict[tuple, cl.Program] = {}
+        self._kernels: dict[tuple, cl.Kernel] = {}
+        self.events: dict[str, list[cl.Event]] = defaultdict(list)
+
+    def __repr__(self) -> str:
+        return f"Runtime({self.device_key} {describe(self.device)})"
+
+    # programs -----------------------------------------------------------------------------------
+    def build_options(self, defines: dict | None = None) -> list[str]:
+        merged = kernel_defines()
+        merged.update({k: _format_define(v) for k, v in (defines or {}).items()})
+        return [f"-D{k}={v}" for k, v in sorted(merged.items())] + ["-cl-std=CL1.2"]
+
+    def program(self, file: str, defines: dict | None = None) -> cl.Program:
+        key = (file, tuple(sorted((defines or {}).items())))
+        prg = self._programs.get(key)
+        if prg is None:
+            options = self.build_options(defines)
+            try:
+                prg = cl.Program(self.context, kernel_source(file)).build(options=options)
+            except cl.RuntimeError as e:
+                raise DeviceError(f"building kernels/{file} with {' '.join(options)} failed:\n{e}") from None
+            self._programs[key] = prg
+        return prg
+
+    def kernel(self, file: str, name: str, defines: dict | None = None) -> cl.Kernel:
+        key = (file, name, tuple(sorted((defines or {}).items())))
+        k = self._kernels.get(key)
+        if k is None:
+            k = self._kernels[key] = cl.Kernel(self.program(file, defines), name)
+        return k
+
+    # launches and buffers -----------------------------------------------------------------------
+    def launch(self, stage: str, kernel: cl.Kernel, global_size, local_size, *args) -> cl.Event:
+        """Enqueue a kernel; with profiling on, its event is kept under `stage`."""
+        if isinstance(global_size, int):
+            global_size = (global_size,)
+        if isinstance(local_size, int):
+            local_size = (local_size,)
+        ev = kernel(self.queue, global_size, local_size, *args)
+        if self.profiling:
+            self.events[stage].append(ev)
+        return ev
+
+    def stage_times(self, reset: bool = True) -> dict[str, float]:
+        """Seconds of device time per stage since the last reset (waits for the queue)."""
+        self.queue.finish()
+        out = {s: sum((e.profile.end - e.profile.start) * 1e-9 for e in evs) for s, evs in self.events.items()}
+        if reset:
+            self.events.clear()
+        return out
+
+    def buffer(self, nbytes: int) -> cl.Buffer:
+        return cl.Buffer(self.context, cl.mem_flags.READ_WRITE, max(int(nbytes), 4))
+
+    def to_device(self, array: np.ndarray) -> cl.Buffer:
+        a = np.ascontiguousarray(array)
+        return cl.Buffer(self.context, cl.mem_flags.READ_WRITE | cl.mem_flags.COPY_HOST_PTR, hostbuf=a) \
+            if a.nbytes else self.buffer(4)
+
+    def to_host(self, buf: cl.Buffer, shape, dtype=np.float32) -> np.ndarray:
+        out = np.empty(shape, dtype=dtype)
+        if out.nbytes:
+            cl.enqueue_copy(self.queue, out, buf)
+        return out
+
+    def write(self, buf: cl.Buffer, array: np.ndarray) -> None:
+        a = np.ascontiguousarray(array)
+        if a.nbytes:
+            cl.enqueue_copy(self.queue, buf, a)
+
+    def fill(self, buf: cl.Buffer, value, nbytes: int) -> None:
+        """Fill the first nbytes of buf with a 4-byte pattern (a float32, int32 or uint32 scalar)."""
+        if nbytes:
+            cl.enqueue_fill_buffer(self.queue, buf, value, 0, int(nbytes))

@@ -1,0 +1,97 @@
+"""Scenes from disk: COLMAP or NeRF folders -> Scene with PINHOLE cameras at the training resolution.
+
+Images are read lazily through Scene.read_image (undistorted on first use when the camera model has
+distortion) and kept in memory once decoded.
+"""
+from __future__ import annotations
+
+import os
+import shutil
+import tempfile
+import weakref
+from pathlib import Path
+
+import numpy as np
+import pycolmap
+
+from ..errors import InputError
+from . import colmap, nerf
+from .camera import Camera, Scene, split_train_test
+from .images import read_image, resize, to_rgb
+from .undistort import check_size, undistorted_pixels
+
+__all__ = ["load_scene", "Camera", "Scene"]
+
+DEFAULT_MAX_WIDTH = 1600  # the Inria default: wider images train at this width unless -r is given
+
+
+def load_scene(path: str | os.PathLike, resolution: int | None = None, cache_dir: str | os.PathLike | None = None,
+               test_every: int = 8, white_background: bool = False) -> Scene:
+    """Load a COLMAP scene (sparse/0/ + images/) or a NeRF scene (transforms.json or
+    transforms_train.json [+ transforms_test.json]; `path` may also be one of these files).
+
+    resolution: the CLI's -r: None = full size but at most DEFAULT_MAX_WIDTH wide, r = 1/r of the size.
+    cache_dir: where undistorted images are cached (None: a temporary folder removed at exit).
+    test_every: COLMAP and transforms.json scenes hold out every test_every-th image by name (0: none).
+    """
+    path = Path(path)
+    if not path.exists():
+        raise InputError(path, "scene folder not found")
+    if resolution is not None and resolution < 1:
+        raise InputError(None, f"-r {resolution}: the resolution divisor must be an integer >= 1")
+    points = colors = None
+    if path.is_dir() and colmap.model_dir(path) is not None:
+        cameras, distorted, points, colors = colmap.read_colmap(path)
+        train, test = split_train_test(cameras, test_every)
+    elif files := nerf.transforms_files(path):
+        train, test, distorted = nerf.read_nerf(files, test_every)
+    else:
+        raise InputError(path, "not a COLMAP or NeRF scene: expected sparse/0/ or transforms*.json")
+    train = [_at_resolution(c, resolution) for c in train]
+    test = [_at_resolution(c, resolution) for c in test]
+    background = np.full(3, 1.0 if white_background else 0.0, dtype=np.float32)
+    return Scene(root=path if path.is_dir() else path.parent, train=train, test=test, points=points, colors=colors,
+                 background=background, read_image=_ImageReader(distorted, background, cache_dir))
+
+
+def _at_resolution(cam: Camera, resolution: int | None) -> Camera:
+    w, h = cam.width, cam.height
+    if resolution is None:
+        scale, setting = min(1.0, DEFAULT_MAX_WIDTH / w), f"scaling to width {DEFAULT_MAX_WIDTH}"
+    else:
+        scale, setting = 1.0 / resolution, f"-r {resolution}"
+    width, height = round(w * scale), round(h * scale)
+    if width == 0 or height == 0:
+        raise InputError(cam.image_path, f"{setting} makes a {w}x{h} image vanish")
+    return cam.resized(width, height)
+
+
+class _ImageReader:
+    """Scene.read_image: (H, W, 3) float32 in [0, 1] at the camera's size, decoded once per camera."""
+
+    def __init__(self, distorted: dict[str, pycolmap.Camera], background: np.ndarray,
+                 cache_dir: str | os.PathLike | None):
+        self.distorted = distorted
+        self.background = background
+        self.cache_dir = None if cache_dir is None else Path(cache_dir)
+        self.memory: dict[tuple[str, int, int], np.ndarray] = {}
+
+    def _cache(self) -> Path:
+        if self.cache_dir is None:  # made on first use: scenes without distortion never need one
+            self.cache_dir = Path(tempfile.mkdtemp(prefix="dc4gs-undistorted-"))
+            weakref.finalize(self, shutil.rmtree, self.cache_dir, True)
+        return self.cache_dir
+
+    def __call__(self, cam: Camera) -> np.ndarray:
+        key = (cam.name, cam.width, cam.height)
+        if key not in self.memory:
+            dist = self.distorted.get(cam.name)
+            if dist is None:
+                pixels = read_image(cam.image_path)
+            else:
+                pixels = undistorted_pixels(cam.image_path, cam.name, dist, self._cache())
+            check_size(cam.image_path, (pixels.shape[1], pixels.shape[0]), cam.source_size)
+            image = resize(to_rgb(pixels, self.background), cam.width, cam.height)
+            image.flags.writeable = False  # shared by every caller: a stray in-place edit must fail loudly
+            self.memory[key] = image
+        return self.memory[key]

@@ -1,0 +1,98 @@
+"""Cameras and scenes as the rest of the trainer sees them.
+
+Conventions (../shared/docs/conventions.md): world-to-camera x_cam = R x_world + t, camera axes x right,
+y down, z forward (OpenCV / COLMAP); pinhole intrinsics in pixels with the image's top-left corner at
+(0, 0), so the centre of pixel (i, j) is (i + 0.5, j + 0.5). Every camera here is PINHOLE: distorted
+models were undistorted before a Camera is made.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class Camera:
+    name: str                      # image name as the source lists it; sorting by name gives the split
+    width: int                     # size the trainer renders at (after -r downscaling)
+    height: int
+    fx: float                      # focal lengths and principal point, pixels, at width x height
+    fy: float
+    cx: float
+    cy: float
+    R: np.ndarray                  # (3, 3) float64 world-to-camera rotation
+    t: np.ndarray                  # (3,) float64 world-to-camera translation
+    image_path: Path | None = None  # file the pixels come from (None: a generated scene)
+    source_size: tuple[int, int] | None = None  # (width, height) the file must have
+
+    @property
+    def center(self) -> np.ndarray:
+        """Camera centre in world coordinates, C = -R^T t."""
+        return -self.R.T @ self.t
+
+    @staticmethod
+    def look_at(name: str, eye, target, width: int, height: int, fov_x: float, up=(0.0, 0.0, 1.0)) -> "Camera":
+        """A pinhole camera at `eye` looking at `target` (world up `up`), horizontal field of view fov_x
+        (radians), principal point at the image centre."""
+        eye, target, up = (np.asarray(v, np.float64) for v in (eye, target, up))
+        z = target - eye
+        z /= np.linalg.norm(z)
+        x = np.cross(z, up)
+        if np.linalg.norm(x) < 1e-9:   # looking along `up`: any perpendicular will do
+            x = np.cross(z, [1.0, 0.0, 0.0] if abs(z[0]) < 0.9 else [0.0, 1.0, 0.0])
+        x /= np.linalg.norm(x)
+        y = np.cross(z, x)             # image y points down
+        R = np.stack([x, y, z])
+        f = 0.5 * width / np.tan(0.5 * fov_x)
+        return Camera(name, width, height, f, f, 0.5 * width, 0.5 * height, R, -R @ eye)
+
+    def resized(self, width: int, height: int) -> "Camera":
+        """The same camera rendering at another size (intrinsics scale with the size)."""
+        sx, sy = width / self.width, height / self.height
+        return replace(self, width=width, height=height, fx=self.fx * sx, fy=self.fy * sy,
+                       cx=self.cx * sx, cy=self.cy * sy)
+
+
+@dataclass
+class Scene:
+    root: Path                     # the folder the scene was read from
+    train: list[Camera]
+    test: list[Camera]
+    points: np.ndarray | None      # (P, 3) float64 SfM points, or None (random initialisation)
+    colors: np.ndarray | None      # (P, 3) float32 in [0, 1]
+    background: np.ndarray         # (3,) float32 in [0, 1]; RGBA images are composited onto it
+    read_image: Callable[[Camera], np.ndarray] = field(repr=False)  # -> (H, W, 3) float32 in [0, 1]
+    extent: float = 0.0            # filled by __post_init__ from the training cameras
+
+    def __post_init__(self):
+        if not self.extent:
+            self.extent = scene_extent(self.train)
+
+    def image(self, cam: Camera) -> np.ndarray:
+        return self.read_image(cam)
+
+
+def scene_extent(cameras: list[Camera]) -> float:
+    """1.1 x the largest distance of a camera centre from the mean of the centres (the Inria rule).
+
+    With a single camera the distance is 0; like the Inria code we then fall back to 1.0 so that
+    thresholds and learning rates stay meaningful.
+    """
+    centers = np.array([c.center for c in cameras], dtype=np.float64).reshape(-1, 3)
+    if len(centers) == 0:
+        return 1.0
+    radius = float(np.linalg.norm(centers - centers.mean(axis=0), axis=1).max())
+    return 1.1 * radius if radius > 0 else 1.0
+
+
+def split_train_test(cameras: list[Camera], test_every: int = 8) -> tuple[list[Camera], list[Camera]]:
+    """Sort by name; index % test_every == 0 is a test camera (the "llffhold 8" rule). 0 disables."""
+    cams = sorted(cameras, key=lambda c: c.name)
+    if test_every <= 0:
+        return cams, []
+    test = [c for i, c in enumerate(cams) if i % test_every == 0]
+    train = [c for i, c in enumerate(cams) if i % test_every != 0]
+    return train, test

@@ -1,0 +1,72 @@
+"""Pinhole cameras from any perspective camera model, and the pixels to match (shared by every loader).
+
+Intrinsics of the undistorted camera come from pycolmap at load time (cheap); pixels are undistorted
+lazily, the first time an image is read, and cached as lossless PNG outside the input folder.
+"""
+from __future__ import annotations
+
+import hashlib
+import os
+import re
+from pathlib import Path
+
+import numpy as np
+import pycolmap
+
+from ..errors import InputError
+from .camera import Camera
+from .images import read_image, write_png
+
+PINHOLE_MODELS = ("PINHOLE", "SIMPLE_PINHOLE")
+
+
+def make_camera(name: str, image_path: Path, cam: pycolmap.Camera, R: np.ndarray, t: np.ndarray,
+                where: str | os.PathLike) -> tuple[Camera, pycolmap.Camera | None]:
+    """A full-size PINHOLE Camera for an image taken with `cam`, and `cam` itself when its pixels
+    need undistorting (else None). `where` is the file named when the model cannot be undistorted."""
+    distorted = None
+    if cam.model.name not in PINHOLE_MODELS:
+        try:
+            pinhole = pycolmap.undistort_camera(pycolmap.UndistortCameraOptions(), cam)
+        except ValueError as e:  # non-perspective models (EQUIRECTANGULAR) fail pycolmap's check
+            raise InputError(where, f"camera model {cam.model.name} cannot be undistorted ({e})") from None
+        cam, distorted = pinhole, cam
+    size = (int(cam.width), int(cam.height))
+    return Camera(name=name, width=size[0], height=size[1],
+                  fx=float(cam.focal_length_x), fy=float(cam.focal_length_y),
+                  cx=float(cam.principal_point_x), cy=float(cam.principal_point_y),
+                  R=np.asarray(R, dtype=np.float64), t=np.asarray(t, dtype=np.float64),
+                  image_path=Path(image_path), source_size=size), distorted
+
+
+def check_size(path: str | os.PathLike, actual: tuple[int, int], expected: tuple[int, int]) -> None:
+    if tuple(actual) != tuple(expected):
+        raise InputError(path, f"image is {actual[0]}x{actual[1]} but its camera is {expected[0]}x{expected[1]}")
+
+
+def cache_file(path: Path, name: str, cam: pycolmap.Camera, cache_dir: Path) -> Path:
+    """Cache file for an undistorted image: a changed source file (size, mtime) or camera gives a new key;
+    the absolute path keeps scenes sharing one cache folder apart."""
+    st = path.stat()
+    key = (f"{path.resolve()}|{name}|{st.st_size}|{st.st_mtime_ns}|"
+           f"{cam.model.name}|{cam.width}x{cam.height}|{cam.params.tolist()}")
+    stem = re.sub(r"[^A-Za-z0-9._-]+", "_", Path(name).stem)
+    return cache_dir / f"{stem}-{hashlib.sha256(key.encode()).hexdigest()[:16]}.png"
+
+
+def undistorted_pixels(path: Path, name: str, cam: pycolmap.Camera, cache_dir: Path) -> np.ndarray:
+    """(H, W, C) float32 in [0, 1] of the source image undistorted to PINHOLE, from the cache if there."""
+    cached = cache_file(path, name, cam, cache_dir)
+    if cached.is_file():
+        return read_image(cached)
+    pixels = read_image(path)
+    check_size(path, (pixels.shape[1], pixels.shape[0]), (cam.width, cam.height))
+    # pycolmap undistorts 8-bit RGB or grey bitmaps only: RGB together, any other channel (alpha) alone.
+    data = (np.clip(pixels, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
+    c = data.shape[2]
+    groups = ([data[..., :3]] if c >= 3 else []) + [data[..., i] for i in range(3 if c >= 3 else 0, c)]
+    options = pycolmap.UndistortCameraOptions()
+    out = [pycolmap.undistort_image(options, pycolmap.Bitmap.from_array(np.ascontiguousarray(g)), cam)[0].to_array()
+           for g in groups]
+    write_png(cached, np.concatenate([o.reshape(o.shape[0], o.shape[1], -1) for o in out], axis=2) / 255.0)
+    return read_image(cached)  # the first read gives exactly what every later (cached) read will give

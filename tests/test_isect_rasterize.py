@@ -1,0 +1,100 @@
+"""Tile intersection (compaction, two sorts, ranges) and the forward rasterizer against the float64
+references, fed with the device's own projected values so that integer outputs must agree exactly."""
+import numpy as np
+import pytest
+
+from dc4gs_cl.reference import intersect_reference, rasterize_reference
+from dc4gs_cl.render import DeviceGaussians, Renderer
+from dc4gs_cl.scene.camera import Camera
+from helpers import SHAPES, random_camera, random_model
+
+
+def render_and_download(rt, renderer, model, cam, background):
+    res = renderer.render(DeviceGaussians(rt, model), cam, 3, background)
+    n, p = len(model), res.isect.n_pairs
+    h, w = cam.height, cam.width
+    proj = res.proj
+    host = {
+        "mean2d": rt.to_host(proj.mean2d, (n, 2)), "conic_opacity": rt.to_host(proj.conic_opacity, (n, 4)),
+        "rgb": rt.to_host(proj.rgb, (n, 3)), "depth": rt.to_host(proj.depth, n),
+        "radius": rt.to_host(proj.radius, n, np.int32), "alpha_extent": rt.to_host(proj.alpha_extent, (n, 2)),
+        "tiles_touched": rt.to_host(proj.tiles_touched, n, np.uint32),
+        "tile_of_pair": rt.to_host(res.isect.tile_of_pair, p, np.uint32),
+        "gaussian_of_pair": rt.to_host(res.isect.gaussian_of_pair, p, np.uint32),
+        "ranges": rt.to_host(res.isect.ranges, (res.tiles_x * res.tiles_y, 2), np.uint32),
+        "image": res.image(rt), "final_T": rt.to_host(res.raster.final_T, (h, w)),
+        "last_pair": rt.to_host(res.raster.last_pair, (h, w), np.int32),
+    }
+    return res, host
+
+
+@pytest.mark.parametrize("shape", SHAPES)
+def test_intersections_and_raster_match_reference(rt, rng, shape):
+    model = random_model(rng, 3000, spread=1.2)
+    model.means[100:300] = model.means[100]     # equal depths: ties must keep index order
+    cam = random_camera(rng, int(rng.integers(100, 180)), int(rng.integers(70, 140)))
+    background = rng.uniform(0, 1, 3)
+    res, got = render_and_download(rt, Renderer(rt, SHAPES[shape], poison=True), model, cam, background)
+
+    tile_of_pair, gaussian_of_pair, ranges = intersect_reference(
+        got["mean2d"], got["radius"], got["alpha_extent"], got["tiles_touched"], got["depth"], res.tiles_x, res.tiles_y)
+    assert res.isect.n_visible == np.count_nonzero(got["tiles_touched"]) > 1000
+    np.testing.assert_array_equal(got["tile_of_pair"], tile_of_pair)
+    np.testing.assert_array_equal(got["gaussian_of_pair"], gaussian_of_pair)
+    np.testing.assert_array_equal(got["ranges"], ranges)
+
+    co = got["conic_opacity"].astype(np.float64)
+    ref = rasterize_reference(got["mean2d"].astype(np.float64), co[:, :3], co[:, 3], got["rgb"].astype(np.float64),
+                              gaussian_of_pair, ranges, cam.width, cam.height, res.tiles_x, background)
+    assert np.isfinite(got["image"]).all()
+    err = np.linalg.norm(got["image"] - ref["image"]) / np.linalg.norm(ref["image"])
+    assert err < 1e-5, err
+    np.testing.assert_allclose(got["final_T"], ref["final_T"], atol=1e-5)
+    # A blend decision can flip only where alpha or T sits on its threshold within float32 rounding.
+    assert np.mean(got["last_pair"] != ref["last_pair"]) < 1e-3
+
+
+def test_saturated_tiles_stop_early_and_empty_tiles_show_background(rt, rng):
+    # A wall of opaque Gaussians on the left third of the view (world x < -0.6); nothing on the right.
+    n = 1500
+    model = random_model(rng, n, spread=0.3, scale_range=(0.15, 0.25))
+    model.means[:, 0] = rng.uniform(-2.2, -0.6, n)
+    model.means[:, 2] = rng.uniform(-1.3, 1.3, n)
+    model.opacity_logits[:] = 8.0
+    cam = Camera.look_at("front", (0, -3, 0), (0, 0, 0), 128, 64, fov_x=1.2)   # image x = world x
+    background = np.array([0.1, 0.7, 0.3])
+    res, got = render_and_download(rt, Renderer(rt, SHAPES["cpu"], poison=True), model, cam, background)
+    left, right = got["final_T"][8:-8, 4:28], got["final_T"][:, 100:]
+    assert (left < 1e-3).mean() > 0.9                  # saturated
+    np.testing.assert_array_equal(right, 1.0)          # untouched: T stays 1
+    np.testing.assert_allclose(got["image"][:, 100:], np.broadcast_to(background, (64, 28, 3)), atol=1e-6)
+    # Saturated pixels stopped before the end of their tile's list.
+    first, end = got["ranges"][res.tiles_x * 2 + 1]
+    assert end > first and got["last_pair"][40, 20] < end - 1
+
+
+def test_empty_model_renders_background(rt, rng):
+    from dc4gs_cl.model import GaussianModel
+    empty = GaussianModel(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 4)), np.zeros(0), np.zeros((0, 1, 3)))
+    cam = random_camera(rng, 40, 30)
+    res = Renderer(rt, poison=True).render(DeviceGaussians(rt, empty), cam, 0, (0.25, 0.5, 0.75))
+    assert res.isect.n_pairs == 0
+    np.testing.assert_allclose(res.image(rt), np.broadcast_to([0.25, 0.5, 0.75], (30, 40, 3)))
+
+
+def test_exact_skips_change_no_pixel_and_fast_exp_matches_driver_exp(rt, rng):
+    from dc4gs_cl.render import RenderOptions
+    model = random_model(rng, 4000, spread=1.0)
+    model.opacity_logits[:1000] = 6.0    # opaque ones saturate tiles, so early stop has work to skip
+    cam = random_camera(rng, 160, 120)
+    g = DeviceGaussians(rt, model)
+    images, pairs = {}, {}
+    for name, opts in [("default", RenderOptions()), ("no_alpha_cut", RenderOptions(alpha_cut=False)),
+                       ("no_early_stop", RenderOptions(early_stop=False)), ("driver_exp", RenderOptions(fast_exp=False))]:
+        res = Renderer(rt, SHAPES["cpu"], opts, poison=True).render(g, cam, 3, (0.3, 0.3, 0.3))
+        images[name], pairs[name] = res.image(rt), res.isect.n_pairs
+    assert pairs["no_alpha_cut"] > pairs["default"]
+    # Exact skips: the same pixels up to float32 summation order (no summation order changes here).
+    np.testing.assert_array_equal(images["no_alpha_cut"], images["default"])
+    np.testing.assert_array_equal(images["no_early_stop"], images["default"])
+    np.testing.assert_allclose(images["driver_exp"], images["default"], atol=2e-6)

@@ -1,0 +1,78 @@
+import numpy as np
+import pytest
+
+from dc4gs_cl.reference import project_reference
+from dc4gs_cl.reference.project import rect_area, tile_rect_reference
+from dc4gs_cl.render import DeviceGaussians, RenderOptions
+from dc4gs_cl.render.project import project
+from dc4gs_cl.render.renderer import tile_grid
+from dc4gs_cl.render.workspace import Workspace
+from helpers import random_camera, random_model
+
+
+def rel_l2(a, b):
+    return np.linalg.norm(np.asarray(a, np.float64) - b) / max(np.linalg.norm(b), 1e-30)
+
+
+def run_projection(rt, model, cam, sh_degree):
+    tiles_x, tiles_y = tile_grid(cam.width, cam.height)
+    g = DeviceGaussians(rt, model)
+    p = project(rt, Workspace(rt, poison=True), g, cam, sh_degree, tiles_x, tiles_y, RenderOptions().defines())
+    n = len(model)
+    got = {"mean2d": rt.to_host(p.mean2d, (n, 2)), "conic_opacity": rt.to_host(p.conic_opacity, (n, 4)),
+           "rgb": rt.to_host(p.rgb, (n, 3)), "depth": rt.to_host(p.depth, n),
+           "radius": rt.to_host(p.radius, n, np.int32), "tiles_touched": rt.to_host(p.tiles_touched, n, np.uint32),
+           "alpha_extent": rt.to_host(p.alpha_extent, (n, 2))}
+    ref = project_reference(model.means, model.log_scales, model.quats, model.opacity_logits, model.sh, cam,
+                            sh_degree, tiles_x, tiles_y)
+    return got, ref
+
+
+@pytest.mark.parametrize("sh_degree", [0, 1, 2, 3])
+def test_projection_matches_float64_reference(rt, rng, sh_degree):
+    model = random_model(rng, 5000, sh_degree=3, spread=2.0)
+    cam = random_camera(rng, int(rng.integers(90, 200)), int(rng.integers(60, 150)), distance=3.5)
+    got, ref = run_projection(rt, model, cam, sh_degree)
+    tiles_x, tiles_y = tile_grid(cam.width, cam.height)
+    np.testing.assert_allclose(got["depth"], ref["depth"], rtol=1e-5, atol=1e-5)
+    # Radius is a ceil() of a float: it may differ by one where the float32 value sits on an integer.
+    vis = ref["radius"] > 0
+    assert vis.sum() > 500 and (~vis).sum() > 100, "the draw should hold visible and culled Gaussians"
+    assert np.mean(got["radius"] != ref["radius"]) < 2e-3
+    assert np.all(np.abs(got["radius"].astype(np.int64) - ref["radius"])[vis & (got["radius"] > 0)] <= 1)
+    both = vis & (got["radius"] > 0)
+    assert both.sum() >= 0.995 * vis.sum()
+    assert np.all(got["tiles_touched"][got["radius"] == 0] == 0)
+    # Tiles come from the 3-sigma box cut to where alpha can reach 1/255: low opacities touch fewer.
+    assert np.mean(got["tiles_touched"].astype(np.int64) != ref["tiles_touched"]) < 2e-3
+    box = tile_rect_reference(got["mean2d"][both], np.repeat(got["radius"][both, None], 2, 1), tiles_x, tiles_y)
+    assert np.all(got["tiles_touched"][both] <= rect_area(box))
+    faint = ref["opacity"][both] < 0.1
+    assert faint.sum() > 20 and np.mean(got["tiles_touched"][both][faint] < rect_area(box)[faint]) > 0.3
+    assert rel_l2(got["alpha_extent"][both], ref["alpha_extent"][both]) < 1e-5
+    for key, r in [("mean2d", ref["mean2d"]), ("rgb", ref["rgb"])]:
+        assert np.isfinite(got[key][both]).all()
+        assert rel_l2(got[key][both], r[both]) < 1e-5, key
+    assert rel_l2(got["conic_opacity"][both, :3], ref["conic"][both]) < 1e-4
+    assert rel_l2(got["conic_opacity"][both, 3], ref["opacity"][both]) < 1e-6
+
+
+def test_projection_of_degenerate_gaussians_is_finite_or_culled(rt, rng):
+    model = random_model(rng, 400, spread=1.0)
+    cam = random_camera(rng, 120, 90)
+    n = len(model)
+    idx = rng.permutation(n)
+    model.quats[idx[:40]] = 0.0                                    # zero-norm quaternions
+    model.log_scales[idx[40:80]] = rng.choice([-30.0, 20.0], (40, 3))   # vanishing and huge scales
+    model.log_scales[idx[80:120], 0] = -25.0                         # needle-thin
+    model.opacity_logits[idx[120:160]] = rng.choice([-30.0, 30.0], 40)
+    model.means[idx[160:200]] = cam.center + rng.normal(0, 1e-3, (40, 3))   # on or behind the near plane
+    model.means[idx[200:240]] = model.means[idx[200]]                # coincident
+    got, ref = run_projection(rt, model, cam, 3)
+    vis = got["radius"] > 0
+    for key in ("mean2d", "conic_opacity", "rgb"):
+        assert np.isfinite(got[key][vis]).all(), key
+    assert not vis[idx[160:200]].any()
+    # Zero-norm quaternions project as the identity rotation, as the reference does.
+    z = idx[:40][vis[idx[:40]] & (ref["radius"][idx[:40]] > 0)]
+    assert len(z) and rel_l2(got["conic_opacity"][z, :3], ref["conic"][z]) < 1e-4

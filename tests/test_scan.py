@@ -1,0 +1,37 @@
+import numpy as np
+import pytest
+
+from dc4gs_cl.render.scan import ExclusiveScan
+from dc4gs_cl.render.workspace import POISON
+from helpers import SHAPES
+
+
+@pytest.mark.parametrize("shape", SHAPES)
+@pytest.mark.parametrize("flags", [False, True])
+def test_exclusive_scan_matches_cumsum(rt, rng, shape, flags):
+    scan = ExclusiveScan(rt, SHAPES[shape], flags=flags)
+    for n in [1, 2, 7, 255, 256, 257, 1000, int(rng.integers(2_000, 300_000))]:
+        values = rng.integers(0, 50, n).astype(np.uint32)
+        values[rng.random(n) < 0.3] = 0
+        src = rt.to_device(values)
+        dst = rt.to_device(np.full(n, POISON, np.uint32))
+        total = rt.to_device(np.full(4, POISON, np.uint32))
+        scan(src, dst, n, total, 2)
+        x = (values != 0).astype(np.uint64) if flags else values.astype(np.uint64)
+        expect = np.concatenate([[0], np.cumsum(x)[:-1]])
+        got = rt.to_host(dst, n, np.uint32)
+        np.testing.assert_array_equal(got, expect, err_msg=f"n={n}")
+        tot = rt.to_host(total, 4, np.uint32)
+        assert tot[2] == x.sum() and tot[0] == POISON and tot[3] == POISON
+
+
+def test_scan_in_place_and_empty(rt, rng):
+    scan = ExclusiveScan(rt, SHAPES["cpu"])
+    values = rng.integers(0, 1000, 5000).astype(np.uint32)
+    buf = rt.to_device(values)
+    total = rt.to_device(np.full(1, POISON, np.uint32))
+    scan(buf, buf, len(values), total, 0)
+    np.testing.assert_array_equal(rt.to_host(buf, len(values), np.uint32),
+                                  np.concatenate([[0], np.cumsum(values)[:-1]]))
+    scan(buf, buf, 0, total, 0)
+    assert rt.to_host(total, 1, np.uint32)[0] == 0
