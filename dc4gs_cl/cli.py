@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import DeviceError, InputError
+from .scene.builtin import BUILTIN_SCENE
 
 
 def _add_device(p: argparse.ArgumentParser) -> None:
@@ -38,8 +39,11 @@ def build_parser() -> argparse.ArgumentParser:
     _add_device(p)
 
     p = sub.add_parser("render", help="render a scene's cameras from a 3DGS PLY to PNG files")
-    p.add_argument("--ply", required=True, type=Path, help="a standard 3DGS PLY (SH degree 0..3)")
-    p.add_argument("--scene", required=True, type=Path, help="COLMAP or NeRF (transforms*.json) scene folder")
+    p.add_argument("--ply", type=Path, default=None,
+                   help="a standard 3DGS PLY (SH degree 0..3); without it, the Gaussians training would start "
+                        "from (the scene's SfM points), which shows whether a scene's cameras are read right")
+    p.add_argument("--scene", default=BUILTIN_SCENE,
+                   help=f'COLMAP or NeRF (transforms*.json) scene folder, or "{BUILTIN_SCENE}" (the default)')
     p.add_argument("--out", required=True, type=Path, help="output folder (PNGs under OUT/<split>/renders/)")
     p.add_argument("--split", choices=["test", "train", "all"], default="test")
     p.add_argument("-r", "--resolution", type=_resolution, default=None,
@@ -60,15 +64,16 @@ def cmd_devices(args) -> int:
 
 
 def cmd_render(args) -> int:
+    from .model import initial_model
     from .ply import read_ply
     from .render import DeviceGaussians, Renderer
     from .runtime import Runtime, describe
     from .scene import load_scene
     from .scene.images import write_png
 
-    model = read_ply(args.ply)
     scene = load_scene(args.scene, resolution=args.resolution, cache_dir=args.out / "undistorted",
                        white_background=args.white_background)
+    model = read_ply(args.ply) if args.ply else initial_model(scene.points, scene.colors, np.random.default_rng(0))
     cams = {"test": scene.test, "train": scene.train, "all": scene.train + scene.test}[args.split]
     if not cams:
         raise InputError(args.scene, f"the scene has no {args.split} cameras")

@@ -113,6 +113,17 @@ _PAIR_CHUNK = 1 << 20          # (query, candidate) pairs held at once: bounds m
 _OFFSETS = np.array([(i, j, k) for i in (-1, 0, 1) for j in (-1, 0, 1) for k in (-1, 0, 1)])
 
 
+RANDOM_INIT_POINTS = 100_000   # scenes without SfM points start from this many random Gaussians
+
+
+def initial_model(points: np.ndarray | None, colors: np.ndarray | None, rng: np.random.Generator,
+                  sh_degree: int = SH_MAX_DEGREE) -> GaussianModel:
+    """The Gaussians training starts from: the SfM points, or random points when a scene has none."""
+    if points is None:
+        points, colors = random_points(RANDOM_INIT_POINTS, rng)
+    return from_points(points, colors, sh_degree)
+
+
 def knn_mean_sq_dist(points: np.ndarray, k: int = KNN_NEIGHBOURS) -> np.ndarray:
     """Mean squared distance from each point to its k nearest other points, exact, in float64.
 

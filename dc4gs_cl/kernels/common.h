@@ -20,6 +20,7 @@ typedef struct {
 #define MINF(a, b) ((a) < (b) ? (a) : (b))
 #define MAXF(a, b) ((a) > (b) ? (a) : (b))
 #define CLAMPF(x, lo, hi) MINF(MAXF((x), (lo)), (hi))
+#define ABSF(x) ((x) < 0.0f ? -(x) : (x))
 
 // Switches (all on by default; the benchmark turns each off to measure what it saves or costs):
 //   FAST_EXP   our exp below instead of the driver's
@@ -54,16 +55,19 @@ inline float exp_nonpositive(float x) {
 }
 
 // Emulated float atomic add (compare-and-swap on the bit pattern): OpenCL 1.2 has no float atomics.
-inline void atomic_add_float(volatile __global float *addr, float v) {
-    union { unsigned int u; float f; } old, upd;
-    old.f = *addr;
-    do {
-        upd.f = old.f + v;
-        unsigned int seen = atomic_cmpxchg((volatile __global unsigned int *)addr, old.u, upd.u);
-        if (seen == old.u) break;
-        old.u = seen;
-    } while (1);
-}
+#define DEFINE_ATOMIC_ADD_FLOAT(name, space)                                                       \
+    inline void name(volatile space float *addr, float v) {                                         \
+        union { unsigned int u; float f; } old, upd;                                               \
+        old.f = *addr;                                                                             \
+        do {                                                                                       \
+            upd.f = old.f + v;                                                                     \
+            unsigned int seen = atomic_cmpxchg((volatile space unsigned int *)addr, old.u, upd.u); \
+            if (seen == old.u) break;                                                              \
+            old.u = seen;                                                                          \
+        } while (1);                                                                               \
+    }
+DEFINE_ATOMIC_ADD_FLOAT(atomic_add_float, __global)
+DEFINE_ATOMIC_ADD_FLOAT(local_add_float, __local)
 
 // Tile rectangle [x0, x1) x [y0, y1) covered by the box mean +- half_size (px), clamped to the tile grid.
 // Shared by projection (tile counts) and pair emission, so both always agree.

@@ -16,20 +16,7 @@
 // PoCL). Gaussians arrive in batches of BATCH, loaded cooperatively into local memory.
 // Rows of the tile outside a Gaussian's alpha_extent are skipped: no pixel there can reach ALPHA_MIN.
 
-#include "common.h"
-
-#define TILE_PIXELS (TILE_SIZE * TILE_SIZE)
-#define ITEMS_PER_TILE (TILE_PIXELS / PIXELS_PER_ITEM)
-#define ROWS_PER_ITEM (PIXELS_PER_ITEM >= TILE_SIZE ? PIXELS_PER_ITEM / TILE_SIZE : 1)
-#define COLS_PER_ITEM (PIXELS_PER_ITEM >= TILE_SIZE ? TILE_SIZE : PIXELS_PER_ITEM)
-
-// Rows [lo, hi] of the tile starting at y0 whose pixel centres lie within mean_y +- extent_y
-// (once per pair, not per pixel, so the builtin ceil and floor cost nothing that matters).
-inline int2 rows_in_reach(float mean_y, float extent_y, int y0) {
-    if (!ALPHA_CUT) return (int2)(0, TILE_SIZE - 1);
-    float lo = ceil(mean_y - extent_y - (float)y0 - 0.5f), hi = floor(mean_y + extent_y - (float)y0 - 0.5f);
-    return (int2)((int)CLAMPF(lo, 0.0f, (float)TILE_SIZE), (int)CLAMPF(hi, -1.0f, (float)(TILE_SIZE - 1)));
-}
+#include "raster.h"
 
 __kernel __attribute__((reqd_work_group_size(ITEMS_PER_TILE, 1, 1)))
 void rasterize(const int width, const int height, const int tiles_x, const float4 background,

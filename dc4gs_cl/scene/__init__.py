@@ -16,6 +16,7 @@ import pycolmap
 
 from ..errors import InputError
 from . import colmap, nerf
+from .builtin import BUILTIN_SCENE, builtin_scene
 from .camera import Camera, Scene, split_train_test
 from .images import read_image, resize, to_rgb
 from .undistort import check_size, undistorted_pixels
@@ -34,6 +35,8 @@ def load_scene(path: str | os.PathLike, resolution: int | None = None, cache_dir
     cache_dir: where undistorted images are cached (None: a temporary folder removed at exit).
     test_every: COLMAP and transforms.json scenes hold out every test_every-th image by name (0: none).
     """
+    if str(path) == BUILTIN_SCENE:
+        return builtin_scene(resolution=resolution, test_every=test_every)
     path = Path(path)
     if not path.exists():
         raise InputError(path, "scene folder not found")
