@@ -102,3 +102,116 @@ def project_reference(means, log_scales, quats, opacity_logits, sh, cam: Camera,
         "radius": np.where(visible, radius, 0).astype(np.int64), "alpha_extent": alpha_extent,
         "tiles_touched": tiles.astype(np.int64),
     }
+
+
+def sh_basis_gradient(degree: int, d: np.ndarray) -> np.ndarray:
+    """(N, 3) unit directions -> (N, (degree+1)^2, 3): d basis_k / d direction (direction not renormalised)."""
+    x, y, z = d.T
+    zero = np.zeros_like(x)
+    rows = [(zero, zero, zero)]
+    if degree > 0:
+        c1 = K.SH_C1
+        rows += [(zero, -c1 + zero, zero), (zero, zero, c1 + zero), (-c1 + zero, zero, zero)]
+    if degree > 1:
+        c2 = K.SH_C2
+        rows += [(c2[0] * y, c2[0] * x, zero), (zero, c2[1] * z, c2[1] * y),
+                 (-2 * c2[2] * x, -2 * c2[2] * y, 4 * c2[2] * z), (c2[3] * z, zero, c2[3] * x),
+                 (2 * c2[4] * x, -2 * c2[4] * y, zero)]
+    if degree > 2:
+        c3 = K.SH_C3
+        xx, yy, zz = x * x, y * y, z * z
+        rows += [(6 * c3[0] * x * y, c3[0] * (3 * xx - 3 * yy), zero),
+                 (c3[1] * y * z, c3[1] * x * z, c3[1] * x * y),
+                 (-2 * c3[2] * x * y, c3[2] * (4 * zz - xx - 3 * yy), 8 * c3[2] * y * z),
+                 (-6 * c3[3] * x * z, -6 * c3[3] * y * z, c3[3] * (6 * zz - 3 * xx - 3 * yy)),
+                 (c3[4] * (4 * zz - 3 * xx - yy), -2 * c3[4] * x * y, 8 * c3[4] * x * z),
+                 (2 * c3[5] * x * z, -2 * c3[5] * y * z, c3[5] * (xx - yy)),
+                 (c3[6] * (3 * xx - 3 * yy), -6 * c3[6] * x * y, zero)]
+    return np.stack([np.stack(r, -1) for r in rows], 1)
+
+
+def project_backward_reference(means, log_scales, quats, opacity_logits, sh, cam: Camera, sh_degree: int,
+                               v_mean2d, v_conic, v_opacity, v_rgb, visible) -> dict[str, np.ndarray]:
+    """Gradients of the parameters from the gradients of the projection's outputs (mean2d px, conic (a, b, c)
+    as stored, opacity after the sigmoid, rgb), in float64; zero where not visible. Through the EWA
+    Jacobian (no gradient through a clamped x/z or y/z), the covariance, the rotation and scales, the SH
+    colour (none where the colour clamps at 0) and its view direction."""
+    means, sh = np.asarray(means, np.float64), np.asarray(sh, np.float64)
+    n = len(means)
+    R, t = np.asarray(cam.R, np.float64), np.asarray(cam.t, np.float64)
+    pc = means @ R.T + t
+    x, y, z = pc.T
+    z = np.where(visible, z, 1.0)
+    q = np.asarray(quats, np.float64)
+    qnorm = np.linalg.norm(q, axis=1)
+    qn = np.where((qnorm > 0)[:, None], q / np.where(qnorm > 0, qnorm, 1)[:, None], [1.0, 0, 0, 0])
+    Rq = quat_to_rotmat(qn)
+    s = np.exp(np.asarray(log_scales, np.float64))
+    M = Rq * s[:, None, :]
+    sigma = M @ M.transpose(0, 2, 1)
+    lim_x, lim_y = K.FOV_CLAMP * 0.5 * cam.width / cam.fx, K.FOV_CLAMP * 0.5 * cam.height / cam.fy
+    ux, uy = x / z, y / z
+    free_x, free_y = np.abs(ux) < lim_x, np.abs(uy) < lim_y
+    tx, ty = np.clip(ux, -lim_x, lim_x), np.clip(uy, -lim_y, lim_y)
+    J = np.zeros((n, 2, 3))
+    J[:, 0, 0], J[:, 0, 2] = cam.fx / z, -cam.fx * tx / z
+    J[:, 1, 1], J[:, 1, 2] = cam.fy / z, -cam.fy * ty / z
+    T = J @ R
+    cov = T @ sigma @ T.transpose(0, 2, 1) + K.EWA_DILATION * np.eye(2)
+    a, b, c = cov[:, 0, 0], cov[:, 0, 1], cov[:, 1, 1]
+    det2 = (a * c - b * b) ** 2
+
+    # conic = (c, -b, a) / det  ->  the covariance entries a, b, c
+    vA, vB, vC = np.asarray(v_conic, np.float64).T
+    da = (-vA * c * c + vB * b * c - vC * b * b) / det2
+    db = (2 * vA * b * c - vB * (a * c + b * b) + 2 * vC * a * b) / det2
+    dc = (-vA * b * b + vB * a * b - vC * a * a) / det2
+    Gm = np.stack([np.stack([da, 0.5 * db], -1), np.stack([0.5 * db, dc], -1)], 1)
+    d_sigma = T.transpose(0, 2, 1) @ Gm @ T
+    dJ = (2 * Gm @ T @ sigma) @ R.T
+
+    # camera-space position: through J (unless clamped) and the projected mean
+    vm = np.asarray(v_mean2d, np.float64)
+    dtx_dx, dtx_dz = np.where(free_x, 1 / z, 0), np.where(free_x, -x / z ** 2, 0)
+    dty_dy, dty_dz = np.where(free_y, 1 / z, 0), np.where(free_y, -y / z ** 2, 0)
+    dpc = np.zeros((n, 3))
+    dpc[:, 0] = dJ[:, 0, 2] * (-cam.fx / z) * dtx_dx + vm[:, 0] * cam.fx / z
+    dpc[:, 1] = dJ[:, 1, 2] * (-cam.fy / z) * dty_dy + vm[:, 1] * cam.fy / z
+    dpc[:, 2] = (dJ[:, 0, 0] * (-cam.fx / z ** 2) + dJ[:, 0, 2] * (cam.fx * tx / z ** 2 - cam.fx / z * dtx_dz)
+                 + dJ[:, 1, 1] * (-cam.fy / z ** 2) + dJ[:, 1, 2] * (cam.fy * ty / z ** 2 - cam.fy / z * dty_dz)
+                 - (vm[:, 0] * cam.fx * x + vm[:, 1] * cam.fy * y) / z ** 2)
+    d_means = dpc @ R
+
+    # Sigma = M M^T, M = Rq diag(s)
+    dM = 2 * d_sigma @ M
+    d_log_scales = np.einsum("nij,nij->nj", dM, Rq) * s
+    dR = dM * s[:, None, :]
+    w, qx, qy, qz = qn.T
+    dq = 2 * np.stack([
+        -qz * dR[:, 0, 1] + qy * dR[:, 0, 2] + qz * dR[:, 1, 0] - qx * dR[:, 1, 2] - qy * dR[:, 2, 0] + qx * dR[:, 2, 1],
+        qy * dR[:, 0, 1] + qz * dR[:, 0, 2] + qy * dR[:, 1, 0] - 2 * qx * dR[:, 1, 1] - w * dR[:, 1, 2]
+        + qz * dR[:, 2, 0] + w * dR[:, 2, 1] - 2 * qx * dR[:, 2, 2],
+        -2 * qy * dR[:, 0, 0] + qx * dR[:, 0, 1] + w * dR[:, 0, 2] + qx * dR[:, 1, 0] + qz * dR[:, 1, 2]
+        - w * dR[:, 2, 0] + qz * dR[:, 2, 1] - 2 * qy * dR[:, 2, 2],
+        -2 * qz * dR[:, 0, 0] - w * dR[:, 0, 1] + qx * dR[:, 0, 2] + w * dR[:, 1, 0] - 2 * qz * dR[:, 1, 1]
+        + qy * dR[:, 1, 2] + qx * dR[:, 2, 0] + qy * dR[:, 2, 1]], 1)
+    d_quats = np.where((qnorm > 0)[:, None],
+                       (dq - qn * np.sum(qn * dq, 1, keepdims=True)) / np.where(qnorm > 0, qnorm, 1)[:, None], 0.0)
+
+    # SH colour along the view direction; no gradient where the colour clamps at 0
+    v = means - cam.center
+    vnorm = np.linalg.norm(v, axis=1)
+    d = v / vnorm[:, None]
+    k = (sh_degree + 1) ** 2
+    basis = sh_basis(sh_degree, d)
+    raw = np.einsum("nk,nkc->nc", basis, sh[:, :k]) + 0.5
+    vr = np.where(raw > 0, np.asarray(v_rgb, np.float64), 0.0)
+    d_sh = np.zeros_like(sh)
+    d_sh[:, :k] = basis[:, :, None] * vr[:, None, :]
+    d_dir = np.einsum("nkc,nc,nki->ni", sh[:, :k], vr, sh_basis_gradient(sh_degree, d))
+    d_means += (d_dir - d * np.sum(d * d_dir, 1, keepdims=True)) / vnorm[:, None]
+
+    o = 1 / (1 + np.exp(-np.asarray(opacity_logits, np.float64)))
+    out = {"means": d_means, "log_scales": d_log_scales, "quats": d_quats,
+           "opacity_logits": np.asarray(v_opacity, np.float64) * o * (1 - o), "sh": d_sh}
+    return {key: np.where(np.reshape(visible, (-1,) + (1,) * (val.ndim - 1)), val, 0.0) for key, val in out.items()}

@@ -27,20 +27,9 @@ def rasterize_reference(mean2d, conic, opacity, rgb, gaussian_of_pair, ranges, w
         if end <= first:
             continue
         g = np.asarray(gaussian_of_pair[first:end])
-        d = np.stack([xs.ravel() + 0.5, ys.ravel() + 0.5], 1)[:, None, :] - mean2d[g][None]   # (pix, G, 2)
-        a, b, c = conic[g, 0], conic[g, 1], conic[g, 2]
-        power = -0.5 * (a * d[..., 0] ** 2 + c * d[..., 1] ** 2) - b * d[..., 0] * d[..., 1]
-        alpha = np.minimum(K.ALPHA_MAX, opacity[g] * np.exp(np.minimum(power, 0)))
-        blend = (power <= 0) & (alpha >= K.ALPHA_MIN)
-        alpha = np.where(blend, alpha, 0.0)
-        t_after = np.cumprod(1 - alpha, axis=1)
-        t_before = np.concatenate([np.ones((len(d), 1)), t_after[:, :-1]], 1)
-        # The first Gaussian that would push T below the limit is not blended, nor anything behind it.
-        stops = blend & (t_after < K.TRANSMITTANCE_MIN)
-        first_stop = np.where(stops.any(1), stops.argmax(1), len(g))
-        blend &= np.arange(len(g))[None] < first_stop[:, None]
-        w = np.where(blend, alpha * t_before, 0.0)
-        T = np.where(first_stop < len(g), t_before[np.arange(len(d)), np.minimum(first_stop, len(g) - 1)], t_after[:, -1])
+        _, _, _, alpha, blend, t_before = _tile_blend(mean2d, conic, opacity, g, xs, ys)
+        w = alpha * t_before
+        T = 1 - w.sum(1)   # the product of (1 - alpha) over blended Gaussians
         image[ys, xs] = (w @ rgb[g] + T[:, None] * bg).reshape(ys.shape + (3,))
         final_T[ys, xs] = T.reshape(ys.shape)
         last = np.where(blend.any(1), len(g) - 1 - np.argmax(blend[:, ::-1], axis=1), -1)
@@ -58,4 +47,72 @@ def render_reference(means, log_scales, quats, opacity_logits, sh, cam: Camera, 
     out = rasterize_reference(p["mean2d"], p["conic"], p["opacity"], p["rgb"], gaussian_of_pair, ranges,
                               cam.width, cam.height, tiles_x, background)
     out["projected"] = p
+    return out
+
+
+def _tile_blend(mean2d, conic, opacity, g, xs, ys):
+    """Per (pixel, Gaussian) quantities of one tile's front-to-back list g, as rasterize_reference
+    computes them: offsets, Gaussian value, alpha, blend mask and T before each Gaussian."""
+    d = np.stack([xs.ravel() + 0.5, ys.ravel() + 0.5], 1)[:, None, :] - mean2d[g][None]
+    a, b, c = conic[g, 0], conic[g, 1], conic[g, 2]
+    power = -0.5 * (a * d[..., 0] ** 2 + c * d[..., 1] ** 2) - b * d[..., 0] * d[..., 1]
+    G = np.exp(np.minimum(power, 0))
+    oG = opacity[g] * G
+    alpha = np.minimum(K.ALPHA_MAX, oG)
+    blend = (power <= 0) & (alpha >= K.ALPHA_MIN)
+    alpha = np.where(blend, alpha, 0.0)
+    t_after = np.cumprod(1 - alpha, axis=1)
+    t_before = np.concatenate([np.ones((len(d), 1)), t_after[:, :-1]], 1)
+    stops = blend & (t_after < K.TRANSMITTANCE_MIN)
+    first_stop = np.where(stops.any(1), stops.argmax(1), len(g))
+    blend &= np.arange(len(g))[None] < first_stop[:, None]
+    alpha = np.where(blend, alpha, 0.0)
+    return d, G, oG, alpha, blend, t_before
+
+
+def rasterize_backward_reference(mean2d, conic, opacity, rgb, gaussian_of_pair, ranges, width: int, height: int,
+                                 tiles_x: int, background, dL_dimage) -> dict[str, np.ndarray]:
+    """Gradients of sum(image * dL_dimage) with respect to the rasterizer's per-Gaussian inputs, and the
+    densification statistics, in closed form per tile (reverse cumulative sums over each tile's list):
+        mean2d (N, 2) px, conic (N, 3), opacity (N,), rgb (N, 3);
+        abs (N, 2): sum over pixels of |g_x|, |g_y| with g = pixel's dL/dmean2d in NDC units (x W/2, H/2);
+        pixels (N,): pixels where blended; dc (N, 3): sum of g/|g| over pixels with |g| > 0, and their count.
+    No gradient flows through alpha where min(ALPHA_MAX, o G) clamps."""
+    n = len(mean2d)
+    out = {"mean2d": np.zeros((n, 2)), "conic": np.zeros((n, 3)), "opacity": np.zeros(n), "rgb": np.zeros((n, 3)),
+           "abs": np.zeros((n, 2)), "pixels": np.zeros(n), "dc": np.zeros((n, 3))}
+    bg = np.asarray(background, np.float64)
+    ndc = np.array([0.5 * width, 0.5 * height])
+    for tile, (first, end) in enumerate(np.asarray(ranges)):
+        if end <= first:
+            continue
+        y0, x0 = (tile // tiles_x) * K.TILE_SIZE, (tile % tiles_x) * K.TILE_SIZE
+        ys, xs = np.mgrid[y0:min(y0 + K.TILE_SIZE, height), x0:min(x0 + K.TILE_SIZE, width)]
+        if ys.size == 0:
+            continue
+        g = np.asarray(gaussian_of_pair[first:end])
+        d, G, oG, alpha, blend, t_before = _tile_blend(mean2d, conic, opacity, g, xs, ys)
+        dLdC = np.asarray(dL_dimage, np.float64)[ys.ravel(), xs.ravel()]               # (pix, 3)
+        w = alpha * t_before                                                           # (pix, G)
+        wc = w[..., None] * rgb[g][None]                                               # (pix, G, 3)
+        behind = wc[:, ::-1].cumsum(1)[:, ::-1] - wc                                   # sum over m > k
+        t_final = 1 - w.sum(1)   # = prod(1 - alpha) over blended Gaussians
+        dC_dalpha = t_before[..., None] * rgb[g][None] - (behind + (t_final[:, None, None] * bg)) / (1 - alpha)[..., None]
+        dL_dalpha = np.where(blend, np.einsum("pgc,pc->pg", dC_dalpha, dLdC), 0.0)
+        live = blend & (oG < K.ALPHA_MAX)
+        dL_dG = np.where(live, opacity[g] * dL_dalpha, 0.0)
+        gG = dL_dG * G
+        a, b, c = conic[g, 0], conic[g, 1], conic[g, 2]
+        dx, dy = d[..., 0], d[..., 1]
+        gm = np.stack([gG * (a * dx + b * dy), gG * (c * dy + b * dx)], -1)          # (pix, G, 2)
+        np.add.at(out["mean2d"], g, gm.sum(0))
+        np.add.at(out["conic"], g, np.stack([-0.5 * gG * dx * dx, -gG * dx * dy, -0.5 * gG * dy * dy], -1).sum(0))
+        np.add.at(out["opacity"], g, np.where(live, G * dL_dalpha, 0.0).sum(0))
+        np.add.at(out["rgb"], g, np.einsum("pg,pc->gc", w, dLdC))
+        gn = gm * ndc
+        norm = np.linalg.norm(gn, axis=-1)
+        unit = np.where(norm[..., None] > 0, gn / np.where(norm > 0, norm, 1)[..., None], 0.0)
+        np.add.at(out["abs"], g, np.abs(gn).sum(0))
+        np.add.at(out["pixels"], g, blend.sum(0))
+        np.add.at(out["dc"], g, np.concatenate([unit, (norm > 0)[..., None]], -1).sum(0))
     return out

@@ -1,0 +1,115 @@
+// project.h: per-Gaussian geometry shared by the projection's forward and backward kernels, so both
+// always compute the same thing: camera transform, rotation and scale, the EWA Jacobian with its
+// clamp, the 2D covariance, and the SH colour (degree <= 3) with its derivative.
+
+#ifndef DC4GS_PROJECT_H
+#define DC4GS_PROJECT_H
+
+#include "common.h"
+
+inline float3 world_to_camera(const Camera *cam, float3 mu) {
+    return (float3)(cam->R[0] * mu.x + cam->R[1] * mu.y + cam->R[2] * mu.z + cam->t[0],
+                    cam->R[3] * mu.x + cam->R[4] * mu.y + cam->R[5] * mu.z + cam->t[1],
+                    cam->R[6] * mu.x + cam->R[7] * mu.y + cam->R[8] * mu.z + cam->t[2]);
+}
+
+// Row-major rotation matrix of a normalised quaternion (w, x, y, z).
+inline void quat_to_rotmat(float4 q, float *R) {
+    float w = q.x, x = q.y, y = q.z, z = q.w;
+    R[0] = 1.f - 2.f * (y * y + z * z); R[1] = 2.f * (x * y - w * z);       R[2] = 2.f * (x * z + w * y);
+    R[3] = 2.f * (x * y + w * z);       R[4] = 1.f - 2.f * (x * x + z * z); R[5] = 2.f * (y * z - w * x);
+    R[6] = 2.f * (x * z - w * y);       R[7] = 2.f * (y * z + w * x);       R[8] = 1.f - 2.f * (x * x + y * y);
+}
+
+// Unit quaternion; a zero quaternion stands for the identity rotation (and gets no gradient).
+inline float4 normalized_quat(float4 q) {
+    float n2 = dot(q, q);
+    return n2 > 0.f ? q * rsqrt(n2) : (float4)(1.f, 0.f, 0.f, 0.f);
+}
+
+// M = R(q) diag(s), so that Sigma = M M^T.
+inline void rotation_scale(float4 q, float3 s, float *Rq, float *M) {
+    quat_to_rotmat(q, Rq);
+    for (int r = 0; r < 3; ++r) {
+        M[3 * r] = Rq[3 * r] * s.x; M[3 * r + 1] = Rq[3 * r + 1] * s.y; M[3 * r + 2] = Rq[3 * r + 2] * s.z;
+    }
+}
+
+// T = J W (2x3, row-major): the EWA Jacobian J at the camera-space point pc, with x/z and y/z clamped to
+// FOV_CLAMP times the half field of view, times the world-to-camera rotation W. *t_clamped gets the
+// clamped (x/z, y/z), *free whether each was inside the limits (gradient flows only then).
+inline void ewa_jacobian(const Camera *cam, float3 pc, float *T, float2 *t_clamped, int2 *free) {
+    float lim_x = FOV_CLAMP * 0.5f * (float)cam->width / cam->fx, lim_y = FOV_CLAMP * 0.5f * (float)cam->height / cam->fy;
+    float rz = 1.f / pc.z, ux = pc.x * rz, uy = pc.y * rz;
+    float tx = CLAMPF(ux, -lim_x, lim_x), ty = CLAMPF(uy, -lim_y, lim_y);
+    *t_clamped = (float2)(tx, ty);
+    *free = (int2)(ux > -lim_x && ux < lim_x, uy > -lim_y && uy < lim_y);
+    float j00 = cam->fx * rz, j02 = -cam->fx * tx * rz, j11 = cam->fy * rz, j12 = -cam->fy * ty * rz;
+    for (int c = 0; c < 3; ++c) {
+        T[c] = j00 * cam->R[c] + j02 * cam->R[6 + c];
+        T[3 + c] = j11 * cam->R[3 + c] + j12 * cam->R[6 + c];
+    }
+}
+
+// 2D covariance (a, b, c) = T Sigma T^T + dilation, with TM = T M kept for the backward.
+inline float3 covariance_2d(const float *T, const float *M, float *TM) {
+    for (int r = 0; r < 2; ++r)
+        for (int c = 0; c < 3; ++c)
+            TM[3 * r + c] = T[3 * r] * M[c] + T[3 * r + 1] * M[3 + c] + T[3 * r + 2] * M[6 + c];
+    return (float3)(TM[0] * TM[0] + TM[1] * TM[1] + TM[2] * TM[2] + EWA_DILATION,
+                    TM[0] * TM[3] + TM[1] * TM[4] + TM[2] * TM[5],
+                    TM[3] * TM[3] + TM[4] * TM[4] + TM[5] * TM[5] + EWA_DILATION);
+}
+
+// The real SH basis of degree <= 3 at unit direction d (16 values; unused ones left alone).
+inline void sh_basis(int degree, float3 d, float *b) {
+    float x = d.x, y = d.y, z = d.z;
+    b[0] = SH_C0;
+    if (degree < 1) return;
+    b[1] = -SH_C1 * y; b[2] = SH_C1 * z; b[3] = -SH_C1 * x;
+    if (degree < 2) return;
+    float xx = x * x, yy = y * y, zz = z * z;
+    b[4] = SH_C2_0 * x * y; b[5] = SH_C2_1 * y * z; b[6] = SH_C2_2 * (2.f * zz - xx - yy);
+    b[7] = SH_C2_3 * x * z; b[8] = SH_C2_4 * (xx - yy);
+    if (degree < 3) return;
+    b[9] = SH_C3_0 * y * (3.f * xx - yy); b[10] = SH_C3_1 * x * y * z; b[11] = SH_C3_2 * y * (4.f * zz - xx - yy);
+    b[12] = SH_C3_3 * z * (2.f * zz - 3.f * xx - 3.f * yy); b[13] = SH_C3_4 * x * (4.f * zz - xx - yy);
+    b[14] = SH_C3_5 * z * (xx - yy); b[15] = SH_C3_6 * x * (xx - 3.f * yy);
+}
+
+// d basis_k / d direction (x, y, z components in gx, gy, gz).
+inline void sh_basis_gradient(int degree, float3 d, float *gx, float *gy, float *gz) {
+    float x = d.x, y = d.y, z = d.z;
+    gx[0] = gy[0] = gz[0] = 0.f;
+    if (degree < 1) return;
+    gx[1] = 0.f;     gy[1] = -SH_C1; gz[1] = 0.f;
+    gx[2] = 0.f;     gy[2] = 0.f;    gz[2] = SH_C1;
+    gx[3] = -SH_C1;  gy[3] = 0.f;    gz[3] = 0.f;
+    if (degree < 2) return;
+    float xx = x * x, yy = y * y, zz = z * z;
+    gx[4] = SH_C2_0 * y;         gy[4] = SH_C2_0 * x;         gz[4] = 0.f;
+    gx[5] = 0.f;                 gy[5] = SH_C2_1 * z;         gz[5] = SH_C2_1 * y;
+    gx[6] = -2.f * SH_C2_2 * x;  gy[6] = -2.f * SH_C2_2 * y;  gz[6] = 4.f * SH_C2_2 * z;
+    gx[7] = SH_C2_3 * z;         gy[7] = 0.f;                 gz[7] = SH_C2_3 * x;
+    gx[8] = 2.f * SH_C2_4 * x;   gy[8] = -2.f * SH_C2_4 * y;  gz[8] = 0.f;
+    if (degree < 3) return;
+    gx[9] = 6.f * SH_C3_0 * x * y;                gy[9] = SH_C3_0 * (3.f * xx - 3.f * yy);        gz[9] = 0.f;
+    gx[10] = SH_C3_1 * y * z;                     gy[10] = SH_C3_1 * x * z;                       gz[10] = SH_C3_1 * x * y;
+    gx[11] = -2.f * SH_C3_2 * x * y;              gy[11] = SH_C3_2 * (4.f * zz - xx - 3.f * yy);  gz[11] = 8.f * SH_C3_2 * y * z;
+    gx[12] = -6.f * SH_C3_3 * x * z;              gy[12] = -6.f * SH_C3_3 * y * z;                gz[12] = SH_C3_3 * (6.f * zz - 3.f * xx - 3.f * yy);
+    gx[13] = SH_C3_4 * (4.f * zz - 3.f * xx - yy); gy[13] = -2.f * SH_C3_4 * x * y;               gz[13] = 8.f * SH_C3_4 * x * z;
+    gx[14] = 2.f * SH_C3_5 * x * z;               gy[14] = -2.f * SH_C3_5 * y * z;                gz[14] = SH_C3_5 * (xx - yy);
+    gx[15] = SH_C3_6 * (3.f * xx - 3.f * yy);     gy[15] = -6.f * SH_C3_6 * x * y;                gz[15] = 0.f;
+}
+
+// Colour before the clamp at 0: sum_k basis_k(d) c[k] + 0.5, for the coefficients c[K][3] of one Gaussian.
+inline float3 sh_colour(int degree, __global const float *c, float3 d) {
+    float b[16];
+    sh_basis(degree, d, b);
+    float3 res = (float3)(0.5f);
+    int k_active = (degree + 1) * (degree + 1);
+    for (int k = 0; k < k_active; ++k) res += b[k] * vload3(k, c);
+    return res;
+}
+
+#endif

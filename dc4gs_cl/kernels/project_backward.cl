@@ -1,0 +1,144 @@
+// project_backward.cl: from the gradients of the projection's outputs to the parameters' gradients.
+//
+// One work-item per Gaussian. Buffers (N = Gaussian count, float32 unless stated):
+//   in  means, log_scales, quats, opacity_logits, sh: the parameters, as in project.cl
+//   in  radius [N]  int, from the forward: 0 = not visible in this view (all its gradients are 0)
+//   in  sums   [N*SUMS_PER_GAUSSIAN]  from rasterize_backward.cl: dL/dmean2d (px) at SUM_MEAN2D,
+//              dL/dconic (a, b, c as stored) at SUM_CONIC, dL/dopacity (after the sigmoid) at
+//              SUM_OPACITY, dL/drgb at SUM_RGB
+//   out d_means [N*3], d_log_scales [N*3], d_quats [N*4], d_opacity_logits [N], d_sh [N*SH_COEFFS*3]
+// The chain: conic -> 2D covariance -> (EWA Jacobian, 3D covariance) -> camera-space position, rotation,
+// scales; projected mean -> position; colour -> SH coefficients and the view direction -> position.
+// No gradient flows through a clamped x/z or y/z, nor through a colour channel clamped at 0.
+
+#include "project.h"
+
+__kernel void project_backward(const int n, const Camera cam, const int sh_degree,
+                               __global const float *means, __global const float *log_scales,
+                               __global const float *quats, __global const float *opacity_logits,
+                               __global const float *sh, __global const int *radius, __global const float *sums,
+                               __global float *d_means, __global float *d_log_scales, __global float *d_quats,
+                               __global float *d_opacity_logits, __global float *d_sh) {
+    int i = get_global_id(0);
+    if (i >= n) return;
+    __global float *dsh = d_sh + (size_t)i * SH_COEFFS * 3;
+    if (radius[i] <= 0) {
+        vstore3((float3)(0.f), i, d_means);
+        vstore3((float3)(0.f), i, d_log_scales);
+        vstore4((float4)(0.f), i, d_quats);
+        d_opacity_logits[i] = 0.f;
+        for (int k = 0; k < SH_COEFFS * 3; ++k) dsh[k] = 0.f;
+        return;
+    }
+    __global const float *g = sums + (size_t)i * SUMS_PER_GAUSSIAN;
+    float2 v_mean = (float2)(g[SUM_MEAN2D], g[SUM_MEAN2D + 1]);
+    float3 v_conic = (float3)(g[SUM_CONIC], g[SUM_CONIC + 1], g[SUM_CONIC + 2]);
+    float3 v_rgb = (float3)(g[SUM_RGB], g[SUM_RGB + 1], g[SUM_RGB + 2]);
+
+    // Forward quantities again (cheaper than storing them).
+    float3 mu = vload3(i, means);
+    float3 pc = world_to_camera(&cam, mu);
+    float4 q_raw = vload4(i, quats);
+    float4 q = normalized_quat(q_raw);
+    float3 s = exp(vload3(i, log_scales));
+    float Rq[9], M[9], T[6], TM[6];
+    rotation_scale(q, s, Rq, M);
+    float2 t_clamped;
+    int2 free;
+    ewa_jacobian(&cam, pc, T, &t_clamped, &free);
+    float3 cov = covariance_2d(T, M, TM);
+    float a = cov.x, b = cov.y, c = cov.z;
+    float inv_det2 = 1.f / ((a * c - b * b) * (a * c - b * b));
+
+    // conic = (c, -b, a) / det  ->  2D covariance entries; G = [[da, db/2], [db/2, dc]].
+    float da = (-v_conic.x * c * c + v_conic.y * b * c - v_conic.z * b * b) * inv_det2;
+    float db = (2.f * v_conic.x * b * c - v_conic.y * (a * c + b * b) + 2.f * v_conic.z * a * b) * inv_det2;
+    float dc = (-v_conic.x * b * b + v_conic.y * a * b - v_conic.z * a * a) * inv_det2;
+    float G00 = da, G01 = 0.5f * db, G11 = dc;
+
+    // dL/dSigma = T^T G T (symmetric 3x3); dL/dT = 2 G T Sigma = 2 G (TM) M^T.
+    float GT[6];   // G T
+    for (int col = 0; col < 3; ++col) {
+        GT[col] = G00 * T[col] + G01 * T[3 + col];
+        GT[3 + col] = G01 * T[col] + G11 * T[3 + col];
+    }
+    float d_sigma[9];
+    for (int r = 0; r < 3; ++r)
+        for (int col = 0; col < 3; ++col) d_sigma[3 * r + col] = T[r] * GT[col] + T[3 + r] * GT[3 + col];
+    float GTM[6];  // G (T M)
+    for (int col = 0; col < 3; ++col) {
+        GTM[col] = G00 * TM[col] + G01 * TM[3 + col];
+        GTM[3 + col] = G01 * TM[col] + G11 * TM[3 + col];
+    }
+    float dT[6];   // 2 G T M M^T
+    for (int r = 0; r < 2; ++r)
+        for (int col = 0; col < 3; ++col)
+            dT[3 * r + col] = 2.f * (GTM[3 * r] * M[3 * col] + GTM[3 * r + 1] * M[3 * col + 1] + GTM[3 * r + 2] * M[3 * col + 2]);
+    // T = J W  ->  dL/dJ = dT W^T; J has entries (0,0), (0,2), (1,1), (1,2).
+    float dJ00 = dT[0] * cam.R[0] + dT[1] * cam.R[1] + dT[2] * cam.R[2];
+    float dJ02 = dT[0] * cam.R[6] + dT[1] * cam.R[7] + dT[2] * cam.R[8];
+    float dJ11 = dT[3] * cam.R[3] + dT[4] * cam.R[4] + dT[5] * cam.R[5];
+    float dJ12 = dT[3] * cam.R[6] + dT[4] * cam.R[7] + dT[5] * cam.R[8];
+
+    // Camera-space position: through J (x/z, y/z only where unclamped) and the projected mean.
+    float rz = 1.f / pc.z, rz2 = rz * rz;
+    float dtx_dx = free.x ? rz : 0.f, dtx_dz = free.x ? -pc.x * rz2 : 0.f;
+    float dty_dy = free.y ? rz : 0.f, dty_dz = free.y ? -pc.y * rz2 : 0.f;
+    float3 dpc;
+    dpc.x = -dJ02 * cam.fx * rz * dtx_dx + v_mean.x * cam.fx * rz;
+    dpc.y = -dJ12 * cam.fy * rz * dty_dy + v_mean.y * cam.fy * rz;
+    dpc.z = -dJ00 * cam.fx * rz2 + dJ02 * (cam.fx * t_clamped.x * rz2 - cam.fx * rz * dtx_dz)
+            - dJ11 * cam.fy * rz2 + dJ12 * (cam.fy * t_clamped.y * rz2 - cam.fy * rz * dty_dz)
+            - (v_mean.x * cam.fx * pc.x + v_mean.y * cam.fy * pc.y) * rz2;
+    float3 dmu = (float3)(cam.R[0] * dpc.x + cam.R[3] * dpc.y + cam.R[6] * dpc.z,
+                          cam.R[1] * dpc.x + cam.R[4] * dpc.y + cam.R[7] * dpc.z,
+                          cam.R[2] * dpc.x + cam.R[5] * dpc.y + cam.R[8] * dpc.z);
+
+    // Sigma = M M^T, M = Rq diag(s): dM = 2 dSigma M; scales and rotation.
+    float dM[9];
+    for (int r = 0; r < 3; ++r)
+        for (int col = 0; col < 3; ++col)
+            dM[3 * r + col] = 2.f * (d_sigma[3 * r] * M[col] + d_sigma[3 * r + 1] * M[3 + col] + d_sigma[3 * r + 2] * M[6 + col]);
+    float3 ds = (float3)(dM[0] * Rq[0] + dM[3] * Rq[3] + dM[6] * Rq[6],
+                         dM[1] * Rq[1] + dM[4] * Rq[4] + dM[7] * Rq[7],
+                         dM[2] * Rq[2] + dM[5] * Rq[5] + dM[8] * Rq[8]);
+    vstore3(ds * s, i, d_log_scales);
+    float dR[9];
+    for (int r = 0; r < 3; ++r) { dR[3 * r] = dM[3 * r] * s.x; dR[3 * r + 1] = dM[3 * r + 1] * s.y; dR[3 * r + 2] = dM[3 * r + 2] * s.z; }
+    float w = q.x, x = q.y, y = q.z, z = q.w;
+    float4 dq = 2.f * (float4)(
+        -z * dR[1] + y * dR[2] + z * dR[3] - x * dR[5] - y * dR[6] + x * dR[7],
+        y * dR[1] + z * dR[2] + y * dR[3] - 2.f * x * dR[4] - w * dR[5] + z * dR[6] + w * dR[7] - 2.f * x * dR[8],
+        -2.f * y * dR[0] + x * dR[1] + w * dR[2] + x * dR[3] + z * dR[5] - w * dR[6] + z * dR[7] - 2.f * y * dR[8],
+        -2.f * z * dR[0] - w * dR[1] + x * dR[2] + w * dR[3] - 2.f * z * dR[4] + y * dR[5] + x * dR[6] + y * dR[7]);
+    float qn2 = dot(q_raw, q_raw);
+    // Through the normalisation q / |q| (no gradient for a zero quaternion).
+    vstore4(qn2 > 0.f ? (dq - q * dot(q, dq)) * rsqrt(qn2) : (float4)(0.f), i, d_quats);
+
+    // SH colour along the view direction; no gradient through a channel clamped at 0.
+    float3 v = mu - (float3)(cam.campos[0], cam.campos[1], cam.campos[2]);
+    float inv_len = rsqrt(dot(v, v));
+    float3 dir = v * inv_len;
+    __global const float *coef = sh + (size_t)i * SH_COEFFS * 3;
+    float3 raw = sh_colour(sh_degree, coef, dir);
+    float3 vr = (float3)(raw.x > 0.f ? v_rgb.x : 0.f, raw.y > 0.f ? v_rgb.y : 0.f, raw.z > 0.f ? v_rgb.z : 0.f);
+    float basis[16], gx[16], gy[16], gz[16];
+    sh_basis(sh_degree, dir, basis);
+    sh_basis_gradient(sh_degree, dir, gx, gy, gz);
+    int k_active = (sh_degree + 1) * (sh_degree + 1);
+    float3 d_dir = (float3)(0.f);
+    for (int k = 0; k < SH_COEFFS; ++k) {
+        if (k < k_active) {
+            vstore3(basis[k] * vr, k, dsh);
+            float cv = dot(vload3(k, coef), vr);
+            d_dir += cv * (float3)(gx[k], gy[k], gz[k]);
+        } else {
+            vstore3((float3)(0.f), k, dsh);
+        }
+    }
+    dmu += (d_dir - dir * dot(dir, d_dir)) * inv_len;
+    vstore3(dmu, i, d_means);
+
+    float o = 1.f / (1.f + exp(-opacity_logits[i]));
+    d_opacity_logits[i] = g[SUM_OPACITY] * o * (1.f - o);
+}

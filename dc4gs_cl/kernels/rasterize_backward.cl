@@ -1,0 +1,184 @@
+// rasterize_backward.cl: tile rasterizer, backward. One work-group per tile (the forward's shape, see
+// raster.h), back to front from the last pair any of its pixels blended.
+//   in  dL_dimage [H*W*3]; final_T [H*W], last_pair [H*W]: from the forward; the rest as in rasterize.cl
+//   out sums [N*SUMS_PER_GAUSSIAN] float, added to (the host zeroes it): per Gaussian, summed over this
+//       view's pixels where it was blended (offsets are -D options built by dc4gs_cl/render/backward.py):
+//         SUM_MEAN2D +0,1   dL/dmean2d, px
+//         SUM_CONIC  +0,1,2 dL/d(a, b, c) of conic_opacity
+//         SUM_OPACITY       dL/dopacity (after the sigmoid)
+//         SUM_RGB    +0,1,2 dL/drgb
+//       densification statistics, where enabled; g = pixel j's dL/dmean2d in NDC units (x 0.5 W, 0.5 H):
+//         SUM_ABS    +0,1   sum |g_x|, |g_y|                      (-D STATS)
+//         SUM_PIXELS        pixels where blended (Pixel-GS)         (-D STATS)
+//         SUM_DC     +0,1,2 sum of g/|g| and the count, |g| > 0     (-D DC_STATS)
+// Per pair, each work-item sums its pixels' terms privately; the sums reach `sums` once per (tile,
+// Gaussian) pair (-D ITEMS_PER_TILE > 1 first combines the items' partial sums in local memory).
+
+#include "raster.h"
+
+#ifndef STATS
+#define STATS 0
+#endif
+#ifndef DC_STATS
+#define DC_STATS 0
+#endif
+
+__kernel __attribute__((reqd_work_group_size(ITEMS_PER_TILE, 1, 1)))
+void rasterize_backward(const int width, const int height, const int tiles_x, const float4 background,
+                        __global const uint *ranges, __global const uint *gaussian_of_pair,
+                        __global const float *mean2d, __global const float *conic_opacity, __global const float *rgb,
+                        __global const float *alpha_extent, __global const float *final_T,
+                        __global const int *last_pair, __global const float *dL_dimage, __global float *sums) {
+    const int tile = get_group_id(0), lid = get_local_id(0);
+    const int x0 = (tile % tiles_x) * TILE_SIZE, y0 = (tile / tiles_x) * TILE_SIZE;
+    const int first = ranges[2 * tile];
+    const float ndc_x = 0.5f * (float)width, ndc_y = 0.5f * (float)height;
+
+    __local float2 l_mean[BATCH];
+    __local float4 l_conic_opacity[BATCH];
+    __local float l_rgb[BATCH * 3];
+    __local int2 l_rows[BATCH];
+    __local uint l_gaussian[BATCH];
+#if ITEMS_PER_TILE > 1
+    __local float l_sums[BATCH * SUMS_PER_GAUSSIAN];
+    __local int l_end;
+#endif
+
+    const int row0 = (lid * PIXELS_PER_ITEM) / TILE_SIZE;
+    float px[PIXELS_PER_ITEM], py[PIXELS_PER_ITEM], T[PIXELS_PER_ITEM], bg_term[PIXELS_PER_ITEM];
+    float dr[PIXELS_PER_ITEM], dg[PIXELS_PER_ITEM], db[PIXELS_PER_ITEM];          // dL/dpixel colour
+    float br[PIXELS_PER_ITEM], bgr[PIXELS_PER_ITEM], bb[PIXELS_PER_ITEM];        // colour behind, per unit T
+    float last_a[PIXELS_PER_ITEM], lr[PIXELS_PER_ITEM], lg[PIXELS_PER_ITEM], lb[PIXELS_PER_ITEM];
+    int last[PIXELS_PER_ITEM];
+    int my_end = first;
+    for (int p = 0; p < PIXELS_PER_ITEM; ++p) {
+        int q = lid * PIXELS_PER_ITEM + p;
+        int x = x0 + q % TILE_SIZE, y = y0 + q / TILE_SIZE;
+        int inside = x < width && y < height;
+        int pix = inside ? y * width + x : 0;
+        px[p] = (float)x + 0.5f;
+        py[p] = (float)y + 0.5f;
+        T[p] = inside ? final_T[pix] : 1.f;
+        dr[p] = inside ? dL_dimage[3 * pix] : 0.f;
+        dg[p] = inside ? dL_dimage[3 * pix + 1] : 0.f;
+        db[p] = inside ? dL_dimage[3 * pix + 2] : 0.f;
+        bg_term[p] = T[p] * (background.x * dr[p] + background.y * dg[p] + background.z * db[p]);
+        br[p] = bgr[p] = bb[p] = 0.f;
+        last_a[p] = lr[p] = lg[p] = lb[p] = 0.f;
+        last[p] = inside ? last_pair[pix] : first - 1;
+        my_end = max(my_end, last[p] + 1);
+    }
+#if ITEMS_PER_TILE > 1
+    if (lid == 0) l_end = first;
+    barrier(CLK_LOCAL_MEM_FENCE);
+    atomic_max(&l_end, my_end);
+    barrier(CLK_LOCAL_MEM_FENCE);
+    const int end = l_end;
+#else
+    const int end = my_end;
+#endif
+
+    for (int top = end; top > first; top -= BATCH) {
+        const int base = max(first, top - BATCH), count = top - base;
+        barrier(CLK_LOCAL_MEM_FENCE);
+        for (int j = lid; j < count; j += ITEMS_PER_TILE) {
+            uint g = gaussian_of_pair[base + j];
+            l_gaussian[j] = g;
+            l_mean[j] = vload2(g, mean2d);
+            l_conic_opacity[j] = vload4(g, conic_opacity);
+            l_rgb[3 * j] = rgb[3 * g]; l_rgb[3 * j + 1] = rgb[3 * g + 1]; l_rgb[3 * j + 2] = rgb[3 * g + 2];
+            l_rows[j] = rows_in_reach(l_mean[j].y, alpha_extent[2 * g + 1], y0);
+        }
+#if ITEMS_PER_TILE > 1
+        for (int k = lid; k < count * SUMS_PER_GAUSSIAN; k += ITEMS_PER_TILE) l_sums[k] = 0.f;
+#endif
+        barrier(CLK_LOCAL_MEM_FENCE);
+
+        for (int j = count - 1; j >= 0; --j) {
+            const float2 m = l_mean[j];
+            const float4 co = l_conic_opacity[j];
+            const float cr = l_rgb[3 * j], cg = l_rgb[3 * j + 1], cb = l_rgb[3 * j + 2];
+            const int idx = base + j;
+            const int2 rows = l_rows[j];
+            // Per column lane, so the pixel loop carries no dependency and vectorises; lanes are summed
+            // once per pair below.
+            float lanes[SUMS_PER_GAUSSIAN][COLS_PER_ITEM];
+            for (int k = 0; k < SUMS_PER_GAUSSIAN; ++k)
+                for (int cc = 0; cc < COLS_PER_ITEM; ++cc) lanes[k][cc] = 0.f;
+            for (int rr = 0; rr < ROWS_PER_ITEM; ++rr) {
+              if (row0 + rr < rows.x || row0 + rr > rows.y) continue;
+              for (int cc = 0; cc < COLS_PER_ITEM; ++cc) {
+                const int p = rr * COLS_PER_ITEM + cc;
+                float dx = px[p] - m.x, dy = py[p] - m.y;
+                float power = -0.5f * (co.x * dx * dx + co.z * dy * dy) - co.y * dx * dy;
+                float G = exp_nonpositive(power);
+                float oG = co.w * G;
+                float alpha = MINF(ALPHA_MAX, oG);
+                int blend = (idx <= last[p]) & (power <= 0.f) & (alpha >= ALPHA_MIN);
+                float one_minus = 1.f - alpha;
+                float t = blend ? T[p] / one_minus : T[p];          // T before this Gaussian
+                float w = alpha * t;
+                // Colour of everything behind this Gaussian, per unit of the T it leaves.
+                float nbr = last_a[p] * lr[p] + (1.f - last_a[p]) * br[p];
+                float nbg = last_a[p] * lg[p] + (1.f - last_a[p]) * bgr[p];
+                float nbb = last_a[p] * lb[p] + (1.f - last_a[p]) * bb[p];
+                float dL_dalpha = t * ((cr - nbr) * dr[p] + (cg - nbg) * dg[p] + (cb - nbb) * db[p])
+                                  - bg_term[p] / one_minus;
+                // alpha = min(ALPHA_MAX, o G): no gradient where the clamp holds.
+                float dL_dG = (blend & (oG < ALPHA_MAX)) ? co.w * dL_dalpha : 0.f;
+                float dL_do = (blend & (oG < ALPHA_MAX)) ? G * dL_dalpha : 0.f;
+                float gG = dL_dG * G;
+                float gmx = gG * (co.x * dx + co.y * dy), gmy = gG * (co.z * dy + co.y * dx);
+                lanes[SUM_MEAN2D][cc] += gmx;
+                lanes[SUM_MEAN2D + 1][cc] += gmy;
+                lanes[SUM_CONIC][cc] += -0.5f * gG * dx * dx;
+                lanes[SUM_CONIC + 1][cc] += -gG * dx * dy;
+                lanes[SUM_CONIC + 2][cc] += -0.5f * gG * dy * dy;
+                lanes[SUM_OPACITY][cc] += dL_do;
+                float wb = blend ? w : 0.f;
+                lanes[SUM_RGB][cc] += wb * dr[p];
+                lanes[SUM_RGB + 1][cc] += wb * dg[p];
+                lanes[SUM_RGB + 2][cc] += wb * db[p];
+#if STATS
+                float gx = gmx * ndc_x, gy = gmy * ndc_y;
+                lanes[SUM_ABS][cc] += ABSF(gx);
+                lanes[SUM_ABS + 1][cc] += ABSF(gy);
+                lanes[SUM_PIXELS][cc] += blend ? 1.f : 0.f;
+#if DC_STATS
+                float g2 = gx * gx + gy * gy;
+                float inv = g2 > 0.f ? rsqrt_nocall(g2) : 0.f;   // pairs with g = 0 add nothing
+                lanes[SUM_DC][cc] += gx * inv;
+                lanes[SUM_DC + 1][cc] += gy * inv;
+                lanes[SUM_DC + 2][cc] += g2 > 0.f ? 1.f : 0.f;
+#endif
+#endif
+                T[p] = t;
+                br[p] = blend ? nbr : br[p]; bgr[p] = blend ? nbg : bgr[p]; bb[p] = blend ? nbb : bb[p];
+                last_a[p] = blend ? alpha : last_a[p];
+                lr[p] = blend ? cr : lr[p]; lg[p] = blend ? cg : lg[p]; lb[p] = blend ? cb : lb[p];
+              }
+            }
+            float acc[SUMS_PER_GAUSSIAN];
+            for (int k = 0; k < SUMS_PER_GAUSSIAN; ++k) {
+                acc[k] = 0.f;
+                for (int cc = 0; cc < COLS_PER_ITEM; ++cc) acc[k] += lanes[k][cc];
+            }
+#if ITEMS_PER_TILE > 1
+            for (int k = 0; k < SUMS_PER_GAUSSIAN; ++k)
+                if (acc[k] != 0.f) local_add_float(&l_sums[j * SUMS_PER_GAUSSIAN + k], acc[k]);
+#else
+            __global float *dst = sums + (size_t)l_gaussian[j] * SUMS_PER_GAUSSIAN;
+            for (int k = 0; k < SUMS_PER_GAUSSIAN; ++k)
+                if (acc[k] != 0.f) atomic_add_float(dst + k, acc[k]);
+#endif
+        }
+#if ITEMS_PER_TILE > 1
+        barrier(CLK_LOCAL_MEM_FENCE);
+        for (int k = lid; k < count * SUMS_PER_GAUSSIAN; k += ITEMS_PER_TILE) {
+            float v = l_sums[k];
+            if (v != 0.f) atomic_add_float(sums + (size_t)l_gaussian[k / SUMS_PER_GAUSSIAN] * SUMS_PER_GAUSSIAN
+                                           + k % SUMS_PER_GAUSSIAN, v);
+        }
+#endif
+    }
+}

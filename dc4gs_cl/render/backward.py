@@ -1,0 +1,91 @@
+"""Backward stages: rasterizer backward (kernels/rasterize_backward.cl) into per-Gaussian sums, and the
+projection backward (kernels/project.cl) from those sums to the parameters' gradients."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pyopencl as cl
+
+from ..constants import TILE_SIZE
+from ..runtime import Runtime
+from ..scene.camera import Camera
+from .gaussians import DeviceGaussians
+from .project import PROJECT_WG, camera_struct
+from .rasterize import rasterize_defines
+from .renderer import RenderResult
+from .tuning import Tuning
+from .workspace import Workspace
+
+
+@dataclass(frozen=True)
+class SumsLayout:
+    """Per-Gaussian floats the rasterizer backward accumulates over one view, in this order:
+    mean2d (2, px), conic (3), opacity (1), rgb (3); with stats: abs (2, sum |g_x|, |g_y| in NDC
+    units), pixels (1); with dc_stats: dc (3, sum of g/|g| and the count)."""
+    stats: bool = False
+    dc_stats: bool = False
+
+    def __post_init__(self):
+        if self.dc_stats and not self.stats:
+            raise ValueError("directional-consistency statistics need the base statistics")
+
+    @property
+    def fields(self) -> dict[str, tuple[int, int]]:
+        """name -> (offset, width)."""
+        widths = [("mean2d", 2), ("conic", 3), ("opacity", 1), ("rgb", 3)]
+        if self.stats:
+            widths += [("abs", 2), ("pixels", 1)]
+        if self.dc_stats:
+            widths += [("dc", 3)]
+        out, at = {}, 0
+        for name, w in widths:
+            out[name] = (at, w)
+            at += w
+        return out
+
+    @property
+    def width(self) -> int:
+        return sum(w for _, w in self.fields.values())
+
+    def defines(self) -> dict[str, int]:
+        d = {"SUMS_PER_GAUSSIAN": self.width, "STATS": int(self.stats), "DC_STATS": int(self.dc_stats)}
+        d.update({f"SUM_{name.upper()}": at for name, (at, _) in self.fields.items()})
+        return d
+
+    def split(self, sums: np.ndarray) -> dict[str, np.ndarray]:
+        """(N, width) host array -> named views."""
+        return {name: sums[:, at:at + w].squeeze(1) if w == 1 else sums[:, at:at + w]
+                for name, (at, w) in self.fields.items()}
+
+
+def rasterize_backward(rt: Runtime, ws: Workspace, tuning: Tuning, defines: dict, layout: SumsLayout,
+                       res: RenderResult, dL_dimage: cl.Buffer, background) -> cl.Buffer:
+    """Per-Gaussian sums (N x layout.width floats) of this view's gradients and statistics."""
+    n = res.proj.n
+    sums = ws.get("backward.sums", 4 * layout.width * max(n, 1))
+    rt.fill(sums, np.float32(0), 4 * layout.width * n)
+    k = rt.kernel("rasterize_backward.cl", "rasterize_backward", {**rasterize_defines(tuning, defines), **layout.defines()})
+    items = TILE_SIZE * TILE_SIZE // tuning.pixels_per_item
+    bg = np.zeros(4, np.float32)
+    bg[:3] = background
+    rt.launch("rasterize_backward", k, res.tiles_x * res.tiles_y * items, items, np.int32(res.width),
+              np.int32(res.height), np.int32(res.tiles_x), bg.view(cl.cltypes.float4)[0], res.isect.ranges,
+              res.isect.gaussian_of_pair, res.proj.mean2d, res.proj.conic_opacity, res.proj.rgb,
+              res.proj.alpha_extent, res.raster.final_T, res.raster.last_pair, dL_dimage, sums)
+    return sums
+
+
+def project_backward(rt: Runtime, g: DeviceGaussians, cam: Camera, sh_degree: int, res: RenderResult,
+                     sums: cl.Buffer, layout: SumsLayout, grads: dict[str, cl.Buffer]) -> None:
+    """Parameter gradients (buffers shaped like the parameters, see gaussians.group_widths) from this
+    view's per-Gaussian sums; zero for Gaussians not visible in the view."""
+    n = g.n
+    if n == 0:
+        return
+    k = rt.kernel("project_backward.cl", "project_backward", {"SH_COEFFS": g.sh_coeffs, **layout.defines()})
+    b = g.buffers
+    rt.launch("project_backward", k, -(-n // PROJECT_WG) * PROJECT_WG, PROJECT_WG, np.int32(n), camera_struct(cam),
+              np.int32(min(sh_degree, g.sh_degree)), b["means"], b["log_scales"], b["quats"], b["opacity_logits"],
+              b["sh"], res.proj.radius, sums, grads["means"], grads["log_scales"], grads["quats"],
+              grads["opacity_logits"], grads["sh"])

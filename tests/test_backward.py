@@ -1,0 +1,227 @@
+"""Gradients: the float64 references against central finite differences of the float64 forward, and the
+device kernels against the references on fresh random inputs."""
+import numpy as np
+import pytest
+
+from dc4gs_cl import constants as K
+from dc4gs_cl.reference.isect import intersect_reference
+from dc4gs_cl.reference.rasterize import _tile_blend, rasterize_backward_reference, rasterize_reference
+from dc4gs_cl.render import DeviceGaussians, Renderer
+from dc4gs_cl.render.backward import SumsLayout, rasterize_backward
+from helpers import SHAPES, random_camera, random_model
+
+
+def small_raster_case(rng, n=12, width=37, height=29):
+    """A few Gaussians over a small image, kept away from the blend thresholds so that finite
+    differences do not jump: opacities in [0.2, 0.8], no pixel near saturation."""
+    mean2d = np.stack([rng.uniform(2, width - 2, n), rng.uniform(2, height - 2, n)], 1)
+    sx, sy = rng.uniform(2.0, 6.0, n), rng.uniform(2.0, 6.0, n)
+    rho = rng.uniform(-0.6, 0.6, n)
+    cov = np.stack([sx * sx, rho * sx * sy, sy * sy], 1)
+    det = cov[:, 0] * cov[:, 2] - cov[:, 1] ** 2
+    conic = np.stack([cov[:, 2] / det, -cov[:, 1] / det, cov[:, 0] / det], 1)
+    opacity = rng.uniform(0.2, 0.8, n)
+    rgb = rng.uniform(0, 1, (n, 3))
+    depth = rng.uniform(1, 5, n)
+    tiles_x, tiles_y = -(-width // K.TILE_SIZE), -(-height // K.TILE_SIZE)
+    radius = np.full(n, 40)
+    extent = np.full((n, 2), 1e3)
+    _, gaussian_of_pair, ranges = intersect_reference(mean2d, radius, extent, radius, depth, tiles_x, tiles_y)
+    return dict(mean2d=mean2d, conic=conic, opacity=opacity, rgb=rgb, gaussian_of_pair=gaussian_of_pair,
+                ranges=ranges, width=width, height=height, tiles_x=tiles_x)
+
+
+def blend_masks(c):
+    """Which (pixel, Gaussian) pairs blend, tile by tile: a finite difference is only valid where its
+    two evaluations blend the same pairs."""
+    masks = []
+    for tile, (first, end) in enumerate(c["ranges"]):
+        y0, x0 = (tile // c["tiles_x"]) * K.TILE_SIZE, (tile % c["tiles_x"]) * K.TILE_SIZE
+        ys, xs = np.mgrid[y0:min(y0 + K.TILE_SIZE, c["height"]), x0:min(x0 + K.TILE_SIZE, c["width"])]
+        if end > first and ys.size:
+            masks.append(_tile_blend(c["mean2d"], c["conic"], c["opacity"], c["gaussian_of_pair"][first:end], xs, ys)[4])
+    return np.concatenate([m.ravel() for m in masks])
+
+
+def test_rasterize_backward_reference_matches_finite_differences(rng):
+    case = small_raster_case(rng)
+    bg = rng.uniform(0, 1, 3)
+    weights = rng.normal(size=(case["height"], case["width"], 3))
+
+    def loss(c):
+        out = rasterize_reference(c["mean2d"], c["conic"], c["opacity"], c["rgb"], c["gaussian_of_pair"],
+                                  c["ranges"], c["width"], c["height"], c["tiles_x"], bg)
+        assert out["final_T"].min() > 10 * K.TRANSMITTANCE_MIN   # no saturation: no jumps
+        return float(np.sum(out["image"] * weights))
+
+    grads = rasterize_backward_reference(case["mean2d"], case["conic"], case["opacity"], case["rgb"],
+                                         case["gaussian_of_pair"], case["ranges"], case["width"], case["height"],
+                                         case["tiles_x"], bg, weights)
+    h = 1e-6
+    for key in ("mean2d", "conic", "opacity", "rgb"):
+        fd, valid = np.zeros_like(case[key]), np.ones(case[key].shape, bool)
+        for idx in np.ndindex(case[key].shape):
+            plus, minus = {**case, key: case[key].copy()}, {**case, key: case[key].copy()}
+            plus[key][idx] += h
+            minus[key][idx] -= h
+            fd[idx] = (loss(plus) - loss(minus)) / (2 * h)
+            # A pixel whose alpha crosses 1/255 between the two evaluations makes the difference jump.
+            valid[idx] = np.array_equal(blend_masks(plus), blend_masks(minus))
+        assert valid.mean() > 0.8, key
+        err = np.linalg.norm((grads[key] - fd)[valid]) / np.linalg.norm(fd[valid])
+        assert err < 1e-6, (key, err)
+
+
+def download_projected(rt, res, n):
+    return dict(mean2d=rt.to_host(res.proj.mean2d, (n, 2)).astype(np.float64),
+                conic_opacity=rt.to_host(res.proj.conic_opacity, (n, 4)).astype(np.float64),
+                rgb=rt.to_host(res.proj.rgb, (n, 3)).astype(np.float64),
+                gaussian_of_pair=rt.to_host(res.isect.gaussian_of_pair, res.isect.n_pairs, np.uint32),
+                ranges=rt.to_host(res.isect.ranges, (res.tiles_x * res.tiles_y, 2), np.uint32))
+
+
+@pytest.mark.parametrize("shape", SHAPES)
+@pytest.mark.parametrize("dc", [False, True])
+def test_rasterize_backward_kernel_matches_reference(rt, rng, shape, dc):
+    model = random_model(rng, 1500, spread=1.0)
+    cam = random_camera(rng, int(rng.integers(80, 140)), int(rng.integers(60, 110)))
+    bg = rng.uniform(0, 1, 3)
+    renderer = Renderer(rt, SHAPES[shape], poison=True)
+    res = renderer.render(DeviceGaussians(rt, model), cam, 3, bg)
+    dL_dimage = rng.normal(size=(cam.height, cam.width, 3)).astype(np.float32)
+    layout = SumsLayout(stats=True, dc_stats=dc)
+    sums = rasterize_backward(rt, renderer.ws, renderer.tuning, renderer.defines, layout, res,
+                              rt.to_device(dL_dimage), bg)
+    n = len(model)
+    got = layout.split(rt.to_host(sums, (n, layout.width)).astype(np.float64))
+    p = download_projected(rt, res, n)
+    ref = rasterize_backward_reference(p["mean2d"], p["conic_opacity"][:, :3], p["conic_opacity"][:, 3], p["rgb"],
+                                       p["gaussian_of_pair"], p["ranges"], cam.width, cam.height, res.tiles_x, bg,
+                                       dL_dimage)
+    assert all(np.isfinite(v).all() for v in got.values())
+    assert np.count_nonzero(ref["pixels"]) > 300
+    for key in got:
+        err = np.linalg.norm(got[key] - ref[key]) / max(np.linalg.norm(ref[key]), 1e-30)
+        # float32 sums over up to a few hundred pixels; rare threshold flips move the counts by one.
+        assert err < (2e-3 if key in ("pixels", "dc") else 2e-4), (key, err)
+
+
+def projection_case(rng, n=40):
+    """Gaussians well inside a camera's view (so visibility and the FOV clamp do not change under small
+    steps), plus a few beside it whose x/z is clamped, with SH colours away from the clamp at 0."""
+    from dc4gs_cl.scene.camera import Camera
+    cam = Camera.look_at("c", (0.3, -3.0, 0.8), (0.0, 0.0, 0.0), 64, 48, fov_x=0.9)
+    model = random_model(rng, n, sh_degree=3, spread=0.6, scale_range=(0.05, 0.3))
+    model.sh[:, 0] += 2.0                                  # colours well above 0 ...
+    model.sh[:5, 0, 0] = -4.0                              # ... except a few clamped channels
+    # A few far to the side (x/z beyond the clamp) but large enough to reach the image.
+    side = cam.R.T @ np.array([1.0, 0.0, 0.0])
+    model.means[-4:] = model.means[-4:] * 0.1 + 2.4 * side
+    model.log_scales[-4:] = np.log(0.9)
+    return model, cam
+
+
+def test_project_backward_reference_matches_finite_differences(rng):
+    from dc4gs_cl.reference.project import project_backward_reference, project_reference
+    model, cam = projection_case(rng)
+    tiles_x, tiles_y = -(-cam.width // K.TILE_SIZE), -(-cam.height // K.TILE_SIZE)
+    params = {k: getattr(model, k).astype(np.float64) for k in ("means", "log_scales", "quats", "opacity_logits", "sh")}
+    base = project_reference(**params, cam=cam, sh_degree=3, tiles_x=tiles_x, tiles_y=tiles_y)
+    visible = base["radius"] > 0
+    x_over_z = (params["means"] @ cam.R.T + cam.t)
+    clamped = np.abs(x_over_z[:, 0] / x_over_z[:, 2]) > 1.3 * 0.5 * cam.width / cam.fx
+    assert visible.sum() > 30 and (visible & clamped).sum() >= 1
+    w = {k: rng.normal(size=base[k].shape) for k in ("mean2d", "conic", "opacity", "rgb")}
+
+    def loss(p):
+        out = project_reference(**p, cam=cam, sh_degree=3, tiles_x=tiles_x, tiles_y=tiles_y)
+        assert np.array_equal(out["radius"] > 0, visible)
+        return sum(float(np.sum((out[k] * w[k])[visible])) for k in w)
+
+    grads = project_backward_reference(**params, cam=cam, sh_degree=3, v_mean2d=w["mean2d"], v_conic=w["conic"],
+                                       v_opacity=w["opacity"], v_rgb=w["rgb"], visible=visible)
+    h = 1e-6
+    for key, value in params.items():
+        fd = np.zeros_like(value)
+        for idx in np.ndindex(value.shape):
+            plus, minus = dict(params), dict(params)
+            plus[key], minus[key] = value.copy(), value.copy()
+            plus[key][idx] += h
+            minus[key][idx] -= h
+            fd[idx] = (loss(plus) - loss(minus)) / (2 * h)
+        err = np.linalg.norm(grads[key] - fd) / np.linalg.norm(fd)
+        assert err < 1e-6, (key, err)
+
+
+def test_project_backward_kernel_matches_reference(rt, rng):
+    from dc4gs_cl.reference.project import project_backward_reference
+    from dc4gs_cl.render.backward import project_backward
+    from dc4gs_cl.render.gaussians import group_widths
+    from dc4gs_cl.render.workspace import POISON
+    model, cam = projection_case(rng, n=3000)
+    model.quats[:20] = 0.0                                   # zero-norm quaternions get no gradient
+    model.means[-50:] = cam.center - cam.R[2] * rng.uniform(0.5, 2, (50, 1))   # behind the camera
+    g = DeviceGaussians(rt, model)
+    renderer = Renderer(rt, poison=True)
+    res = renderer.render(g, cam, 3)
+    n = len(model)
+    layout = SumsLayout()
+    sums_host = rng.normal(size=(n, layout.width)).astype(np.float32)
+    widths = group_widths(g.sh_coeffs)
+    grads = {k: rt.to_device(np.full(n * w, POISON, np.uint32)) for k, w in widths.items()}
+    for sh_degree in (0, 3):
+        project_backward(rt, g, cam, sh_degree, res, rt.to_device(sums_host), layout, grads)
+        got = {k: rt.to_host(grads[k], (n, w)) for k, w in widths.items()}
+        visible = rt.to_host(res.proj.radius, n, np.int32) > 0
+        parts = layout.split(sums_host.astype(np.float64))
+        ref = project_backward_reference(model.means, model.log_scales, model.quats, model.opacity_logits, model.sh,
+                                         cam, sh_degree, parts["mean2d"], parts["conic"], parts["opacity"],
+                                         parts["rgb"], visible)
+        assert visible.sum() > 1000 and (~visible).sum() > 0
+        for key in widths:
+            r = ref[key].reshape(n, -1)
+            assert np.isfinite(got[key]).all(), key
+            np.testing.assert_array_equal(got[key][~visible], 0.0)
+            err = np.linalg.norm(got[key] - r) / np.linalg.norm(r)
+            assert err < 2e-4, (key, sh_degree, err)
+        np.testing.assert_array_equal(got["quats"][:20], 0.0)
+        if sh_degree == 0:
+            np.testing.assert_array_equal(got["sh"].reshape(n, -1, 3)[:, 1:], 0.0)
+
+
+def test_whole_image_gradients_match_the_float64_chain(rt, rng):
+    """Device forward + both backward stages against the float64 references chained from the raw
+    parameters (the reference pairs every tile of the 3-sigma box, so the alpha cut is covered too)."""
+    from dc4gs_cl.reference.project import project_backward_reference, project_reference
+    from dc4gs_cl.render.backward import project_backward
+    from dc4gs_cl.render.gaussians import group_widths
+    model = random_model(rng, 2500, spread=1.0)
+    cam = random_camera(rng, 120, 90)
+    bg = rng.uniform(0, 1, 3)
+    g = DeviceGaussians(rt, model)
+    renderer = Renderer(rt, poison=True)
+    res = renderer.render(g, cam, 3, bg)
+    dL_dimage = rng.normal(size=(cam.height, cam.width, 3)).astype(np.float32)
+    layout = SumsLayout()
+    sums = rasterize_backward(rt, renderer.ws, renderer.tuning, renderer.defines, layout, res, rt.to_device(dL_dimage), bg)
+    widths = group_widths(g.sh_coeffs)
+    n = len(model)
+    grads = {k: rt.buffer(4 * n * w) for k, w in widths.items()}
+    project_backward(rt, g, cam, 3, res, sums, layout, grads)
+
+    tiles_x, tiles_y = res.tiles_x, res.tiles_y
+    params = dict(means=model.means, log_scales=model.log_scales, quats=model.quats,
+                  opacity_logits=model.opacity_logits, sh=model.sh)
+    p = project_reference(**params, cam=cam, sh_degree=3, tiles_x=tiles_x, tiles_y=tiles_y)
+    _, gop, ranges = intersect_reference(p["mean2d"], p["radius"], p["alpha_extent"], p["tiles_touched"], p["depth"],
+                                         tiles_x, tiles_y, alpha_cut=False)
+    r = rasterize_backward_reference(p["mean2d"], p["conic"], p["opacity"], p["rgb"], gop, ranges, cam.width,
+                                     cam.height, tiles_x, bg, dL_dimage)
+    ref = project_backward_reference(**params, cam=cam, sh_degree=3, v_mean2d=r["mean2d"], v_conic=r["conic"],
+                                     v_opacity=r["opacity"], v_rgb=r["rgb"], visible=p["radius"] > 0)
+    for key, w in widths.items():
+        got = rt.to_host(grads[key], (n, w))
+        want = ref[key].reshape(n, -1)
+        assert np.isfinite(got).all()
+        err = np.linalg.norm(got - want) / np.linalg.norm(want)
+        assert err < 5e-4, (key, err)   # float32 end to end (measured 1e-6 .. 3e-5); rare threshold flips
