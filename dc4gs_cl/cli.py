@@ -6,6 +6,7 @@ anything else is a bug and keeps its traceback.
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import shutil
 import sys
@@ -15,7 +16,13 @@ from pathlib import Path
 import numpy as np
 
 from .errors import DeviceError, InputError
+from .host.strategy import STRATEGIES as STRATEGY_NAMES
 from .scene.builtin import BUILTIN_SCENE
+from .train import RECIPE_ITERATIONS
+
+BUILTIN_ITERATIONS = 5_000   # the default run on the built-in scene: about five minutes on 2 CPU cores
+TRAIN_SETTINGS = ("scene", "strategy", "iterations", "resolution", "test_every", "save_at", "densify_until",
+                  "checkpoint_every", "seed", "white_background")
 
 
 def _add_device(p: argparse.ArgumentParser) -> None:
@@ -50,6 +57,36 @@ def build_parser() -> argparse.ArgumentParser:
                    help="downscale images by this factor (default: widths above 1600 px scaled to 1600)")
     p.add_argument("--white-background", action="store_true", help="render onto white (Blender scenes)")
     p.add_argument("--profile", action="store_true", help="print per-stage device times (median over views)")
+    _add_device(p)
+
+    p = sub.add_parser("train", help="train a scene (no arguments: the built-in scene, about five minutes on 2 cores)")
+    p.add_argument("--scene", default=None,
+                   help=f'COLMAP or NeRF scene folder, or "{BUILTIN_SCENE}" (the default)')
+    p.add_argument("--out", type=Path, default=None,
+                   help="output folder (default output/<scene>-<date-time>): point_cloud/iteration_N/point_cloud.ply, "
+                        "cameras.json, config.json, checkpoint.npz, results.json, test/ renders")
+    p.add_argument("--strategy", choices=sorted(STRATEGY_NAMES), default=None, help="densification criterion (3dgs)")
+    p.add_argument("--iterations", type=int, default=None,
+                   help=f"training iterations (default {RECIPE_ITERATIONS:,}; {BUILTIN_ITERATIONS:,} for the built-in "
+                        "scene). Runs shorter than 30,000 scale the 3DGS schedule to their length")
+    p.add_argument("-r", "--resolution", type=_resolution, default=None,
+                   help="downscale images by this factor (default: widths above 1600 px scaled to 1600)")
+    p.add_argument("--test-every", type=int, default=None, help="every N-th image (by name) is a test image (8; 0: none)")
+    p.add_argument("--save-at", type=int, nargs="*", default=None, help="also write the PLY at these iterations")
+    p.add_argument("--densify-until", type=int, default=None, help="end of the densification window (0: no densification)")
+    p.add_argument("--checkpoint-every", type=int, default=None, help="iterations between checkpoints (1000)")
+    p.add_argument("--seed", type=int, default=None)
+    p.add_argument("--white-background", action="store_true", default=None, help="white background (Blender scenes)")
+    p.add_argument("--resume", action="store_true", help="continue the run in --out from its checkpoint")
+    p.add_argument("--force", action="store_true", help="replace a previous run's files in --out")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.add_argument("--profile", action="store_true", help="print per-stage device time per iteration at the end")
+    _add_device(p)
+
+    p = sub.add_parser("eval", help="render a trained model's test views and write PSNR / SSIM (results.json)")
+    p.add_argument("--model", type=Path, required=True, help="a training output folder")
+    p.add_argument("--iteration", type=int, default=None, help="which saved iteration (default: the last)")
+    p.add_argument("--no-renders", action="store_true", help="metrics only, no PNGs under test/")
     _add_device(p)
     return parser
 
@@ -114,15 +151,135 @@ def print_stage_table(timings: list[dict[str, float]], width: int, height: int) 
     print(f"  {'total':12s} {total:9.2f} ms")
 
 
-COMMANDS = {"devices": cmd_devices, "render": cmd_render}
+def train_config(args, out: Path):
+    """The run's settings: from the arguments, or with --resume from the run's config.json (explicit
+    arguments must then agree with it)."""
+    from .train import CONFIG, TrainConfig
+    given = {k: getattr(args, k) for k in TRAIN_SETTINGS if getattr(args, k) is not None}
+    if "save_at" in given:
+        given["save_at"] = tuple(given["save_at"])
+    if "scene" in given and given["scene"] != BUILTIN_SCENE:
+        given["scene"] = str(Path(given["scene"]).resolve())
+    if args.resume:
+        path = out / CONFIG
+        if not path.is_file():
+            raise InputError(out, "nothing to resume: no config.json from an earlier run")
+        try:
+            cfg = TrainConfig.from_json(json.loads(path.read_text()))
+        except (ValueError, TypeError) as e:
+            raise InputError(path, f"unreadable run settings ({e})") from None
+        clash = {k: v for k, v in given.items() if getattr(cfg, k) != v}
+        if clash:
+            raise InputError(path, "--resume continues the saved settings; these differ: " +
+                             ", ".join(f"{k} {getattr(cfg, k)!r} (saved) vs {v!r}" for k, v in clash.items()))
+        return cfg
+    given.setdefault("scene", BUILTIN_SCENE)
+    given.setdefault("iterations", BUILTIN_ITERATIONS if given["scene"] == BUILTIN_SCENE else RECIPE_ITERATIONS)
+    given["white_background"] = bool(given.get("white_background"))
+    return TrainConfig(**given)
+
+
+def cmd_train(args) -> int:
+    import time
+    from .evaluate import evaluate, write_results
+    from .runtime import Runtime, describe
+    from .scene import load_scene
+    from .train import CHECKPOINT, Trainer, clear_run, holds_run, write_run_files
+
+    if args.out is None:
+        if args.resume:
+            raise InputError(None, "--resume needs --out (the folder of the run to continue)")
+        name = Path(args.scene).resolve().name if args.scene and args.scene != BUILTIN_SCENE else BUILTIN_SCENE
+        args.out = Path("output") / f"{name}-{time.strftime('%Y%m%d-%H%M%S')}"
+    out = args.out
+    if args.resume and args.force:
+        raise InputError(None, "--resume and --force exclude each other")
+    if args.resume and not (out / CHECKPOINT).is_file():
+        raise InputError(out, "nothing to resume: no checkpoint.npz")
+    if not args.resume and holds_run(out) and not args.force:
+        raise InputError(out, "holds another run: continue it with --resume, or replace it with --force")
+    cfg = train_config(args, out)
+    scene = load_scene(cfg.scene, resolution=cfg.resolution, cache_dir=out / "undistorted",
+                       test_every=cfg.test_every, white_background=cfg.white_background)
+    rt = Runtime(args.device, profiling=args.profile)
+    trainer = Trainer(cfg, scene, rt, out)
+    if args.resume:
+        trainer.load_checkpoint(out / CHECKPOINT)
+    else:
+        if args.force:
+            clear_run(out)
+        write_run_files(out, cfg, scene)
+    print(f"device: {describe(rt.device)}\nscene: {cfg.scene} ({len(scene.train)} train / {len(scene.test)} test views, "
+          f"{scene.train[0].width}x{scene.train[0].height}), strategy {cfg.strategy}, {cfg.iterations:,} iterations, "
+          f"{trainer.params.n:,} initial Gaussians\noutput: {out}", file=sys.stderr)
+    start, first = time.perf_counter(), trainer.iteration
+    try:
+        trainer.run(progress=not args.no_progress)
+    except KeyboardInterrupt:
+        print(f"stopped at iteration {trainer.iteration}; a checkpoint is in {out}. Continue with: "
+              f"dc4gs-cl train --out {out} --resume", file=sys.stderr)
+        return 130
+    seconds = time.perf_counter() - start
+    if args.profile:
+        times = rt.stage_times()
+        done = max(trainer.iteration - first, 1)
+        print("device time per iteration: " + ", ".join(f"{k} {v / done * 1e3:.2f} ms" for k, v in times.items()))
+    print(f"trained {trainer.iteration - first:,} iterations in {seconds:.0f} s "
+          f"({(trainer.iteration - first) / max(seconds, 1e-9):.1f} it/s); {trainer.params.n:,} Gaussians")
+    if scene.test:
+        result = evaluate(rt, trainer.renderer, trainer.params, scene, scene.test, trainer.sh_degree,
+                          out / "test" / f"ours_{trainer.iteration}")
+        write_results(out, trainer.iteration, result)
+        print(f"test views: PSNR {result['mean']['PSNR']:.2f} dB, SSIM {result['mean']['SSIM']:.4f} "
+              f"({result['views']} views; LPIPS skipped: {result['lpips']})")
+    print(f"model: {out / 'point_cloud' / f'iteration_{trainer.iteration}' / 'point_cloud.ply'}")
+    return 0
+
+
+def cmd_eval(args) -> int:
+    import re
+    from .evaluate import evaluate, write_results
+    from .ply import read_ply
+    from .render import DeviceGaussians, Renderer
+    from .runtime import Runtime
+    from .scene import load_scene
+    from .train import CONFIG, TrainConfig
+
+    model_dir = args.model
+    path = model_dir / CONFIG
+    if not path.is_file():
+        raise InputError(model_dir, "not a training output folder (no config.json)")
+    try:
+        cfg = TrainConfig.from_json(json.loads(path.read_text()))
+    except (ValueError, TypeError) as e:
+        raise InputError(path, f"unreadable run settings ({e})") from None
+    saved = sorted(int(m.group(1)) for d in (model_dir / "point_cloud").glob("iteration_*")
+                   if (m := re.fullmatch(r"iteration_(\d+)", d.name)) and (d / "point_cloud.ply").is_file())
+    if not saved:
+        raise InputError(model_dir / "point_cloud", "no saved model (point_cloud/iteration_N/point_cloud.ply)")
+    iteration = args.iteration if args.iteration is not None else saved[-1]
+    if iteration not in saved:
+        raise InputError(model_dir / "point_cloud", f"no model saved at iteration {iteration} (saved: {saved})")
+    model = read_ply(model_dir / "point_cloud" / f"iteration_{iteration}" / "point_cloud.ply")
+    scene = load_scene(cfg.scene, resolution=cfg.resolution, cache_dir=model_dir / "undistorted",
+                       test_every=cfg.test_every, white_background=cfg.white_background)
+    if not scene.test:
+        raise InputError(model_dir / CONFIG, "the run has no test views (test_every = 0)")
+    rt = Runtime(args.device)
+    result = evaluate(rt, Renderer(rt), DeviceGaussians(rt, model), scene, scene.test, model.sh_degree,
+                      None if args.no_renders else model_dir / "test" / f"ours_{iteration}")
+    write_results(model_dir, iteration, result)
+    print(f"iteration {iteration}: PSNR {result['mean']['PSNR']:.2f} dB, SSIM {result['mean']['SSIM']:.4f} over "
+          f"{result['views']} test views (LPIPS skipped: {result['lpips']}); written to {model_dir / 'results.json'}")
+    return 0
+
+
+COMMANDS = {"devices": cmd_devices, "render": cmd_render, "train": cmd_train, "eval": cmd_eval}
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
-    args = parser.parse_args(argv)
-    if args.command is None:
-        parser.print_help()
-        return 0
+    args = parser.parse_args(argv if argv is not None else (sys.argv[1:] or ["train"]))
     try:
         return COMMANDS[args.command](args)
     except (InputError, DeviceError) as e:

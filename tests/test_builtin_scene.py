@@ -38,7 +38,7 @@ def test_contents(scene):
         assert image.shape == (144, 192, 3) and image.dtype == np.float32
         assert np.isfinite(image).all() and 0 <= image.min() and image.max() <= 1
         assert image.std() > 0.1
-        assert len(np.unique((image * 255).astype(np.uint8).reshape(-1, 3), axis=0)) > 1000
+        assert len(np.unique((image * 255).astype(np.uint8).reshape(-1, 3), axis=0)) > 500   # plain sky: ~900
         gradient = np.maximum(np.abs(np.diff(image, axis=0))[:, :-1], np.abs(np.diff(image, axis=1))[:-1]).max(axis=2)
         assert (gradient > 0.1).mean() > 0.05        # many edges (found: 14-22 % of the pixels)
 

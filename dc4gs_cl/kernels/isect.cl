@@ -9,7 +9,12 @@
 //                       like the floats), counters [4] uint: [1], [2] get the atomic min, max of the keys
 //   gather_tile_counts: ids_by_depth [V], tiles_touched [N] -> counts [V]
 //   emit_pairs:         ids_by_depth [V], pair_offset [V] (exclusive scan of counts), mean2d [N*2],
-//                       radius [N], alpha_extent [N*2] -> tile_of_pair [P], gaussian_of_pair [P]
+//                       radius [N], alpha_extent [N*2] -> per pair in emission order e: tile_of_emission [P],
+//                       emission [P] (= e, the values the tile sort carries), gaussian_of_emission [P];
+//                       per visible Gaussian g: pair_first [N], its first e (its pairs are e .. e + tiles - 1)
+//   (stable sort of (tile_of_emission, emission) by tile)
+//   gather_pairs:       emission_sorted [P], gaussian_of_emission [P] -> gaussian_of_pair [P] (the list the
+//                       rasterizer walks), pair_of_emission [P] (where each emitted pair landed)
 //   tile_ranges:        tile_of_pair [P] (sorted by tile) -> ranges [tiles*2] (first pair, end pair);
 //                       the host zero-fills ranges first, so empty tiles stay (0, 0)
 
@@ -50,18 +55,30 @@ __kernel void gather_tile_counts(const uint v, __global const uint *ids_by_depth
 __kernel void emit_pairs(const uint v, const int tiles_x, const int tiles_y, __global const uint *ids_by_depth,
                          __global const uint *pair_offset, __global const float *mean2d,
                          __global const int *radius, __global const float *alpha_extent,
-                         __global uint *tile_of_pair, __global uint *gaussian_of_pair) {
+                         __global uint *tile_of_emission, __global uint *emission,
+                         __global uint *gaussian_of_emission, __global uint *pair_first) {
     uint i = get_global_id(0);
     if (i >= v) return;
     uint g = ids_by_depth[i];
     int4 rect = pair_rect(vload2(g, mean2d), (float)radius[g], vload2(g, alpha_extent), tiles_x, tiles_y);
     uint at = pair_offset[i];
+    pair_first[g] = at;
     for (int ty = rect.y; ty < rect.w; ++ty)
         for (int tx = rect.x; tx < rect.z; ++tx) {
-            tile_of_pair[at] = (uint)(ty * tiles_x + tx);
-            gaussian_of_pair[at] = g;
+            tile_of_emission[at] = (uint)(ty * tiles_x + tx);
+            emission[at] = at;
+            gaussian_of_emission[at] = g;
             ++at;
         }
+}
+
+__kernel void gather_pairs(const uint p, __global const uint *emission_sorted, __global const uint *gaussian_of_emission,
+                           __global uint *gaussian_of_pair, __global uint *pair_of_emission) {
+    uint i = get_global_id(0);
+    if (i >= p) return;
+    uint e = emission_sorted[i];
+    gaussian_of_pair[i] = gaussian_of_emission[e];
+    pair_of_emission[e] = i;
 }
 
 __kernel void tile_ranges(const uint p, __global const uint *tile_of_pair, __global uint *ranges) {

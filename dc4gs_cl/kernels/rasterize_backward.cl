@@ -1,8 +1,12 @@
 // rasterize_backward.cl: tile rasterizer, backward. One work-group per tile (the forward's shape, see
 // raster.h), back to front from the last pair any of its pixels blended.
 //   in  dL_dimage [H*W*3]; final_T [H*W], last_pair [H*W]: from the forward; the rest as in rasterize.cl
-//   out sums [N*SUMS_PER_GAUSSIAN] float, added to (the host zeroes it): per Gaussian, summed over this
-//       view's pixels where it was blended (offsets are -D options built by dc4gs_cl/render/backward.py):
+//   out sums: per Gaussian, its terms summed over this view's pixels where it was blended (offsets are -D
+//       options built by dc4gs_cl/render/backward.py). Two designs (-D PAIR_SUMS):
+//         0: sums [N*SUMS_PER_GAUSSIAN], added to with float atomics (the host zeroes it first);
+//         1: sums [P*SUMS_PER_GAUSSIAN], one slot per pair, all written (zeros for pairs past the walk), no
+//            atomics; sum_pairs then adds each Gaussian's slots in a fixed order: deterministic.
+//       The terms:
 //         SUM_MEAN2D +0,1   dL/dmean2d, px
 //         SUM_CONIC  +0,1,2 dL/d(a, b, c) of conic_opacity
 //         SUM_OPACITY       dL/dopacity (after the sigmoid)
@@ -18,6 +22,9 @@
 
 #ifndef STATS
 #define STATS 0
+#endif
+#ifndef PAIR_SUMS
+#define PAIR_SUMS 0
 #endif
 #ifndef DC_STATS
 #define DC_STATS 0
@@ -76,6 +83,12 @@ void rasterize_backward(const int width, const int height, const int tiles_x, co
     const int end = l_end;
 #else
     const int end = my_end;
+#endif
+#if PAIR_SUMS
+    // Pairs no pixel reached still own a slot: zero it.
+    const int range_end = ranges[2 * tile + 1];
+    for (int k = lid; k < (range_end - end) * SUMS_PER_GAUSSIAN; k += ITEMS_PER_TILE)
+        sums[(size_t)end * SUMS_PER_GAUSSIAN + k] = 0.f;
 #endif
 
     for (int top = end; top > first; top -= BATCH) {
@@ -166,6 +179,8 @@ void rasterize_backward(const int width, const int height, const int tiles_x, co
 #if ITEMS_PER_TILE > 1
             for (int k = 0; k < SUMS_PER_GAUSSIAN; ++k)
                 if (acc[k] != 0.f) local_add_float(&l_sums[j * SUMS_PER_GAUSSIAN + k], acc[k]);
+#elif PAIR_SUMS
+            for (int k = 0; k < SUMS_PER_GAUSSIAN; ++k) sums[(size_t)(base + j) * SUMS_PER_GAUSSIAN + k] = acc[k];
 #else
             __global float *dst = sums + (size_t)l_gaussian[j] * SUMS_PER_GAUSSIAN;
             for (int k = 0; k < SUMS_PER_GAUSSIAN; ++k)
@@ -176,9 +191,31 @@ void rasterize_backward(const int width, const int height, const int tiles_x, co
         barrier(CLK_LOCAL_MEM_FENCE);
         for (int k = lid; k < count * SUMS_PER_GAUSSIAN; k += ITEMS_PER_TILE) {
             float v = l_sums[k];
+#if PAIR_SUMS
+            sums[(size_t)base * SUMS_PER_GAUSSIAN + k] = v;
+#else
             if (v != 0.f) atomic_add_float(sums + (size_t)l_gaussian[k / SUMS_PER_GAUSSIAN] * SUMS_PER_GAUSSIAN
                                            + k % SUMS_PER_GAUSSIAN, v);
+#endif
         }
 #endif
     }
+}
+
+// PAIR_SUMS: each Gaussian's slots added in emission order.
+//   in  tiles_touched [N], pair_first [N], pair_of_emission [P]: from isect.cl; pair_sums [P*SUMS_PER_GAUSSIAN]
+//   out sums [N*SUMS_PER_GAUSSIAN]
+__kernel void sum_pairs(const uint n, __global const uint *tiles_touched, __global const uint *pair_first,
+                        __global const uint *pair_of_emission, __global const float *pair_sums,
+                        __global float *sums) {
+    uint g = get_global_id(0);
+    if (g >= n) return;
+    float acc[SUMS_PER_GAUSSIAN];
+    for (int k = 0; k < SUMS_PER_GAUSSIAN; ++k) acc[k] = 0.f;
+    uint count = tiles_touched[g], first = count ? pair_first[g] : 0;
+    for (uint e = first; e < first + count; ++e) {
+        __global const float *slot = pair_sums + (size_t)pair_of_emission[e] * SUMS_PER_GAUSSIAN;
+        for (int k = 0; k < SUMS_PER_GAUSSIAN; ++k) acc[k] += slot[k];
+    }
+    for (int k = 0; k < SUMS_PER_GAUSSIAN; ++k) sums[(size_t)g * SUMS_PER_GAUSSIAN + k] = acc[k];
 }

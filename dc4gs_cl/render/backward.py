@@ -62,17 +62,26 @@ class SumsLayout:
 def rasterize_backward(rt: Runtime, ws: Workspace, tuning: Tuning, defines: dict, layout: SumsLayout,
                        res: RenderResult, dL_dimage: cl.Buffer, background) -> cl.Buffer:
     """Per-Gaussian sums (N x layout.width floats) of this view's gradients and statistics."""
-    n = res.proj.n
+    n, p = res.proj.n, res.isect.n_pairs
     sums = ws.get("backward.sums", 4 * layout.width * max(n, 1))
-    rt.fill(sums, np.float32(0), 4 * layout.width * n)
-    k = rt.kernel("rasterize_backward.cl", "rasterize_backward", {**rasterize_defines(tuning, defines), **layout.defines()})
+    options = {**rasterize_defines(tuning, defines), **layout.defines(), "PAIR_SUMS": int(tuning.pair_sums)}
+    if tuning.pair_sums:
+        target = ws.get("backward.pair_sums", 4 * layout.width * max(p, 1))
+    else:
+        target = sums
+        rt.fill(sums, np.float32(0), 4 * layout.width * n)
+    k = rt.kernel("rasterize_backward.cl", "rasterize_backward", options)
     items = TILE_SIZE * TILE_SIZE // tuning.pixels_per_item
     bg = np.zeros(4, np.float32)
     bg[:3] = background
     rt.launch("rasterize_backward", k, res.tiles_x * res.tiles_y * items, items, np.int32(res.width),
               np.int32(res.height), np.int32(res.tiles_x), bg.view(cl.cltypes.float4)[0], res.isect.ranges,
               res.isect.gaussian_of_pair, res.proj.mean2d, res.proj.conic_opacity, res.proj.rgb,
-              res.proj.alpha_extent, res.raster.final_T, res.raster.last_pair, dL_dimage, sums)
+              res.proj.alpha_extent, res.raster.final_T, res.raster.last_pair, dL_dimage, target)
+    if tuning.pair_sums and n:
+        reduce = rt.kernel("rasterize_backward.cl", "sum_pairs", options)
+        rt.launch("rasterize_backward", reduce, -(-n // PROJECT_WG) * PROJECT_WG, PROJECT_WG, np.uint32(n),
+                  res.proj.tiles_touched, res.isect.pair_first, res.isect.pair_of_emission, target, sums)
     return sums
 
 

@@ -23,6 +23,8 @@ class Intersections:
     ranges: cl.Buffer            # [tiles*2] uint (first pair, end pair)
     gaussian_of_pair: cl.Buffer  # [P] uint, grouped by tile, front to back inside a tile
     tile_of_pair: cl.Buffer      # [P] uint
+    pair_of_emission: cl.Buffer  # [P] uint: Gaussian g's pairs sit at pair_of_emission[pair_first[g] + k],
+    pair_first: cl.Buffer        # [N] uint   k < tiles_touched[g] (valid where tiles_touched > 0)
     depth_bits: int              # key bits the depth sort used
     tile_bits: int               # key bits the tile sort used
 
@@ -40,6 +42,7 @@ class Intersect:
         self.k_compact = rt.kernel("isect.cl", "compact_visible", wg)
         self.k_gather = rt.kernel("isect.cl", "gather_tile_counts", wg)
         self.k_emit = rt.kernel("isect.cl", "emit_pairs", wg)
+        self.k_gather_pairs = rt.kernel("isect.cl", "gather_pairs", wg)
         self.k_ranges = rt.kernel("isect.cl", "tile_ranges", wg)
         self.counters = rt.buffer(16)   # visible count, depth key min, depth key max, pair count
 
@@ -71,18 +74,26 @@ class Intersect:
         cl.enqueue_copy(rt.queue, counters, self.counters)
         p = int(counters[3])
 
-        tile_of_pair = ws.get("isect.tile_of_pair", 4 * p)
-        gaussian_of_pair = ws.get("isect.gaussian_of_pair", 4 * p)
+        tile_of_emission = ws.get("isect.tile_of_emission", 4 * p)
+        emission = ws.get("isect.emission", 4 * p)
+        gaussian_of_emission = ws.get("isect.gaussian_of_emission", 4 * p)
+        pair_first = ws.get("isect.pair_first", 4 * n)
         if v:
             rt.launch("isect", self.k_emit, -(-v // wg) * wg, wg, np.uint32(v), np.int32(tiles_x),
                       np.int32(tiles_y), ids_by_depth, pair_offset, proj.mean2d, proj.radius, proj.alpha_extent,
-                      tile_of_pair, gaussian_of_pair)
+                      tile_of_emission, emission, gaussian_of_emission, pair_first)
         tile_bits = (tiles - 1).bit_length()
-        tile_of_pair, gaussian_of_pair = self.sort(tile_of_pair, gaussian_of_pair, p, 0, tile_bits, stage="sort")
+        tile_of_pair, emission_sorted = self.sort(tile_of_emission, emission, p, 0, tile_bits, stage="sort")
+        gaussian_of_pair = ws.get("isect.gaussian_of_pair", 4 * p)
+        pair_of_emission = ws.get("isect.pair_of_emission", 4 * p)
+        if p:
+            rt.launch("isect", self.k_gather_pairs, -(-p // wg) * wg, wg, np.uint32(p), emission_sorted,
+                      gaussian_of_emission, gaussian_of_pair, pair_of_emission)
 
         ranges = ws.get("isect.ranges", 8 * tiles)
         rt.fill(ranges, np.uint32(0), 8 * tiles)
         if p:
             rt.launch("isect", self.k_ranges, -(-p // wg) * wg, wg, np.uint32(p), tile_of_pair, ranges)
         return Intersections(n_visible=v, n_pairs=p, ranges=ranges, gaussian_of_pair=gaussian_of_pair,
-                             tile_of_pair=tile_of_pair, depth_bits=depth_bits - lo, tile_bits=tile_bits)
+                             tile_of_pair=tile_of_pair, pair_of_emission=pair_of_emission, pair_first=pair_first,
+                             depth_bits=depth_bits - lo, tile_bits=tile_bits)

@@ -16,6 +16,7 @@ class Tuning:
     scan_wg: int            # scan: work-group size
     scan_groups: int        # scan: work-groups (upper bound)
     isect_wg: int           # compaction: work-group size
+    pair_sums: bool = True  # backward: per-pair slots summed per Gaussian (deterministic) instead of float atomics
 
     @staticmethod
     def for_device(caps: Capabilities) -> "Tuning":

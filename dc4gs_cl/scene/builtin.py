@@ -3,8 +3,9 @@
 Objects: an 8 x 8 checkerboard ground square (z = 0, world z up), three boxes at different rotations (one
 tilted and sunk into the ground; stripes, diagonal stripes or checker per face), two spheres (latitude /
 longitude stripes; the large one has a mild specular highlight, the only view-dependent term), and a capped
-cylinder (angular stripes, rings on the cap), lit by a directional light plus ambient, with a sky gradient
-for rays that miss. Each pixel averages a regular 3 x 3 grid of rays, so edges are antialiased.
+cylinder (angular stripes, rings on the cap), lit by a directional light plus ambient, with a plain sky
+of the scene's background colour for rays that miss (as a masked capture would have: no SfM point can
+explain a sky, and a gradient there only grows floaters). Each pixel averages a regular 3 x 3 grid of rays, so edges are antialiased.
 Cameras: n_views cameras on a ring around the objects (one every 360/n_views degrees), cycling through three
 elevations, all looking at the scene centre with a 55 degree horizontal field of view; "view_000"... so
 that every test_every-th view (the test set) is spread around the ring.
@@ -172,20 +173,14 @@ SOLIDS = (
 )
 
 
-def _sky(d: np.ndarray) -> np.ndarray:
-    """Smooth by direction: pale at the horizon, blue overhead, warmer towards +x, dim below the horizon."""
-    up = np.clip(d[2], 0, 1) ** 0.6
-    down = np.clip(-3 * d[2], 0, 1)
-    sky = (1 - up) * np.float32([[0.85], [0.87], [0.88]]) + up * np.float32([[0.30], [0.50], [0.85]])
-    sky = (1 - down) * sky + down * np.float32([[0.40], [0.42], [0.40]])
-    return sky + np.float32(0.06) * d[0] * np.float32([[1.0], [0.3], [-0.5]])
+SKY = np.float32([0.55, 0.65, 0.80])     # also the scene's background colour
 
 
 def _cast(o: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Unit rays d (3, N) from o (3, 1) -> (colour (3, N) float32, distance (N,), inf for the sky)."""
     ts = np.stack([s.intersect(o, d) for s in SOLIDS])
     nearest, t = ts.argmin(axis=0), ts.min(axis=0)
-    color = _sky(d)
+    color = np.repeat(SKY[:, None], d.shape[1], axis=1)
     light = LIGHT.astype(np.float32)[:, None]
     for k, solid in enumerate(SOLIDS):
         sel = (nearest == k) & np.isfinite(t)
@@ -276,7 +271,7 @@ def builtin_scene(resolution: int | None = None, test_every: int = 8, n_views: i
     train, test = split_train_test(_cameras(n_views, base_size), test_every)
     scene = Scene(root=Path(BUILTIN_SCENE), train=[c.resized(width, height) for c in train],
                   test=[c.resized(width, height) for c in test], points=None, colors=None,
-                  background=np.zeros(3, np.float32), read_image=_Renderer())
+                  background=SKY.copy(), read_image=_Renderer())
     # points from the base-size cameras, so that -r changes nothing but the images
     scene.points, scene.colors = _points(train or test, scene.extent, np.random.default_rng(SEED))
     return scene

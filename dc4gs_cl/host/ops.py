@@ -1,0 +1,88 @@
+"""Growing and shrinking the Gaussians: parameters and Adam moments together, in one place.
+
+Host copies are enough here: densification runs every few hundred iterations, and the trainer uploads
+the result in one go. New Gaussians start with zero Adam moments (as the 3DGS code does).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..reference.project import quat_to_rotmat
+
+SPLIT_CHILDREN = 2
+SPLIT_SCALE_DIVISOR = 1.6   # = 0.8 * SPLIT_CHILDREN in the 3DGS code
+
+
+@dataclass
+class GaussianSet:
+    """Everything per Gaussian that must stay aligned: parameters (name -> (n, width) float32 arrays,
+    see render.gaussians.group_widths) and their Adam moments m and v (same names and shapes)."""
+    params: dict[str, np.ndarray]
+    m: dict[str, np.ndarray]
+    v: dict[str, np.ndarray]
+    aux: dict[str, np.ndarray] = field(default_factory=dict)   # (n,) values copied to clones and children
+
+    @property
+    def n(self) -> int:
+        return len(self.params["means"])
+
+    def keep(self, mask: np.ndarray) -> None:
+        for group in (self.params, self.m, self.v, self.aux):
+            for k in group:
+                group[k] = group[k][mask]
+
+    def append(self, new: dict[str, np.ndarray], parents: np.ndarray) -> None:
+        """Add Gaussians with these parameters, zero moments, and the aux values of their parents."""
+        for k in self.params:
+            add = np.asarray(new[k], np.float32).reshape(-1, self.params[k].shape[1])
+            self.params[k] = np.concatenate([self.params[k], add])
+            self.m[k] = np.concatenate([self.m[k], np.zeros_like(add)])
+            self.v[k] = np.concatenate([self.v[k], np.zeros_like(add)])
+        for k in self.aux:
+            self.aux[k] = np.concatenate([self.aux[k], self.aux[k][parents]])
+
+    def scales(self) -> np.ndarray:
+        return np.exp(self.params["log_scales"].astype(np.float64))
+
+    def opacities(self) -> np.ndarray:
+        return 1.0 / (1.0 + np.exp(-self.params["opacity_logits"][:, 0].astype(np.float64)))
+
+
+def clone(gs: GaussianSet, mask: np.ndarray) -> int:
+    """Exact copies of the selected Gaussians (appended)."""
+    idx = np.flatnonzero(mask)
+    gs.append({k: v[idx] for k, v in gs.params.items()}, idx)
+    return len(idx)
+
+
+def split_random(gs: GaussianSet, mask: np.ndarray, rng: np.random.Generator) -> int:
+    """The 3DGS split: each selected Gaussian is replaced by SPLIT_CHILDREN children at mu + R (S eps),
+    eps ~ N(0, I), with scales S / 1.6 and everything else copied."""
+    idx = np.flatnonzero(mask)
+    if len(idx) == 0:
+        return 0
+    parents = {k: np.repeat(v[idx], SPLIT_CHILDREN, axis=0) for k, v in gs.params.items()}
+    scales = np.exp(parents["log_scales"].astype(np.float64))
+    offsets = rng.normal(size=scales.shape) * scales
+    rot = quat_to_rotmat(parents["quats"])
+    parents["means"] = parents["means"] + np.einsum("nij,nj->ni", rot, offsets)
+    parents["log_scales"] = np.log(scales / SPLIT_SCALE_DIVISOR)
+    replace_with_children(gs, idx, parents)
+    return len(idx)
+
+
+def replace_with_children(gs: GaussianSet, idx: np.ndarray, children: dict[str, np.ndarray]) -> None:
+    """Remove the Gaussians idx and append their children (len(children) is a multiple of len(idx), the
+    children of each parent in a row)."""
+    per_parent = len(children["means"]) // max(len(idx), 1)
+    gs.append(children, np.repeat(idx, per_parent))
+    keep = np.ones(gs.n, bool)
+    keep[idx] = False
+    gs.keep(keep)
+
+
+def prune(gs: GaussianSet, mask: np.ndarray) -> int:
+    gs.keep(~mask)
+    return int(mask.sum())

@@ -1,0 +1,19 @@
+"""AbsGS: split on the homodirectional gradient (the sum of |g_x|, |g_y| over pixels, so opposite
+gradients do not cancel) with its own threshold, clone on the 3DGS one; a smaller percent_dense and an
+opacity clamp at 0.8 every 500 iterations."""
+from __future__ import annotations
+
+import numpy as np
+
+from .base import DensifyConfig, Strategy, mean_per_view
+
+
+class AbsGS(Strategy):
+    name = "absgs"
+
+    @staticmethod
+    def default_config() -> DensifyConfig:
+        return DensifyConfig(split_threshold=4e-4, percent_dense=0.001, opacity_clamp_every=500)
+
+    def split_values(self, stats: dict[str, np.ndarray]) -> np.ndarray:
+        return mean_per_view(stats["abs"], stats["views"])

@@ -1,0 +1,109 @@
+"""The densification strategy: when to densify, clone, split, prune and reset, and on which criterion.
+
+A strategy keeps its hyperparameters apart from the trainer, which only calls its hooks (the shape of
+gsplat's strategies). The 3DGS recipe is the base; AbsGS and Pixel-GS change the criterion and a few
+numbers (../shared/docs/dc4gs-spec.md sections 3, 5 and 6).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .. import ops
+from ..ops import GaussianSet
+
+
+@dataclass(frozen=True)
+class DensifyConfig:
+    densify_from: int = 500            # densify at iterations densify_from < it < densify_until ...
+    densify_until: int = 15_000        # ... that are multiples of densify_every; statistics gather while it < this
+    densify_every: int = 100
+    clone_threshold: float = 2e-4      # on the mean per-view criterion, NDC units
+    split_threshold: float = 2e-4
+    percent_dense: float = 0.01        # "small" = largest scale <= percent_dense * extent: clone, else split
+    prune_opacity: float = 0.005
+    big_world_after: int = 3_000       # after this iteration also prune largest scale > big_world_fraction * extent
+    big_world_fraction: float = 0.1
+    screen_size_px: float | None = None  # the 3DGS screen-size rule (radius > 20 px); off: it never fires in the releases
+    opacity_reset_every: int = 3_000
+    opacity_reset_to: float = 0.01
+    opacity_clamp_every: int | None = None   # AbsGS: clamp opacities to <= opacity_clamp this often
+    opacity_clamp: float = 0.8
+
+
+@dataclass
+class DensifyReport:
+    cloned: int = 0
+    split: int = 0
+    pruned: int = 0
+    extra: dict = field(default_factory=dict)
+
+
+def mean_per_view(total: np.ndarray, count: np.ndarray) -> np.ndarray:
+    """total / count, 0 where count is 0."""
+    return np.where(count > 0, total / np.where(count > 0, count, 1), 0.0)
+
+
+class Strategy:
+    """3DGS: clone small and split large Gaussians whose mean per-view |sum of NDC gradients| reaches
+    the threshold; random split into two."""
+    name = "3dgs"
+
+    def __init__(self, config: DensifyConfig | None = None):
+        self.config = config or self.default_config()
+
+    @staticmethod
+    def default_config() -> DensifyConfig:
+        return DensifyConfig()
+
+    # schedule --------------------------------------------------------------------------------------
+    def collecting(self, it: int) -> bool:
+        """Whether iteration it gathers densification statistics."""
+        return it < self.config.densify_until
+
+    def densify_now(self, it: int) -> bool:
+        c = self.config
+        return c.densify_from < it < c.densify_until and it % c.densify_every == 0
+
+    def reset_opacity_now(self, it: int, white_background: bool) -> bool:
+        c = self.config
+        return it < c.densify_until and (it % c.opacity_reset_every == 0
+                                         or (white_background and it == c.densify_from))
+
+    def clamp_opacity_now(self, it: int) -> bool:
+        c = self.config
+        return c.opacity_clamp_every is not None and it < c.densify_until and it % c.opacity_clamp_every == 0
+
+    # criteria ----------------------------------------------------------------------------------------
+    def clone_values(self, stats: dict[str, np.ndarray]) -> np.ndarray:
+        return mean_per_view(stats["grad"], stats["views"])
+
+    def split_values(self, stats: dict[str, np.ndarray]) -> np.ndarray:
+        return mean_per_view(stats["grad"], stats["views"])
+
+    def split(self, gs: GaussianSet, mask: np.ndarray, rng: np.random.Generator) -> int:
+        return ops.split_random(gs, mask, rng)
+
+    # the step ----------------------------------------------------------------------------------------
+    def densify(self, gs: GaussianSet, stats: dict[str, np.ndarray], it: int, extent: float,
+                rng: np.random.Generator) -> DensifyReport:
+        """Clone, then split (clones are never split), then prune, as the 3DGS code orders them."""
+        c = self.config
+        n = gs.n
+        clone_v, split_v = self.clone_values(stats), self.split_values(stats)
+        gs.aux["max_radius"] = stats["max_radius"].astype(np.float32)
+        large = gs.scales().max(axis=1) > c.percent_dense * extent
+        report = DensifyReport()
+        report.cloned = ops.clone(gs, (clone_v >= c.clone_threshold) & ~large)
+        split_mask = np.zeros(gs.n, bool)
+        split_mask[:n] = (split_v >= c.split_threshold) & large
+        report.split = self.split(gs, split_mask, rng)
+        prune = gs.opacities() < c.prune_opacity
+        if it > c.big_world_after:
+            prune |= gs.scales().max(axis=1) > c.big_world_fraction * extent
+        if c.screen_size_px is not None:
+            prune |= gs.aux["max_radius"] > c.screen_size_px
+        report.pruned = ops.prune(gs, prune)
+        del gs.aux["max_radius"]
+        return report

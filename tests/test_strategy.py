@@ -1,0 +1,125 @@
+"""Densification rules on hand-built states: clone, split, prune, opacity reset and clamp, the three
+criteria, and Adam moments staying with their Gaussians through every operation."""
+import numpy as np
+import pytest
+
+from dc4gs_cl.host import ops
+from dc4gs_cl.host.ops import GaussianSet
+from dc4gs_cl.host.strategy import AbsGS, DensifyConfig, PixelGS, Strategy
+from dc4gs_cl.reference.project import quat_to_rotmat
+
+EXTENT = 2.0
+
+
+def hand_built(rng, n=6, sh=4):
+    """n Gaussians whose parameters and moments encode their index, so every row can be traced."""
+    idx = np.arange(n, dtype=np.float32)[:, None]
+    params = {"means": idx + np.zeros((n, 3)), "log_scales": np.full((n, 3), np.log(0.01), np.float32),
+              "quats": rng.normal(size=(n, 4)).astype(np.float32), "opacity_logits": np.zeros((n, 1), np.float32),
+              "sh": idx + np.zeros((n, 3 * sh), np.float32)}
+    m = {k: v * 0 + idx + 100 for k, v in params.items()}
+    v = {k: v * 0 + idx + 200 for k, v in params.items()}
+    return GaussianSet({k: np.asarray(a, np.float32) for k, a in params.items()}, m, v)
+
+
+def window(n, **columns):
+    stats = {k: np.zeros(n) for k in ("grad", "abs", "views", "pix_grad", "pix", "max_radius")}
+    stats["views"][:] = 10
+    for k, val in columns.items():
+        stats[k][:] = val
+    return stats
+
+
+def test_clone_appends_exact_copies_with_zero_moments(rng):
+    gs = hand_built(rng)
+    assert ops.clone(gs, np.array([0, 1, 0, 1, 0, 0], bool)) == 2
+    assert gs.n == 8
+    for k in gs.params:
+        np.testing.assert_array_equal(gs.params[k][6:], gs.params[k][[1, 3]])
+        np.testing.assert_array_equal(gs.m[k][:6, 0], 100 + np.arange(6))
+        np.testing.assert_array_equal(gs.m[k][6:], 0)
+        np.testing.assert_array_equal(gs.v[k][6:], 0)
+
+
+def test_random_split_replaces_parent_by_two_children(rng):
+    gs = hand_built(rng)
+    gs.params["log_scales"][2] = np.log([0.5, 0.1, 0.2])
+    parent = {k: v[2].copy() for k, v in gs.params.items()}
+    assert ops.split_random(gs, np.array([0, 0, 1, 0, 0, 0], bool), np.random.default_rng(1)) == 1
+    assert gs.n == 7
+    np.testing.assert_array_equal(gs.params["means"][:5, 0], [0, 1, 3, 4, 5])   # parent removed, order kept
+    np.testing.assert_array_equal(gs.m["means"][:5, 0], 100 + np.array([0, 1, 3, 4, 5]))
+    children = slice(5, 7)
+    np.testing.assert_allclose(np.exp(gs.params["log_scales"][children]),
+                               np.broadcast_to(np.exp(parent["log_scales"]) / 1.6, (2, 3)), rtol=1e-6)
+    for k in ("quats", "opacity_logits", "sh"):
+        np.testing.assert_array_equal(gs.params[k][children], np.broadcast_to(parent[k], gs.params[k][children].shape))
+    # Offsets in the parent's frame are N(0, S): large along its first axis, small along the others.
+    eps = np.random.default_rng(1).normal(size=(2, 3)) * np.exp(parent["log_scales"])
+    R = quat_to_rotmat(parent["quats"][None])[0]
+    np.testing.assert_allclose(gs.params["means"][children], parent["means"] + eps @ R.T, rtol=1e-5)
+    np.testing.assert_array_equal(gs.m["means"][children], 0)
+
+
+def test_densify_clones_small_splits_large_and_never_splits_clones(rng):
+    s = Strategy(DensifyConfig(percent_dense=0.01))
+    gs = hand_built(rng)
+    gs.params["log_scales"][3:] = np.log(0.1)          # 3, 4, 5 are large (> 0.01 * EXTENT)
+    gs.params["opacity_logits"][:] = 2.0
+    stats = window(6)
+    stats["grad"][:] = 10 * np.array([3e-4, 1e-4, 2e-4, 3e-4, 1e-4, 2e-4])   # mean 3e-4, 1e-4, exactly 2e-4
+    report = s.densify(gs, stats, it=1000, extent=EXTENT, rng=rng)
+    assert (report.cloned, report.split, report.pruned) == (2, 2, 0)       # >= threshold, as the release
+    # kept 0, 1, 2, 4; clones of 0, 2; children of 3, 5
+    np.testing.assert_array_equal(gs.params["sh"][:, 0], [0, 1, 2, 4, 0, 2, 3, 3, 5, 5])
+
+
+def test_prune_rules(rng):
+    gs = hand_built(rng)
+    gs.params["opacity_logits"][:, 0] = [-6.0, 2.0, 2.0, 2.0, 2.0, 2.0]   # sigmoid(-6) < 0.005
+    gs.params["log_scales"][2] = np.log(0.3)                            # > 0.1 * EXTENT
+    stats = window(6, max_radius=5.0)
+    stats["max_radius"][4] = 30.0
+    early = Strategy(DensifyConfig(big_world_after=3000))
+    report = early.densify(gs, stats, it=2000, extent=EXTENT, rng=rng)
+    assert report.pruned == 1 and gs.n == 5                             # opacity only before 3,000
+    late = Strategy(DensifyConfig(big_world_after=3000, screen_size_px=20))
+    stats = window(5, max_radius=5.0)
+    stats["max_radius"][3] = 30.0                                       # former index 4
+    report = late.densify(gs, stats, it=3100, extent=EXTENT, rng=rng)
+    assert report.pruned == 2
+    np.testing.assert_array_equal(gs.params["sh"][:, 0], [1, 3, 5])
+
+
+@pytest.mark.parametrize("cls, column, threshold", [(Strategy, "grad", 2e-4), (AbsGS, "abs", 4e-4)])
+def test_split_criterion_of_each_base(rng, cls, column, threshold):
+    s = cls()
+    gs = hand_built(rng, n=2)
+    gs.params["log_scales"][:] = np.log(0.5)
+    gs.params["opacity_logits"][:] = 2.0
+    stats = window(2)
+    stats[column][:] = 10 * np.array([threshold * 1.01, threshold * 0.99])
+    assert s.densify(gs, stats, it=1000, extent=EXTENT, rng=rng).split == 1
+
+
+def test_pixelgs_averages_over_pixels_not_views(rng):
+    s = PixelGS()
+    gs = hand_built(rng, n=2)
+    gs.params["log_scales"][:] = np.log(0.001)
+    gs.params["opacity_logits"][:] = 2.0
+    stats = window(2, views=1000.0)
+    stats["pix_grad"][:] = [3e-4 * 50, 1e-4 * 50]
+    stats["pix"][:] = 50
+    assert s.densify(gs, stats, it=1000, extent=EXTENT, rng=rng).cloned == 1
+
+
+def test_schedule_follows_the_recipe():
+    s = Strategy()
+    steps = [it for it in range(1, 30_001) if s.densify_now(it)]
+    assert steps[0] == 600 and steps[-1] == 14_900 and len(steps) == 144
+    assert [it for it in range(1, 30_001) if s.reset_opacity_now(it, False)] == [3000, 6000, 9000, 12000]
+    assert s.reset_opacity_now(500, True) and not s.reset_opacity_now(500, False)
+    a = AbsGS()
+    clamps = [it for it in range(1, 30_001) if a.clamp_opacity_now(it)]
+    assert clamps[0] == 500 and clamps[-1] == 14_500 and not s.clamp_opacity_now(500)
+    assert s.collecting(14_999) and not s.collecting(15_000)

@@ -1,0 +1,136 @@
+"""Training end to end on the built-in scene: it learns, it resumes to the same result after Ctrl-C or a
+crash, and bad settings are refused without touching earlier output."""
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from dc4gs_cl.cli import main
+from dc4gs_cl.metrics import psnr
+from dc4gs_cl.scene import load_scene
+from dc4gs_cl.train import CHECKPOINT, Trainer, TrainConfig
+
+SMALL = ["--scene", "builtin", "-r", "2", "--no-progress"]
+
+
+def test_training_improves_the_test_views(rt, tmp_path):
+    scene = load_scene("builtin", resolution=2)
+    trainer = Trainer(TrainConfig(scene="builtin", iterations=600, resolution=2), scene, rt, tmp_path)
+
+    def test_psnr():
+        return np.mean([psnr(trainer.renderer.render(trainer.params, c, trainer.sh_degree, scene.background).image(rt),
+                             scene.image(c)) for c in scene.test])
+
+    before = test_psnr()
+    trainer.run(progress=False)
+    after = test_psnr()
+    assert after > before + 6, (before, after)       # measured: 16.2 -> 27.6 dB
+    assert trainer.params.n > len(scene.points)      # densified
+    assert all(np.isfinite(a).all() for a in trainer.params.download().values())
+
+
+def test_opacity_reset_limits_opacities_and_restarts_only_their_moments(rt, tmp_path):
+    scene = load_scene("builtin", resolution=4)
+    trainer = Trainer(TrainConfig(scene="builtin", resolution=4), scene, rt, tmp_path)   # no reset in 3 steps
+    for _ in range(3):
+        trainer.step()
+    before = {k: trainer.adam.m.download_group(k) for k in trainer.widths}
+    assert np.abs(before["opacity_logits"]).max() > 0
+    trainer.limit_opacity(0.01)
+    o = 1 / (1 + np.exp(-trainer.params.download_group("opacity_logits")))
+    assert o.max() <= 0.01 + 1e-6
+    np.testing.assert_array_equal(trainer.adam.m.download_group("opacity_logits"), 0)
+    np.testing.assert_array_equal(trainer.adam.v.download_group("opacity_logits"), 0)
+    np.testing.assert_array_equal(trainer.adam.m.download_group("means"), before["means"])
+
+
+def cli(*args, wait=True):
+    cmd = [sys.executable, "-m", "dc4gs_cl", "train", *args]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    if wait:
+        proc.communicate(timeout=300)
+    return proc
+
+
+def final_ply(out: Path, iterations: int) -> bytes:
+    return (out / "point_cloud" / f"iteration_{iterations}" / "point_cloud.ply").read_bytes()
+
+
+@pytest.mark.parametrize("how", ["sigint", "kill"])
+def test_interrupted_run_resumes_to_the_same_model(tmp_path, how):
+    iterations = ["--iterations", "240", "--checkpoint-every", "40"]
+    straight = tmp_path / "straight"
+    assert cli(*SMALL, *iterations, "--out", str(straight)).returncode == 0
+    stopped = tmp_path / "stopped"
+    proc = cli(*SMALL, *iterations, "--out", str(stopped), wait=False)
+    deadline = time.time() + 120
+    while not (stopped / CHECKPOINT).exists() and proc.poll() is None and time.time() < deadline:
+        time.sleep(0.05)
+    proc.send_signal(signal.SIGINT if how == "sigint" else signal.SIGKILL)
+    proc.communicate(timeout=120)
+    assert proc.returncode == (130 if how == "sigint" else -signal.SIGKILL)
+    with np.load(stopped / CHECKPOINT) as f:
+        at = json.loads(bytes(f["meta"]).decode())["iteration"]
+    assert 0 < at < 240
+    resumed = cli("--out", str(stopped), "--resume", "--no-progress")
+    assert resumed.returncode == 0
+    # Training is deterministic (no float atomics), so the resumed run ends bit for bit where the straight one does.
+    assert final_ply(stopped, 240) == final_ply(straight, 240)
+
+
+def snapshot(folder: Path) -> dict:
+    return {str(p): (p.stat().st_mtime_ns, p.stat().st_size) for p in folder.rglob("*")}
+
+
+@pytest.fixture(scope="module")
+def finished_run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("run")
+    assert main(["train", *SMALL, "-r", "4", "--iterations", "20", "--out", str(out)]) == 0
+    return out
+
+
+def bad(capsys, *args) -> str:
+    assert main(["train", *args]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("dc4gs-cl train: error:")
+    return err[0]
+
+
+def test_refuses_a_folder_holding_another_run(finished_run, capsys):
+    before = snapshot(finished_run)
+    assert "holds another run" in bad(capsys, *SMALL, "--iterations", "20", "--out", str(finished_run))
+    assert snapshot(finished_run) == before
+
+
+def test_corrupt_and_mismatched_checkpoints(finished_run, tmp_path, capsys):
+    import shutil
+    run = tmp_path / "copy"
+    shutil.copytree(finished_run, run)
+    (run / CHECKPOINT).write_bytes(os.urandom(500))
+    assert "checkpoint.npz" in bad(capsys, "--out", str(run), "--resume") 
+    shutil.copy(finished_run / CHECKPOINT, run / CHECKPOINT)
+    cfg = json.loads((run / "config.json").read_text())
+    cfg["seed"] = 7
+    (run / "config.json").write_text(json.dumps(cfg))
+    assert "other settings" in bad(capsys, "--out", str(run), "--resume")
+    assert "differ" in bad(capsys, "--out", str(finished_run), "--resume", "--strategy", "absgs")
+
+
+@pytest.mark.parametrize("args, says", [
+    (["--iterations", "0"], "--iterations 0"),
+    (["--iterations", "100", "--save-at", "50", "500"], "--save-at"),
+    (["--densify-until", "-5"], "--densify-until"),
+    (["--test-every", "-1"], "--test-every"),
+    (["--checkpoint-every", "0"], "--checkpoint-every"),
+    (["--resume"], "--resume needs --out"),
+])
+def test_settings_that_make_no_sense(tmp_path, capsys, args, says):
+    out = [] if "--resume" in args else ["--out", str(tmp_path / "o")]
+    assert says in bad(capsys, *SMALL, *args, *out)
+    assert not (tmp_path / "o").exists()
