@@ -187,7 +187,8 @@ class Runtime:
         return out
 
     def buffer(self, nbytes: int) -> cl.Buffer:
-        return cl.Buffer(self.context, cl.mem_flags.READ_WRITE, max(int(nbytes), 4))
+        """A device buffer of at least nbytes, rounded up to 16 bytes (fills use 4-byte patterns)."""
+        return cl.Buffer(self.context, cl.mem_flags.READ_WRITE, max(-(-int(nbytes) // 16) * 16, 16))
 
     def to_device(self, array: np.ndarray) -> cl.Buffer:
         a = np.ascontiguousarray(array)
