@@ -44,18 +44,20 @@ void rasterize_backward(const int width, const int height, const int tiles_x, co
     __local float2 l_mean[BATCH];
     __local float4 l_conic_opacity[BATCH];
     __local float l_rgb[BATCH * 3];
-    __local int2 l_rows[BATCH];
+    __local int4 l_reach[BATCH];
     __local uint l_gaussian[BATCH];
 #if ITEMS_PER_TILE > 1
     __local float l_sums[BATCH * SUMS_PER_GAUSSIAN];
     __local int l_end;
 #endif
 
-    const int row0 = (lid * PIXELS_PER_ITEM) / TILE_SIZE;
+    const int row0 = (lid * PIXELS_PER_ITEM) / TILE_SIZE;            // first tile row this item owns
+    const int col0 = (lid * PIXELS_PER_ITEM) % TILE_SIZE;            // and first column (0 for whole rows)
+    // Per pixel: T (after the Gaussian being visited), dL/dpixel colour (dr, dg, db), and
+    // behind = sum over the Gaussians already visited (those behind) of w c . dL/dpixel, the only way the
+    // colour behind enters the gradient; bg_term = T_final background . dL/dpixel.
     float px[PIXELS_PER_ITEM], py[PIXELS_PER_ITEM], T[PIXELS_PER_ITEM], bg_term[PIXELS_PER_ITEM];
-    float dr[PIXELS_PER_ITEM], dg[PIXELS_PER_ITEM], db[PIXELS_PER_ITEM];          // dL/dpixel colour
-    float br[PIXELS_PER_ITEM], bgr[PIXELS_PER_ITEM], bb[PIXELS_PER_ITEM];        // colour behind, per unit T
-    float last_a[PIXELS_PER_ITEM], lr[PIXELS_PER_ITEM], lg[PIXELS_PER_ITEM], lb[PIXELS_PER_ITEM];
+    float dr[PIXELS_PER_ITEM], dg[PIXELS_PER_ITEM], db[PIXELS_PER_ITEM], behind[PIXELS_PER_ITEM];
     int last[PIXELS_PER_ITEM];
     int my_end = first;
     for (int p = 0; p < PIXELS_PER_ITEM; ++p) {
@@ -70,8 +72,7 @@ void rasterize_backward(const int width, const int height, const int tiles_x, co
         dg[p] = inside ? dL_dimage[3 * pix + 1] : 0.f;
         db[p] = inside ? dL_dimage[3 * pix + 2] : 0.f;
         bg_term[p] = T[p] * (background.x * dr[p] + background.y * dg[p] + background.z * db[p]);
-        br[p] = bgr[p] = bb[p] = 0.f;
-        last_a[p] = lr[p] = lg[p] = lb[p] = 0.f;
+        behind[p] = 0.f;
         last[p] = inside ? last_pair[pix] : first - 1;
         my_end = max(my_end, last[p] + 1);
     }
@@ -100,7 +101,7 @@ void rasterize_backward(const int width, const int height, const int tiles_x, co
             l_mean[j] = vload2(g, mean2d);
             l_conic_opacity[j] = vload4(g, conic_opacity);
             l_rgb[3 * j] = rgb[3 * g]; l_rgb[3 * j + 1] = rgb[3 * g + 1]; l_rgb[3 * j + 2] = rgb[3 * g + 2];
-            l_rows[j] = rows_in_reach(l_mean[j].y, alpha_extent[2 * g + 1], y0);
+            l_reach[j] = reach(l_mean[j], vload2(g, alpha_extent), x0, y0);
         }
 #if ITEMS_PER_TILE > 1
         for (int k = lid; k < count * SUMS_PER_GAUSSIAN; k += ITEMS_PER_TILE) l_sums[k] = 0.f;
@@ -112,15 +113,17 @@ void rasterize_backward(const int width, const int height, const int tiles_x, co
             const float4 co = l_conic_opacity[j];
             const float cr = l_rgb[3 * j], cg = l_rgb[3 * j + 1], cb = l_rgb[3 * j + 2];
             const int idx = base + j;
-            const int2 rows = l_rows[j];
+            const int4 span = l_reach[j];
             // Per column lane, so the pixel loop carries no dependency and vectorises; lanes are summed
             // once per pair below.
             float lanes[SUMS_PER_GAUSSIAN][COLS_PER_ITEM];
             for (int k = 0; k < SUMS_PER_GAUSSIAN; ++k)
                 for (int cc = 0; cc < COLS_PER_ITEM; ++cc) lanes[k][cc] = 0.f;
             for (int rr = 0; rr < ROWS_PER_ITEM; ++rr) {
-              if (row0 + rr < rows.x || row0 + rr > rows.y) continue;
-              for (int cc = 0; cc < COLS_PER_ITEM; ++cc) {
+              if (row0 + rr < span.z || row0 + rr > span.w) continue;
+              for (int c0 = 0; c0 < COLS_PER_ITEM; c0 += COL_BLOCK) {
+               if (col0 + c0 + COL_BLOCK - 1 < span.x || col0 + c0 > span.y) continue;
+               for (int cc = c0; cc < c0 + COL_BLOCK; ++cc) {
                 const int p = rr * COLS_PER_ITEM + cc;
                 float dx = px[p] - m.x, dy = py[p] - m.y;
                 float power = -0.5f * (co.x * dx * dx + co.z * dy * dy) - co.y * dx * dy;
@@ -131,12 +134,9 @@ void rasterize_backward(const int width, const int height, const int tiles_x, co
                 float one_minus = 1.f - alpha;
                 float t = blend ? T[p] / one_minus : T[p];          // T before this Gaussian
                 float w = alpha * t;
-                // Colour of everything behind this Gaussian, per unit of the T it leaves.
-                float nbr = last_a[p] * lr[p] + (1.f - last_a[p]) * br[p];
-                float nbg = last_a[p] * lg[p] + (1.f - last_a[p]) * bgr[p];
-                float nbb = last_a[p] * lb[p] + (1.f - last_a[p]) * bb[p];
-                float dL_dalpha = t * ((cr - nbr) * dr[p] + (cg - nbg) * dg[p] + (cb - nbb) * db[p])
-                                  - bg_term[p] / one_minus;
+                // dC/dalpha = T c - (colour behind + T_final background) / (1 - alpha), dotted with dL/dC.
+                float c_dot = cr * dr[p] + cg * dg[p] + cb * db[p];
+                float dL_dalpha = t * c_dot - (behind[p] + bg_term[p]) / one_minus;
                 // alpha = min(ALPHA_MAX, o G): no gradient where the clamp holds.
                 float dL_dG = (blend & (oG < ALPHA_MAX)) ? co.w * dL_dalpha : 0.f;
                 float dL_do = (blend & (oG < ALPHA_MAX)) ? G * dL_dalpha : 0.f;
@@ -166,9 +166,8 @@ void rasterize_backward(const int width, const int height, const int tiles_x, co
 #endif
 #endif
                 T[p] = t;
-                br[p] = blend ? nbr : br[p]; bgr[p] = blend ? nbg : bgr[p]; bb[p] = blend ? nbb : bb[p];
-                last_a[p] = blend ? alpha : last_a[p];
-                lr[p] = blend ? cr : lr[p]; lg[p] = blend ? cg : lg[p]; lb[p] = blend ? cb : lb[p];
+                behind[p] += blend ? w * c_dot : 0.f;
+               }
               }
             }
             float acc[SUMS_PER_GAUSSIAN];
