@@ -18,11 +18,13 @@ import numpy as np
 from .errors import DeviceError, InputError
 from .host.strategy import STRATEGIES as STRATEGY_NAMES
 from .scene.builtin import BUILTIN_SCENE
+from .host.dc4gs import DCC_READINGS, DENSE_CANDIDATES, POOLINGS, SPLIT_PICKS
 from .train import RECIPE_ITERATIONS
 
 BUILTIN_ITERATIONS = 5_000   # the default run on the built-in scene: about five minutes on 2 CPU cores
 TRAIN_SETTINGS = ("scene", "strategy", "iterations", "resolution", "test_every", "save_at", "densify_until",
-                  "checkpoint_every", "seed", "white_background")
+                  "checkpoint_every", "seed", "white_background", "dcc", "dcs", "dc_pooling", "split_pick",
+                  "split_candidates", "dcc_reading")
 
 
 def _add_device(p: argparse.ArgumentParser) -> None:
@@ -77,6 +79,22 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--checkpoint-every", type=int, default=None, help="iterations between checkpoints (1000)")
     p.add_argument("--seed", type=int, default=None)
     p.add_argument("--white-background", action="store_true", default=None, help="white background (Blender scenes)")
+    g = p.add_argument_group("DC4GS (directional-consistency density control, on any base strategy)")
+    g.add_argument("--dc4gs", action="store_true", default=None, help="DCC and DCS together")
+    g.add_argument("--dcc", action="store_true", default=None,
+                   help="DC-weighted split criterion: a Gaussian is split only where its pixels' gradients disagree")
+    g.add_argument("--dcs", action="store_true", default=None,
+                   help="DC-guided split: children placed on the principal axis where the costs say, not at random")
+    g.add_argument("--dc-pooling", choices=POOLINGS, default=None,
+                   help="directional consistency per view (view: the paper; default) or over the densification "
+                        "window (window: the authors' release)")
+    g.add_argument("--split-pick", choices=SPLIT_PICKS, default=None,
+                   help="split position: minimum of the polynomial through the candidates' costs (poly, default), "
+                        f"the best candidate (argmin), or the best of many candidates (dense: {DENSE_CANDIDATES})")
+    g.add_argument("--split-candidates", type=int, default=None, help="candidate split positions (odd; default 5)")
+    g.add_argument("--dcc-reading", choices=DCC_READINGS, default=None,
+                   help="what DCC weights on the 3DGS and Pixel-GS bases: the homodirectional gradient (abs, "
+                        "default) or the base's own term (base, the paper's literal reading)")
     p.add_argument("--resume", action="store_true", help="continue the run in --out from its checkpoint")
     p.add_argument("--force", action="store_true", help="replace a previous run's files in --out")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -155,6 +173,8 @@ def train_config(args, out: Path):
     """The run's settings: from the arguments, or with --resume from the run's config.json (explicit
     arguments must then agree with it)."""
     from .train import CONFIG, TrainConfig
+    if args.dc4gs:
+        args.dcc = args.dcs = True
     given = {k: getattr(args, k) for k in TRAIN_SETTINGS if getattr(args, k) is not None}
     if "save_at" in given:
         given["save_at"] = tuple(given["save_at"])
@@ -175,7 +195,8 @@ def train_config(args, out: Path):
         return cfg
     given.setdefault("scene", BUILTIN_SCENE)
     given.setdefault("iterations", BUILTIN_ITERATIONS if given["scene"] == BUILTIN_SCENE else RECIPE_ITERATIONS)
-    given["white_background"] = bool(given.get("white_background"))
+    for flag in ("white_background", "dcc", "dcs"):
+        given[flag] = bool(given.get(flag))
     return TrainConfig(**given)
 
 
@@ -210,7 +231,7 @@ def cmd_train(args) -> int:
             clear_run(out)
         write_run_files(out, cfg, scene)
     print(f"device: {describe(rt.device)}\nscene: {cfg.scene} ({len(scene.train)} train / {len(scene.test)} test views, "
-          f"{scene.train[0].width}x{scene.train[0].height}), strategy {cfg.strategy}, {cfg.iterations:,} iterations, "
+          f"{scene.train[0].width}x{scene.train[0].height}), strategy {trainer.strategy.label}, {cfg.iterations:,} iterations, "
           f"{trainer.params.n:,} initial Gaussians\noutput: {out}", file=sys.stderr)
     start, first = time.perf_counter(), trainer.iteration
     try:

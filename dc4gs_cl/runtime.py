@@ -3,12 +3,15 @@
 One `Runtime` per process and device. Programs are built once per (kernel file, -D options) and their
 `Kernel` objects kept, so nothing is rebuilt or looked up on the hot path (PoCL and pyopencl also keep
 compiled binaries on disk, so a new process builds fast). `#include "x.h"` lines in kernel files are
-resolved here, textually, so the source text alone decides what the driver caches.
+resolved here, textually, so the source text alone decides what the driver caches. Every device buffer
+is made here (`buffer`, `to_device`), which counts the bytes held (`memory_in_use`) and their
+high-water mark (`memory_peak`, restarted by `reset_memory_peak()`).
 """
 from __future__ import annotations
 
 import os
 import re
+import weakref
 from collections import defaultdict
 from dataclasses import dataclass
 from importlib import resources
@@ -116,6 +119,10 @@ class Capabilities:
         )
 
 
+class _Buffer(cl.Buffer):
+    """A cl.Buffer that can be weakly referenced (pyopencl's cannot), so that its release can be counted."""
+
+
 def _format_define(v) -> str:
     if isinstance(v, bool):
         return "1" if v else "0"
@@ -137,6 +144,8 @@ class Runtime:
         self._programs: dict[tuple, cl.Program] = {}
         self._kernels: dict[tuple, cl.Kernel] = {}
         self.events: dict[str, list[cl.Event]] = defaultdict(list)
+        self.memory_in_use = 0   # bytes in device buffers made here and not yet released
+        self.memory_peak = 0     # the most memory_in_use has been since the last reset_memory_peak()
 
     def __repr__(self) -> str:
         return f"Runtime({self.device_key} {describe(self.device)})"
@@ -188,12 +197,27 @@ class Runtime:
 
     def buffer(self, nbytes: int) -> cl.Buffer:
         """A device buffer of at least nbytes, rounded up to 16 bytes (fills use 4-byte patterns)."""
-        return cl.Buffer(self.context, cl.mem_flags.READ_WRITE, max(-(-int(nbytes) // 16) * 16, 16))
+        return self._counted(_Buffer(self.context, cl.mem_flags.READ_WRITE, max(-(-int(nbytes) // 16) * 16, 16)))
 
     def to_device(self, array: np.ndarray) -> cl.Buffer:
         a = np.ascontiguousarray(array)
-        return cl.Buffer(self.context, cl.mem_flags.READ_WRITE | cl.mem_flags.COPY_HOST_PTR, hostbuf=a) \
-            if a.nbytes else self.buffer(4)
+        if not a.nbytes:
+            return self.buffer(4)
+        return self._counted(_Buffer(self.context, cl.mem_flags.READ_WRITE | cl.mem_flags.COPY_HOST_PTR, hostbuf=a))
+
+    # memory accounting: bytes are added when a buffer is made and taken off when Python releases it
+    def _counted(self, buf: _Buffer) -> _Buffer:
+        self.memory_in_use += buf.size
+        self.memory_peak = max(self.memory_peak, self.memory_in_use)
+        weakref.finalize(buf, self._released, buf.size)
+        return buf
+
+    def _released(self, nbytes: int) -> None:
+        self.memory_in_use -= nbytes
+
+    def reset_memory_peak(self) -> None:
+        """Start a new high-water mark from what is allocated now."""
+        self.memory_peak = self.memory_in_use
 
     def to_host(self, buf: cl.Buffer, shape, dtype=np.float32) -> np.ndarray:
         out = np.empty(shape, dtype=dtype)

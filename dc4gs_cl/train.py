@@ -22,13 +22,14 @@ import numpy as np
 from .constants import SH_MAX_DEGREE
 from .errors import InputError
 from .host.adam import Adam, exponential_lr
+from .host.dc4gs import DCC_READINGS, DENSE_CANDIDATES, POOLINGS, SPLIT_PICKS, DC4GSConfig
 from .host.ops import GaussianSet
 from .host.stats import WindowStats
 from .host.strategy import STRATEGIES, DensifyConfig, Strategy
 from .loss import Loss
 from .model import initial_model
 from .render import DeviceGaussians, Renderer
-from .render.backward import SumsLayout, project_backward, rasterize_backward
+from .render.backward import SumsLayout, project_backward, rasterize_backward, split_geometry
 from .render.gaussians import DeviceArrays, group_widths
 from .runtime import Runtime
 from .scene.camera import Camera, Scene
@@ -59,6 +60,13 @@ class TrainConfig:
     lr_scales: float = 5e-3
     lr_quats: float = 1e-3
     densify_until: int | None = None       # override the strategy's (scaled) window end; 0 disables densification
+    # DC4GS (off unless dcc or dcs); see host/dc4gs.py
+    dcc: bool = False
+    dcs: bool = False
+    dc_pooling: str = "view"
+    split_pick: str = "poly"
+    split_candidates: int | None = None    # 5, or DENSE_CANDIDATES with split_pick "dense"
+    dcc_reading: str = "abs"
 
     def __post_init__(self):
         problems = []
@@ -76,8 +84,21 @@ class TrainConfig:
             problems.append(f"--densify-until {self.densify_until} must be >= 0")
         if not 0 <= self.sh_degree <= SH_MAX_DEGREE:
             problems.append(f"--sh-degree {self.sh_degree} must be 0..{SH_MAX_DEGREE}")
+        if self.split_candidates is not None and (self.split_candidates < 3 or self.split_candidates % 2 == 0):
+            problems.append(f"--split-candidates {self.split_candidates} must be odd and at least 3")
+        for name, value, allowed in (("--dc-pooling", self.dc_pooling, POOLINGS), ("--split-pick", self.split_pick, SPLIT_PICKS),
+                                     ("--dcc-reading", self.dcc_reading, DCC_READINGS)):
+            if value not in allowed:
+                problems.append(f"{name} {value!r} is not one of {', '.join(allowed)}")
         if problems:
             raise InputError(None, "; ".join(problems))
+
+    def dc4gs(self) -> DC4GSConfig | None:
+        if not (self.dcc or self.dcs):
+            return None
+        candidates = self.split_candidates or (DENSE_CANDIDATES if self.split_pick == "dense" else 5)
+        return DC4GSConfig(dcc=self.dcc, dcs=self.dcs, pooling=self.dc_pooling, split_pick=self.split_pick,
+                           candidates=candidates, dcc_reading=self.dcc_reading)
 
     @property
     def schedule_scale(self) -> float:
@@ -118,7 +139,7 @@ def make_strategy(cfg: TrainConfig) -> Strategy:
                 opacity_clamp_every=None if base.opacity_clamp_every is None else cfg.scaled(base.opacity_clamp_every))
     if cfg.densify_until is not None:
         c = replace(c, densify_until=cfg.densify_until)
-    return cls(c)
+    return cls(c, cfg.dc4gs())
 
 
 def write_atomic(path: Path, write) -> None:
@@ -164,14 +185,14 @@ class Trainer:
         self.rng = np.random.default_rng(cfg.seed)
         self.iteration = 0
         self.camera_stack: list[int] = []
-        self.stats_layout = SumsLayout(stats=True)
+        self.stats_layout = self.strategy.sums_layout()
         self.plain_layout = SumsLayout()
         model = initial_model(scene.points, scene.colors, self.rng, cfg.sh_degree)
         self.params = DeviceGaussians(rt, model)
         self.widths = group_widths(self.params.sh_coeffs)
         self.grads = DeviceArrays(rt, self.widths, self.params.n)
         self.adam = Adam(rt, self.widths, self.params.n)
-        self.window = WindowStats(rt, self.stats_layout, self.extent)
+        self.window = WindowStats(rt, self.stats_layout, self.extent, self.strategy.window_layout())
         self.window.reset(self.params.n)
         self.progress = Progress(gaussians=self.params.n)
         self.target = rt.buffer(4)
@@ -215,10 +236,13 @@ class Trainer:
         collecting = s.collecting(it)
         layout = self.stats_layout if collecting else self.plain_layout
         r = self.renderer
-        sums = rasterize_backward(rt, r.ws, r.tuning, r.defines, layout, res, self.grad_image, self.background)
+        geometry = split_geometry(rt, r.ws, self.params, cam, res, layout.split_candidates,
+                                  s.config.percent_dense * self.extent) if layout.split_candidates else None
+        sums = rasterize_backward(rt, r.ws, r.tuning, r.defines, layout, res, self.grad_image, self.background,
+                                  geometry)
         project_backward(rt, self.params, cam, self.sh_degree, res, sums, layout, self.grads.buffers)
         if collecting:
-            self.window.accumulate(res, sums)
+            self.window.accumulate(res, sums, geometry)
 
         densify = s.densify_now(it)
         clamp = s.clamp_opacity_now(it)
@@ -283,7 +307,8 @@ class Trainer:
         except (OSError, ValueError, KeyError, json.JSONDecodeError, UnicodeDecodeError) as e:
             raise InputError(path, f"corrupt checkpoint ({e.__class__.__name__}: {e})") from None
         mismatched = [k for k in ("scene", "strategy", "iterations", "resolution", "seed", "sh_degree", "test_every",
-                                  "white_background") if getattr(saved, k) != getattr(self.cfg, k)]
+                                  "white_background", "dcc", "dcs", "dc_pooling", "split_candidates", "split_pick")
+                      if getattr(saved, k) != getattr(self.cfg, k)]
         if mismatched:
             diffs = ", ".join(f"{k}: checkpoint {getattr(saved, k)!r} vs now {getattr(self.cfg, k)!r}" for k in mismatched)
             raise InputError(path, f"checkpoint is from other settings ({diffs})")

@@ -48,13 +48,13 @@ class Adam:
         for name, lr in lrs.items():
             self.steps[name] += 1
             t = self.steps[name]
-            width = params.widths[name]
-            count = params.n * width
+            width, rows = params.widths[name], params.n
             low, high = lr if isinstance(lr, tuple) else (lr, lr)
-            if count == 0:
+            if rows == 0:
                 continue
-            self.rt.launch("adam", self.kernel, -(-count // ADAM_WG) * ADAM_WG, ADAM_WG, np.uint32(count),
-                           np.uint32(width), np.uint32(split_lanes if isinstance(lr, tuple) else width),
+            per_group = max(1, ADAM_WG // width)
+            self.rt.launch("adam", self.kernel, (width, -(-rows // per_group) * per_group), (width, per_group),
+                           np.uint32(rows), np.uint32(split_lanes if isinstance(lr, tuple) else width),
                            np.float32(low), np.float32(high), np.float32(cfg.beta1), np.float32(cfg.beta2),
                            np.float32(cfg.eps), np.float32(1 - cfg.beta1 ** t), np.float32(1 - cfg.beta2 ** t),
                            params.buffers[name], grads.buffers[name], self.m.buffers[name], self.v.buffers[name])

@@ -15,25 +15,52 @@ STATS_WG = 64
 PIXELGS_DEPTH_FRACTION = 0.37   # Pixel-GS: gradients of Gaussians nearer than this x extent are scaled down
 
 
+BASE_COLUMNS = ("grad", "abs", "views", "pix_grad", "pix", "max_radius")
+DCC_COLUMNS = ("dcc_abs", "dcc_grad", "dcc_pix")
+DC_WINDOW_COLUMNS = ("dc_ux", "dc_uy", "dc_n")
+
+
 @dataclass(frozen=True)
 class WindowLayout:
-    """Per-Gaussian window accumulators, in this order (see kernels/densify_stats.cl)."""
-    names: tuple[str, ...] = ("grad", "abs", "views", "pix_grad", "pix", "max_radius")
+    """Per-Gaussian window accumulators (see kernels/densify_stats.cl): the base columns; with dc the DCC
+    terms (and, pooled over the window, the running unit-vector sums); with split_candidates N the split
+    costs J (N), and, pooled over the window, the sides' running sums: totals (5) and left sums (5 N)."""
+    dc: bool = False
+    split_candidates: int = 0
+    window_pooling: bool = False
+
+    @property
+    def columns(self) -> dict[str, tuple[int, int]]:
+        """name -> (offset, width)."""
+        widths = [(k, 1) for k in BASE_COLUMNS]
+        if self.dc:
+            widths += [(k, 1) for k in DCC_COLUMNS]
+            if self.window_pooling:
+                widths += [(k, 1) for k in DC_WINDOW_COLUMNS]
+        if self.split_candidates:
+            widths += [("j", self.split_candidates)]
+            if self.window_pooling:
+                widths += [("total", 5), ("left", 5 * self.split_candidates)]
+        out, at = {}, 0
+        for name, w in widths:
+            out[name] = (at, w)
+            at += w
+        return out
 
     @property
     def width(self) -> int:
-        return len(self.names)
-
-    def index(self, name: str) -> int:
-        return self.names.index(name)
+        return sum(w for _, w in self.columns.values())
 
     def defines(self) -> dict[str, int]:
-        return {"WINDOW_WIDTH": self.width, **{f"WIN_{k.upper()}": i for i, k in enumerate(self.names)}}
+        return {"WINDOW_WIDTH": self.width, "DC_WINDOW": int(self.window_pooling),
+                **{f"WIN_{k.upper()}": at for k, (at, _) in self.columns.items()}}
 
 
 class WindowStats:
     def __init__(self, rt: Runtime, sums_layout: SumsLayout, extent: float, layout: WindowLayout = WindowLayout()):
         self.rt, self.layout, self.sums_layout = rt, layout, sums_layout
+        if layout.dc != sums_layout.dc_stats or layout.split_candidates != sums_layout.split_candidates:
+            raise ValueError("the window's DC4GS columns must match the backward's sums")
         self.depth_scale = PIXELGS_DEPTH_FRACTION * extent
         self.kernel = rt.kernel("densify_stats.cl", "accumulate_view_stats",
                                 {**sums_layout.defines(), **layout.defines()})
@@ -48,20 +75,23 @@ class WindowStats:
         self.rt.fill(self.buffer, np.float32(0), 4 * self.layout.width * n)
         self.n = n
 
-    def accumulate(self, res: RenderResult, sums: cl.Buffer) -> None:
+    def accumulate(self, res: RenderResult, sums: cl.Buffer, split_geometry: cl.Buffer | None = None) -> None:
         n = self.n
         if n == 0:
             return
         self.rt.launch("densify_stats", self.kernel, -(-n // STATS_WG) * STATS_WG, STATS_WG, np.uint32(n),
                        np.float32(0.5 * res.width), np.float32(0.5 * res.height), np.float32(self.depth_scale),
-                       res.proj.radius, res.proj.depth, sums, self.buffer)
+                       res.proj.radius, res.proj.depth, sums, split_geometry if split_geometry is not None else sums,
+                       self.buffer)
 
     def download(self) -> dict[str, np.ndarray]:
+        """name -> (n,) or (n, width) arrays."""
         a = self.rt.to_host(self.buffer, (self.n, self.layout.width))
-        return {k: a[:, i] for i, k in enumerate(self.layout.names)}
+        return {k: a[:, at] if w == 1 else a[:, at:at + w] for k, (at, w) in self.layout.columns.items()}
 
     def upload(self, arrays: dict[str, np.ndarray]) -> None:
         """Restore accumulators (resuming a run)."""
         n = len(next(iter(arrays.values())))
         self.reset(n)
-        self.rt.write(self.buffer, np.stack([arrays[k] for k in self.layout.names], 1).astype(np.float32))
+        cols = [np.asarray(arrays[k], np.float32).reshape(n, w) for k, (_, w) in self.layout.columns.items()]
+        self.rt.write(self.buffer, np.concatenate(cols, 1))

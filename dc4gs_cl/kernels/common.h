@@ -17,6 +17,9 @@ typedef struct {
     int width, height;
 } Camera;
 
+// Inlined even where the compiler's cost model would not: constant arguments then specialise the body.
+#define ALWAYS_INLINE inline __attribute__((always_inline))
+
 #define MINF(a, b) ((a) < (b) ? (a) : (b))
 #define MAXF(a, b) ((a) > (b) ? (a) : (b))
 #define CLAMPF(x, lo, hi) MINF(MAXF((x), (lo)), (hi))

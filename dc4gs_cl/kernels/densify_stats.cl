@@ -12,12 +12,43 @@
 //         WIN_PIX_GRAD   sum over visible views of f |sum_j g_j| pix_v, f = min(1, (z / depth_scale)^2) (Pixel-GS)
 //         WIN_PIX        sum over visible views of pix_v, the pixels where the Gaussian was blended
 //         WIN_MAX_RADIUS largest radius in px (for the screen-size pruning rule)
+//       DC4GS (-D DC_STATS), with kappa the directional consistency |sum u| / count (kappa = 1, weight 0,
+//       where the count is 0):
+//         WIN_DCC_ABS    sum over visible views of (1 - kappa) |(sum |g_x|, sum |g_y|)|  (the DCC term)
+//         WIN_DCC_GRAD   sum over visible views of (1 - kappa) |sum_j g_j|    (DCC on the 3DGS base's own term)
+//         WIN_DCC_PIX    sum over visible views of (1 - kappa) f |sum_j g_j| pix_v  (... on Pixel-GS's)
+//         with -D DC_WINDOW (the authors' release): kappa from the sums since the last densification step,
+//         WIN_DC_UX, WIN_DC_UY, WIN_DC_N; without (the paper): kappa of this view alone
+//       DC-guided split (-D SPLIT_CANDIDATES = N), only where this view gave the candidates a line
+//       (split_geometry [N*(N+3)], dir != 0):
+//         WIN_J + k      split cost of candidate k: per view cost(left_k) + cost(total - left_k), with
+//                        cost(side) = (1 - kappa_side) |(sum |g_x|, sum |g_y|)| over the side's pixels;
+//                        with DC_WINDOW the sides' sums accumulate over the window (WIN_LEFT + 5k + v,
+//                        WIN_TOTAL + v for v = u_x, u_y, count, |g_x|, |g_y|) and every visible view adds
+//                        the cost of the accumulated sums
 
 #include "common.h"
 
+#ifndef DC_STATS
+#define DC_STATS 0
+#endif
+#ifndef DC_WINDOW
+#define DC_WINDOW 0
+#endif
+#ifndef SPLIT_CANDIDATES
+#define SPLIT_CANDIDATES 0
+#endif
+
+// (1 - |(ux, uy)| / n) |(ax, ay)|: the cost of one side; 0 for an empty side.
+inline float side_cost(float ux, float uy, float n, float ax, float ay) {
+    float kappa = n > 0.f ? sqrt(ux * ux + uy * uy) / n : 0.f;
+    return (1.f - kappa) * sqrt(ax * ax + ay * ay);
+}
+
 __kernel void accumulate_view_stats(const uint n, const float ndc_x, const float ndc_y, const float depth_scale,
                                     __global const int *radius, __global const float *depth,
-                                    __global const float *sums, __global float *window) {
+                                    __global const float *sums, __global const float *split_geometry,
+                                    __global float *window) {
     uint i = get_global_id(0);
     if (i >= n || radius[i] <= 0) return;
     __global const float *s = sums + (size_t)i * SUMS_PER_GAUSSIAN;
@@ -32,4 +63,34 @@ __kernel void accumulate_view_stats(const uint n, const float ndc_x, const float
     w[WIN_PIX_GRAD] += f * g * pixels;
     w[WIN_PIX] += pixels;
     w[WIN_MAX_RADIUS] = MAXF(w[WIN_MAX_RADIUS], (float)radius[i]);
+#if DC_STATS
+    float ux = s[SUM_DC], uy = s[SUM_DC + 1], count = s[SUM_DC + 2];
+#if DC_WINDOW
+    ux = w[WIN_DC_UX] += ux;
+    uy = w[WIN_DC_UY] += uy;
+    count = w[WIN_DC_N] += count;
+#endif
+    float weight = count > 0.f ? 1.f - sqrt(ux * ux + uy * uy) / count : 0.f;
+    w[WIN_DCC_ABS] += weight * sqrt(s[SUM_ABS] * s[SUM_ABS] + s[SUM_ABS + 1] * s[SUM_ABS + 1]);
+    w[WIN_DCC_GRAD] += weight * g;
+    w[WIN_DCC_PIX] += weight * f * g * pixels;
+#endif
+#if SPLIT_CANDIDATES
+    __global const float *geo = split_geometry + (size_t)i * (SPLIT_CANDIDATES + 3);
+    int line = geo[2] != 0.f || geo[3] != 0.f;
+    float total[5] = {s[SUM_DC], s[SUM_DC + 1], s[SUM_DC + 2], s[SUM_ABS], s[SUM_ABS + 1]};
+    __global const float *left = s + SUM_SPLIT;
+#if DC_WINDOW
+    for (int v = 0; v < 5; ++v) total[v] = w[WIN_TOTAL + v] += line ? total[v] : 0.f;
+    for (int k = 0; k < 5 * SPLIT_CANDIDATES; ++k) w[WIN_LEFT + k] += line ? left[k] : 0.f;
+    left = w + WIN_LEFT;
+    line = 1;                        // the accumulated sums are costed at every visible view
+#endif
+    if (line)
+        for (int k = 0; k < SPLIT_CANDIDATES; ++k) {
+            __global const float *l = left + 5 * k;
+            w[WIN_J + k] += side_cost(l[0], l[1], l[2], l[3], l[4])
+                          + side_cost(total[0] - l[0], total[1] - l[1], total[2] - l[2], total[3] - l[3], total[4] - l[4]);
+        }
+#endif
 }

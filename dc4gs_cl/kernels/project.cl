@@ -47,12 +47,11 @@ __kernel void project(const int n, const Camera cam, const int sh_degree, const 
     float det = a * c - b * b;
     if (!(det > 0.f) || !isfinite(det)) return;
     float inv_det = 1.f / det;
-    float rz = 1.f / pc.z;
 
     float mid = 0.5f * (a + c);
     float lambda_max = mid + sqrt(MAXF(MIN_EIGEN_GAP, mid * mid - det));
     float r_px = ceil(RADIUS_SIGMAS * sqrt(lambda_max));
-    float2 m2 = (float2)(cam.fx * pc.x * rz + cam.cx, cam.fy * pc.y * rz + cam.cy);
+    float2 m2 = project_point(&cam, pc);
     if (!(r_px > 0.f) || !isfinite(m2.x) || !isfinite(m2.y)) return;
     r_px = MINF(r_px, 1e7f);   // keeps the int conversion defined; the tile rectangle is clamped anyway
     if (rect_area(tile_rect(m2, (float2)(r_px, r_px), tiles_x, tiles_y)) == 0) return;

@@ -13,6 +13,11 @@ inline float3 world_to_camera(const Camera *cam, float3 mu) {
                     cam->R[6] * mu.x + cam->R[7] * mu.y + cam->R[8] * mu.z + cam->t[2]);
 }
 
+// Pixel position of a camera-space point (pixel centres at +0.5): the one projection of every 2D point.
+inline float2 project_point(const Camera *cam, float3 pc) {
+    return (float2)(cam->fx * pc.x / pc.z + cam->cx, cam->fy * pc.y / pc.z + cam->cy);
+}
+
 // Row-major rotation matrix of a normalised quaternion (w, x, y, z).
 inline void quat_to_rotmat(float4 q, float *R) {
     float w = q.x, x = q.y, y = q.z, z = q.w;

@@ -15,6 +15,9 @@
 //         SUM_ABS    +0,1   sum |g_x|, |g_y|                      (-D STATS)
 //         SUM_PIXELS        pixels where blended (Pixel-GS)         (-D STATS)
 //         SUM_DC     +0,1,2 sum of g/|g| and the count, |g| > 0     (-D DC_STATS)
+//         SUM_SPLIT  +5k+0..4 for split candidate k: the same five sums (u_x, u_y, count, |g_x|, |g_y|)
+//                    over the pixels left of it (-D SPLIT_CANDIDATES = N > 0; split_geometry [N*(N+3)]
+//                    from split_geometry.cl says where the candidates fall)
 // Per pair, each work-item sums its pixels' terms privately; the sums reach `sums` once per (tile,
 // Gaussian) pair (-D ITEMS_PER_TILE > 1 first combines the items' partial sums in local memory).
 
@@ -26,16 +29,100 @@
 #ifndef PAIR_SUMS
 #define PAIR_SUMS 0
 #endif
+#ifndef SPLIT_CANDIDATES
+#define SPLIT_CANDIDATES 0
+#endif
+#define SPLIT_GEOMETRY (SPLIT_CANDIDATES + 3)
 #ifndef DC_STATS
 #define DC_STATS 0
 #endif
+
+// One pair: this work-item's pixels within the Gaussian's reach, walked back past the Gaussian; its terms
+// summed per column lane into lanes. with_split, a constant at each call, adds the split terms: each call
+// then compiles to its own vectorised loop (a run-time test inside the loop stops vectorisation: 6x slower).
+ALWAYS_INLINE void backward_pair(const float2 m, const float4 co, const float3 c, const int idx, const int4 span,
+                                 const int row0, const int col0, const float ndc_x, const float ndc_y,
+                                 const float4 line, const float *tk, const int with_split,
+                                 const float *px, const float *py, const float *dr, const float *dg, const float *db,
+                                 const float *bg_term, const int *last, float *T, float *behind,
+                                 float lanes[][COLS_PER_ITEM]) {
+    for (int rr = 0; rr < ROWS_PER_ITEM; ++rr) {
+      if (row0 + rr < span.z || row0 + rr > span.w) continue;
+      for (int c0 = 0; c0 < COLS_PER_ITEM; c0 += COL_BLOCK) {
+       if (col0 + c0 + COL_BLOCK - 1 < span.x || col0 + c0 > span.y) continue;
+       for (int cc = c0; cc < c0 + COL_BLOCK; ++cc) {
+        const int p = rr * COLS_PER_ITEM + cc;
+        float dx = px[p] - m.x, dy = py[p] - m.y;
+        float power = -0.5f * (co.x * dx * dx + co.z * dy * dy) - co.y * dx * dy;
+        float G = exp_nonpositive(power);
+        float oG = co.w * G;
+        float alpha = MINF(ALPHA_MAX, oG);
+        int blend = (idx <= last[p]) & (power <= 0.f) & (alpha >= ALPHA_MIN);
+        float one_minus = 1.f - alpha;
+        float t = blend ? T[p] / one_minus : T[p];          // T before this Gaussian
+        float w = alpha * t;
+        // dC/dalpha = T c - (colour behind + T_final background) / (1 - alpha), dotted with dL/dC.
+        float c_dot = c.x * dr[p] + c.y * dg[p] + c.z * db[p];
+        float dL_dalpha = t * c_dot - (behind[p] + bg_term[p]) / one_minus;
+        // alpha = min(ALPHA_MAX, o G): no gradient where the clamp holds.
+        float dL_dG = (blend & (oG < ALPHA_MAX)) ? co.w * dL_dalpha : 0.f;
+        float dL_do = (blend & (oG < ALPHA_MAX)) ? G * dL_dalpha : 0.f;
+        float gG = dL_dG * G;
+        float gmx = gG * (co.x * dx + co.y * dy), gmy = gG * (co.z * dy + co.y * dx);
+        lanes[SUM_MEAN2D][cc] += gmx;
+        lanes[SUM_MEAN2D + 1][cc] += gmy;
+        lanes[SUM_CONIC][cc] += -0.5f * gG * dx * dx;
+        lanes[SUM_CONIC + 1][cc] += -gG * dx * dy;
+        lanes[SUM_CONIC + 2][cc] += -0.5f * gG * dy * dy;
+        lanes[SUM_OPACITY][cc] += dL_do;
+        float wb = blend ? w : 0.f;
+        lanes[SUM_RGB][cc] += wb * dr[p];
+        lanes[SUM_RGB + 1][cc] += wb * dg[p];
+        lanes[SUM_RGB + 2][cc] += wb * db[p];
+#if STATS
+        float gx = gmx * ndc_x, gy = gmy * ndc_y;
+        lanes[SUM_ABS][cc] += ABSF(gx);
+        lanes[SUM_ABS + 1][cc] += ABSF(gy);
+        lanes[SUM_PIXELS][cc] += blend ? 1.f : 0.f;
+#if DC_STATS
+        float g2 = gx * gx + gy * gy;
+        float inv = g2 > 0.f ? rsqrt_nocall(g2) : 0.f;   // pairs with g = 0 add nothing
+        lanes[SUM_DC][cc] += gx * inv;
+        lanes[SUM_DC + 1][cc] += gy * inv;
+        lanes[SUM_DC + 2][cc] += g2 > 0.f ? 1.f : 0.f;
+#if SPLIT_CANDIDATES
+        if (with_split) {
+        float t_q = (px[p] - line.x) * line.z + (py[p] - line.y) * line.w;
+        float has_g = g2 > 0.f ? 1.f : 0.f;
+        float ux = gx * inv, uy = gy * inv, ax = ABSF(gx), ay = ABSF(gy);
+        // Fully unrolled: a loop here keeps the compiler from vectorising the pixel loop (11x slower).
+        #pragma unroll
+        for (int k = 0; k < SPLIT_CANDIDATES; ++k) {
+            float left = t_q < tk[k] ? has_g : 0.f;
+            lanes[SUM_SPLIT + 5 * k][cc] += left * ux;
+            lanes[SUM_SPLIT + 5 * k + 1][cc] += left * uy;
+            lanes[SUM_SPLIT + 5 * k + 2][cc] += left;
+            lanes[SUM_SPLIT + 5 * k + 3][cc] += left * ax;
+            lanes[SUM_SPLIT + 5 * k + 4][cc] += left * ay;
+        }
+        }
+#endif
+#endif
+#endif
+        T[p] = t;
+        behind[p] += blend ? w * c_dot : 0.f;
+       }
+      }
+    }
+}
 
 __kernel __attribute__((reqd_work_group_size(ITEMS_PER_TILE, 1, 1)))
 void rasterize_backward(const int width, const int height, const int tiles_x, const float4 background,
                         __global const uint *ranges, __global const uint *gaussian_of_pair,
                         __global const float *mean2d, __global const float *conic_opacity, __global const float *rgb,
                         __global const float *alpha_extent, __global const float *final_T,
-                        __global const int *last_pair, __global const float *dL_dimage, __global float *sums) {
+                        __global const int *last_pair, __global const float *dL_dimage,
+                        __global const float *split_geometry, __global float *sums) {
     const int tile = get_group_id(0), lid = get_local_id(0);
     const int x0 = (tile % tiles_x) * TILE_SIZE, y0 = (tile / tiles_x) * TILE_SIZE;
     const int first = ranges[2 * tile];
@@ -46,6 +133,9 @@ void rasterize_backward(const int width, const int height, const int tiles_x, co
     __local float l_rgb[BATCH * 3];
     __local int4 l_reach[BATCH];
     __local uint l_gaussian[BATCH];
+#if SPLIT_CANDIDATES
+    __local float l_split[BATCH * SPLIT_GEOMETRY];
+#endif
 #if ITEMS_PER_TILE > 1
     __local float l_sums[BATCH * SUMS_PER_GAUSSIAN];
     __local int l_end;
@@ -102,6 +192,9 @@ void rasterize_backward(const int width, const int height, const int tiles_x, co
             l_conic_opacity[j] = vload4(g, conic_opacity);
             l_rgb[3 * j] = rgb[3 * g]; l_rgb[3 * j + 1] = rgb[3 * g + 1]; l_rgb[3 * j + 2] = rgb[3 * g + 2];
             l_reach[j] = reach(l_mean[j], vload2(g, alpha_extent), x0, y0);
+#if SPLIT_CANDIDATES
+            for (int k = 0; k < SPLIT_GEOMETRY; ++k) l_split[j * SPLIT_GEOMETRY + k] = split_geometry[(size_t)g * SPLIT_GEOMETRY + k];
+#endif
         }
 #if ITEMS_PER_TILE > 1
         for (int k = lid; k < count * SUMS_PER_GAUSSIAN; k += ITEMS_PER_TILE) l_sums[k] = 0.f;
@@ -111,78 +204,52 @@ void rasterize_backward(const int width, const int height, const int tiles_x, co
         for (int j = count - 1; j >= 0; --j) {
             const float2 m = l_mean[j];
             const float4 co = l_conic_opacity[j];
-            const float cr = l_rgb[3 * j], cg = l_rgb[3 * j + 1], cb = l_rgb[3 * j + 2];
+            const float3 c = (float3)(l_rgb[3 * j], l_rgb[3 * j + 1], l_rgb[3 * j + 2]);
             const int idx = base + j;
             const int4 span = l_reach[j];
             // Per column lane, so the pixel loop carries no dependency and vectorises; lanes are summed
             // once per pair below.
             float lanes[SUMS_PER_GAUSSIAN][COLS_PER_ITEM];
-            for (int k = 0; k < SUMS_PER_GAUSSIAN; ++k)
+            // This pair's candidate line (c0.x, c0.y, dir.x, dir.y): pixel q is left of candidate k when
+            // t(q) = (q - c0) . dir < t_k (t_0 = 0); no split terms where the view gave no line (dir = 0).
+            float tk[SPLIT_CANDIDATES > 0 ? SPLIT_CANDIDATES : 1];
+            float4 line = (float4)(0.f);
+#if SPLIT_CANDIDATES
+            __local const float *sg = l_split + j * SPLIT_GEOMETRY;
+            line = (float4)(sg[0], sg[1], sg[2], sg[3]);
+            const int split_ok = line.z != 0.f || line.w != 0.f;
+            tk[0] = 0.f;
+            for (int k = 1; k < SPLIT_CANDIDATES; ++k) tk[k] = sg[3 + k];
+#endif
+            // Sums this pair fills: the split ones only where the view gave the Gaussian a line.
+#if SPLIT_CANDIDATES
+            const int used = split_ok ? SUMS_PER_GAUSSIAN : SUM_SPLIT;
+#else
+            const int used = SUMS_PER_GAUSSIAN;
+#endif
+            for (int k = 0; k < used; ++k)
                 for (int cc = 0; cc < COLS_PER_ITEM; ++cc) lanes[k][cc] = 0.f;
-            for (int rr = 0; rr < ROWS_PER_ITEM; ++rr) {
-              if (row0 + rr < span.z || row0 + rr > span.w) continue;
-              for (int c0 = 0; c0 < COLS_PER_ITEM; c0 += COL_BLOCK) {
-               if (col0 + c0 + COL_BLOCK - 1 < span.x || col0 + c0 > span.y) continue;
-               for (int cc = c0; cc < c0 + COL_BLOCK; ++cc) {
-                const int p = rr * COLS_PER_ITEM + cc;
-                float dx = px[p] - m.x, dy = py[p] - m.y;
-                float power = -0.5f * (co.x * dx * dx + co.z * dy * dy) - co.y * dx * dy;
-                float G = exp_nonpositive(power);
-                float oG = co.w * G;
-                float alpha = MINF(ALPHA_MAX, oG);
-                int blend = (idx <= last[p]) & (power <= 0.f) & (alpha >= ALPHA_MIN);
-                float one_minus = 1.f - alpha;
-                float t = blend ? T[p] / one_minus : T[p];          // T before this Gaussian
-                float w = alpha * t;
-                // dC/dalpha = T c - (colour behind + T_final background) / (1 - alpha), dotted with dL/dC.
-                float c_dot = cr * dr[p] + cg * dg[p] + cb * db[p];
-                float dL_dalpha = t * c_dot - (behind[p] + bg_term[p]) / one_minus;
-                // alpha = min(ALPHA_MAX, o G): no gradient where the clamp holds.
-                float dL_dG = (blend & (oG < ALPHA_MAX)) ? co.w * dL_dalpha : 0.f;
-                float dL_do = (blend & (oG < ALPHA_MAX)) ? G * dL_dalpha : 0.f;
-                float gG = dL_dG * G;
-                float gmx = gG * (co.x * dx + co.y * dy), gmy = gG * (co.z * dy + co.y * dx);
-                lanes[SUM_MEAN2D][cc] += gmx;
-                lanes[SUM_MEAN2D + 1][cc] += gmy;
-                lanes[SUM_CONIC][cc] += -0.5f * gG * dx * dx;
-                lanes[SUM_CONIC + 1][cc] += -gG * dx * dy;
-                lanes[SUM_CONIC + 2][cc] += -0.5f * gG * dy * dy;
-                lanes[SUM_OPACITY][cc] += dL_do;
-                float wb = blend ? w : 0.f;
-                lanes[SUM_RGB][cc] += wb * dr[p];
-                lanes[SUM_RGB + 1][cc] += wb * dg[p];
-                lanes[SUM_RGB + 2][cc] += wb * db[p];
-#if STATS
-                float gx = gmx * ndc_x, gy = gmy * ndc_y;
-                lanes[SUM_ABS][cc] += ABSF(gx);
-                lanes[SUM_ABS + 1][cc] += ABSF(gy);
-                lanes[SUM_PIXELS][cc] += blend ? 1.f : 0.f;
-#if DC_STATS
-                float g2 = gx * gx + gy * gy;
-                float inv = g2 > 0.f ? rsqrt_nocall(g2) : 0.f;   // pairs with g = 0 add nothing
-                lanes[SUM_DC][cc] += gx * inv;
-                lanes[SUM_DC + 1][cc] += gy * inv;
-                lanes[SUM_DC + 2][cc] += g2 > 0.f ? 1.f : 0.f;
+#if SPLIT_CANDIDATES
+            if (split_ok)
+                backward_pair(m, co, c, idx, span, row0, col0, ndc_x, ndc_y, line, tk, 1, px, py, dr, dg, db,
+                              bg_term, last, T, behind, lanes);
+            else
 #endif
-#endif
-                T[p] = t;
-                behind[p] += blend ? w * c_dot : 0.f;
-               }
-              }
-            }
+                backward_pair(m, co, c, idx, span, row0, col0, ndc_x, ndc_y, line, tk, 0, px, py, dr, dg, db,
+                              bg_term, last, T, behind, lanes);
             float acc[SUMS_PER_GAUSSIAN];
-            for (int k = 0; k < SUMS_PER_GAUSSIAN; ++k) {
+            for (int k = 0; k < used; ++k) {
                 acc[k] = 0.f;
                 for (int cc = 0; cc < COLS_PER_ITEM; ++cc) acc[k] += lanes[k][cc];
             }
 #if ITEMS_PER_TILE > 1
-            for (int k = 0; k < SUMS_PER_GAUSSIAN; ++k)
+            for (int k = 0; k < used; ++k)
                 if (acc[k] != 0.f) local_add_float(&l_sums[j * SUMS_PER_GAUSSIAN + k], acc[k]);
 #elif PAIR_SUMS
-            for (int k = 0; k < SUMS_PER_GAUSSIAN; ++k) sums[(size_t)(base + j) * SUMS_PER_GAUSSIAN + k] = acc[k];
+            for (int k = 0; k < used; ++k) sums[(size_t)(base + j) * SUMS_PER_GAUSSIAN + k] = acc[k];
 #else
             __global float *dst = sums + (size_t)l_gaussian[j] * SUMS_PER_GAUSSIAN;
-            for (int k = 0; k < SUMS_PER_GAUSSIAN; ++k)
+            for (int k = 0; k < used; ++k)
                 if (acc[k] != 0.f) atomic_add_float(dst + k, acc[k]);
 #endif
         }
@@ -201,20 +268,28 @@ void rasterize_backward(const int width, const int height, const int tiles_x, co
     }
 }
 
-// PAIR_SUMS: each Gaussian's slots added in emission order.
-//   in  tiles_touched [N], pair_first [N], pair_of_emission [P]: from isect.cl; pair_sums [P*SUMS_PER_GAUSSIAN]
+// PAIR_SUMS: each Gaussian's slots added in emission order (the split sums only where it had a line:
+// elsewhere the backward left them unwritten).
+//   in  tiles_touched [N], pair_first [N], pair_of_emission [P]: from isect.cl; pair_sums [P*SUMS_PER_GAUSSIAN];
+//       split_geometry [N*SPLIT_GEOMETRY] with SPLIT_CANDIDATES
 //   out sums [N*SUMS_PER_GAUSSIAN]
 __kernel void sum_pairs(const uint n, __global const uint *tiles_touched, __global const uint *pair_first,
                         __global const uint *pair_of_emission, __global const float *pair_sums,
-                        __global float *sums) {
+                        __global const float *split_geometry, __global float *sums) {
     uint g = get_global_id(0);
     if (g >= n) return;
+#if SPLIT_CANDIDATES
+    __global const float *geo = split_geometry + (size_t)g * SPLIT_GEOMETRY;
+    const int used = (geo[2] != 0.f || geo[3] != 0.f) ? SUMS_PER_GAUSSIAN : SUM_SPLIT;
+#else
+    const int used = SUMS_PER_GAUSSIAN;
+#endif
     float acc[SUMS_PER_GAUSSIAN];
     for (int k = 0; k < SUMS_PER_GAUSSIAN; ++k) acc[k] = 0.f;
     uint count = tiles_touched[g], first = count ? pair_first[g] : 0;
     for (uint e = first; e < first + count; ++e) {
         __global const float *slot = pair_sums + (size_t)pair_of_emission[e] * SUMS_PER_GAUSSIAN;
-        for (int k = 0; k < SUMS_PER_GAUSSIAN; ++k) acc[k] += slot[k];
+        for (int k = 0; k < used; ++k) acc[k] += slot[k];
     }
     for (int k = 0; k < SUMS_PER_GAUSSIAN; ++k) sums[(size_t)g * SUMS_PER_GAUSSIAN + k] = acc[k];
 }

@@ -71,16 +71,23 @@ def _tile_blend(mean2d, conic, opacity, g, xs, ys):
 
 
 def rasterize_backward_reference(mean2d, conic, opacity, rgb, gaussian_of_pair, ranges, width: int, height: int,
-                                 tiles_x: int, background, dL_dimage) -> dict[str, np.ndarray]:
+                                 tiles_x: int, background, dL_dimage, split=None) -> dict[str, np.ndarray]:
     """Gradients of sum(image * dL_dimage) with respect to the rasterizer's per-Gaussian inputs, and the
     densification statistics, in closed form per tile (reverse cumulative sums over each tile's list):
         mean2d (N, 2) px, conic (N, 3), opacity (N,), rgb (N, 3);
         abs (N, 2): sum over pixels of |g_x|, |g_y| with g = pixel's dL/dmean2d in NDC units (x W/2, H/2);
-        pixels (N,): pixels where blended; dc (N, 3): sum of g/|g| over pixels with |g| > 0, and their count.
+        pixels (N,): pixels where blended; dc (N, 3): sum of g/|g| over pixels with |g| > 0, and their count;
+        with split = (candidate pixels (N, C, 2), end pixels (N, 2), valid (N,)) from
+        dc4gs.split_geometry_reference: split (N, C, 5), for each candidate the sums (u_x, u_y, count,
+        |g_x|, |g_y|) over the pixels with |g| > 0 on its left, decided as the paper's algorithm 3 does:
+        left when (end - candidate) . (pixel - candidate) < 0.
     No gradient flows through alpha where min(ALPHA_MAX, o G) clamps."""
     n = len(mean2d)
     out = {"mean2d": np.zeros((n, 2)), "conic": np.zeros((n, 3)), "opacity": np.zeros(n), "rgb": np.zeros((n, 3)),
            "abs": np.zeros((n, 2)), "pixels": np.zeros(n), "dc": np.zeros((n, 3))}
+    if split is not None:
+        cand_px, end_px, split_valid = split
+        out["split"] = np.zeros((n, cand_px.shape[1], 5))
     bg = np.asarray(background, np.float64)
     ndc = np.array([0.5 * width, 0.5 * height])
     for tile, (first, end) in enumerate(np.asarray(ranges)):
@@ -115,4 +122,11 @@ def rasterize_backward_reference(mean2d, conic, opacity, rgb, gaussian_of_pair, 
         np.add.at(out["abs"], g, np.abs(gn).sum(0))
         np.add.at(out["pixels"], g, blend.sum(0))
         np.add.at(out["dc"], g, np.concatenate([unit, (norm > 0)[..., None]], -1).sum(0))
+        if split is not None:
+            q = np.stack([xs.ravel() + 0.5, ys.ravel() + 0.5], 1)                      # (pix, 2)
+            values = np.concatenate([unit, (norm > 0)[..., None], np.abs(gn)], -1)      # (pix, G, 5)
+            values *= ((norm > 0) & split_valid[g][None])[..., None]
+            cand, end = cand_px[g], end_px[g]                                           # (G, C, 2), (G, 2)
+            side = np.einsum("gci,pgci->pgc", end[:, None] - cand, q[:, None, None] - cand[None])
+            np.add.at(out["split"], g, np.einsum("pgc,pgv->gcv", (side < 0).astype(float), values))
     return out

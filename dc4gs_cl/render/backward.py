@@ -22,13 +22,20 @@ from .workspace import Workspace
 class SumsLayout:
     """Per-Gaussian floats the rasterizer backward accumulates over one view, in this order:
     mean2d (2, px), conic (3), opacity (1), rgb (3); with stats: abs (2, sum |g_x|, |g_y| in NDC
-    units), pixels (1); with dc_stats: dc (3, sum of g/|g| and the count)."""
+    units), pixels (1); with dc_stats: dc (3, sum of g/|g| and the count); with split_candidates N:
+    split (5 N: for each candidate k, the left side's sum of u_x, u_y, the count, sum |g_x|, |g_y|; the
+    right side is the total, from dc and abs, minus the left)."""
     stats: bool = False
     dc_stats: bool = False
+    split_candidates: int = 0
 
     def __post_init__(self):
         if self.dc_stats and not self.stats:
             raise ValueError("directional-consistency statistics need the base statistics")
+        if self.split_candidates and not self.dc_stats:
+            raise ValueError("split costs need the directional-consistency statistics")
+        if self.split_candidates and self.split_candidates % 2 == 0:
+            raise ValueError("the number of split candidates must be odd")
 
     @property
     def fields(self) -> dict[str, tuple[int, int]]:
@@ -38,6 +45,8 @@ class SumsLayout:
             widths += [("abs", 2), ("pixels", 1)]
         if self.dc_stats:
             widths += [("dc", 3)]
+        if self.split_candidates:
+            widths += [("split", 5 * self.split_candidates)]
         out, at = {}, 0
         for name, w in widths:
             out[name] = (at, w)
@@ -49,7 +58,8 @@ class SumsLayout:
         return sum(w for _, w in self.fields.values())
 
     def defines(self) -> dict[str, int]:
-        d = {"SUMS_PER_GAUSSIAN": self.width, "STATS": int(self.stats), "DC_STATS": int(self.dc_stats)}
+        d = {"SUMS_PER_GAUSSIAN": self.width, "STATS": int(self.stats), "DC_STATS": int(self.dc_stats),
+             "SPLIT_CANDIDATES": self.split_candidates}
         d.update({f"SUM_{name.upper()}": at for name, (at, _) in self.fields.items()})
         return d
 
@@ -59,9 +69,27 @@ class SumsLayout:
                 for name, (at, w) in self.fields.items()}
 
 
+def split_geometry(rt: Runtime, ws: Workspace, g: DeviceGaussians, cam: Camera, res: RenderResult,
+                   candidates: int, min_scale: float = 0.0) -> cl.Buffer:
+    """Per visible Gaussian whose largest scale exceeds min_scale (only those can be split), where its split
+    candidates fall in this view (kernels/split_geometry.cl)."""
+    n = g.n
+    geometry = ws.get("backward.split_geometry", 4 * (candidates + 3) * max(n, 1))
+    if n:
+        k = rt.kernel("split_geometry.cl", "split_geometry", {"SPLIT_CANDIDATES": candidates})
+        b = g.buffers
+        rt.launch("split_geometry", k, -(-n // PROJECT_WG) * PROJECT_WG, PROJECT_WG, np.int32(n), camera_struct(cam),
+                  np.float32(min_scale), b["means"], b["log_scales"], b["quats"], res.proj.radius, geometry)
+    return geometry
+
+
 def rasterize_backward(rt: Runtime, ws: Workspace, tuning: Tuning, defines: dict, layout: SumsLayout,
-                       res: RenderResult, dL_dimage: cl.Buffer, background) -> cl.Buffer:
-    """Per-Gaussian sums (N x layout.width floats) of this view's gradients and statistics."""
+                       res: RenderResult, dL_dimage: cl.Buffer, background,
+                       geometry: cl.Buffer | None = None) -> cl.Buffer:
+    """Per-Gaussian sums (N x layout.width floats) of this view's gradients and statistics; split costs need
+    the view's split geometry."""
+    if layout.split_candidates and geometry is None:
+        raise ValueError("split costs need the split geometry of the view")
     n, p = res.proj.n, res.isect.n_pairs
     sums = ws.get("backward.sums", 4 * layout.width * max(n, 1))
     options = {**rasterize_defines(tuning, defines), **layout.defines(), "PAIR_SUMS": int(tuning.pair_sums)}
@@ -77,11 +105,13 @@ def rasterize_backward(rt: Runtime, ws: Workspace, tuning: Tuning, defines: dict
     rt.launch("rasterize_backward", k, res.tiles_x * res.tiles_y * items, items, np.int32(res.width),
               np.int32(res.height), np.int32(res.tiles_x), bg.view(cl.cltypes.float4)[0], res.isect.ranges,
               res.isect.gaussian_of_pair, res.proj.mean2d, res.proj.conic_opacity, res.proj.rgb,
-              res.proj.alpha_extent, res.raster.final_T, res.raster.last_pair, dL_dimage, target)
+              res.proj.alpha_extent, res.raster.final_T, res.raster.last_pair, dL_dimage,
+              geometry if geometry is not None else sums, target)
     if tuning.pair_sums and n:
         reduce = rt.kernel("rasterize_backward.cl", "sum_pairs", options)
         rt.launch("rasterize_backward", reduce, -(-n // PROJECT_WG) * PROJECT_WG, PROJECT_WG, np.uint32(n),
-                  res.proj.tiles_touched, res.isect.pair_first, res.isect.pair_of_emission, target, sums)
+                  res.proj.tiles_touched, res.isect.pair_first, res.isect.pair_of_emission, target,
+                  geometry if geometry is not None else sums, sums)
     return sums
 
 

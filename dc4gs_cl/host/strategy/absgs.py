@@ -17,3 +17,6 @@ class AbsGS(Strategy):
 
     def split_values(self, stats: dict[str, np.ndarray]) -> np.ndarray:
         return mean_per_view(stats["abs"], stats["views"])
+
+    def dcc_base_values(self, stats: dict[str, np.ndarray]) -> np.ndarray:
+        return mean_per_view(stats["dcc_abs"], stats["views"])

@@ -10,8 +10,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .. import ops
+from ...render.backward import SumsLayout
+from .. import dc4gs, ops
+from ..dc4gs import DC4GSConfig
 from ..ops import GaussianSet
+from ..stats import WindowLayout
 
 
 @dataclass(frozen=True)
@@ -47,15 +50,36 @@ def mean_per_view(total: np.ndarray, count: np.ndarray) -> np.ndarray:
 
 class Strategy:
     """3DGS: clone small and split large Gaussians whose mean per-view |sum of NDC gradients| reaches
-    the threshold; random split into two."""
+    the threshold; random split into two. With DC4GS, the split criterion becomes the DC-weighted one
+    (DCC) and / or the split is placed by the directional-consistency costs (DCS)."""
     name = "3dgs"
 
-    def __init__(self, config: DensifyConfig | None = None):
+    def __init__(self, config: DensifyConfig | None = None, dc4gs_config: DC4GSConfig | None = None):
         self.config = config or self.default_config()
+        self.dc4gs = dc4gs_config
 
     @staticmethod
     def default_config() -> DensifyConfig:
         return DensifyConfig()
+
+    @property
+    def label(self) -> str:
+        if self.dc4gs is None:
+            return self.name
+        parts = [p for p, on in (("DCC", self.dc4gs.dcc), ("DCS", self.dc4gs.dcs)) if on]
+        return f"{self.name}+{'DC4GS' if len(parts) == 2 else parts[0]}"
+
+    # what the device gathers ---------------------------------------------------------------------------
+    @property
+    def split_candidates(self) -> int:
+        return self.dc4gs.candidates if self.dc4gs is not None and self.dc4gs.dcs else 0
+
+    def sums_layout(self) -> SumsLayout:
+        return SumsLayout(stats=True, dc_stats=self.dc4gs is not None, split_candidates=self.split_candidates)
+
+    def window_layout(self) -> WindowLayout:
+        return WindowLayout(dc=self.dc4gs is not None, split_candidates=self.split_candidates,
+                            window_pooling=self.dc4gs is not None and self.dc4gs.pooling == "window")
 
     # schedule --------------------------------------------------------------------------------------
     def collecting(self, it: int) -> bool:
@@ -82,8 +106,22 @@ class Strategy:
     def split_values(self, stats: dict[str, np.ndarray]) -> np.ndarray:
         return mean_per_view(stats["grad"], stats["views"])
 
-    def split(self, gs: GaussianSet, mask: np.ndarray, rng: np.random.Generator) -> int:
-        return ops.split_random(gs, mask, rng)
+    def dcc_base_values(self, stats: dict[str, np.ndarray]) -> np.ndarray:
+        """DCC weighting this base's own per-view term (the paper's reading for 3DGS and Pixel-GS)."""
+        return mean_per_view(stats["dcc_grad"], stats["views"])
+
+    def split_criterion(self, stats: dict[str, np.ndarray]) -> np.ndarray:
+        if self.dc4gs is None or not self.dc4gs.dcc:
+            return self.split_values(stats)
+        if self.dc4gs.dcc_reading == "base":
+            return self.dcc_base_values(stats)
+        return mean_per_view(stats["dcc_abs"], stats["views"])
+
+    def split(self, gs: GaussianSet, mask: np.ndarray, rng: np.random.Generator, stats: dict[str, np.ndarray]) -> int:
+        if not self.split_candidates:
+            return ops.split_random(gs, mask, rng)
+        idx = np.flatnonzero(mask)
+        return dc4gs.split_at(gs, idx, dc4gs.split_positions(stats["j"][idx], self.dc4gs.split_pick))
 
     # the step ----------------------------------------------------------------------------------------
     def densify(self, gs: GaussianSet, stats: dict[str, np.ndarray], it: int, extent: float,
@@ -91,14 +129,14 @@ class Strategy:
         """Clone, then split (clones are never split), then prune, as the 3DGS code orders them."""
         c = self.config
         n = gs.n
-        clone_v, split_v = self.clone_values(stats), self.split_values(stats)
+        clone_v, split_v = self.clone_values(stats), self.split_criterion(stats)
         gs.aux["max_radius"] = stats["max_radius"].astype(np.float32)
         large = gs.scales().max(axis=1) > c.percent_dense * extent
         report = DensifyReport()
         report.cloned = ops.clone(gs, (clone_v >= c.clone_threshold) & ~large)
         split_mask = np.zeros(gs.n, bool)
         split_mask[:n] = (split_v >= c.split_threshold) & large
-        report.split = self.split(gs, split_mask, rng)
+        report.split = self.split(gs, split_mask, rng, stats)
         prune = gs.opacities() < c.prune_opacity
         if it > c.big_world_after:
             prune |= gs.scales().max(axis=1) > c.big_world_fraction * extent

@@ -14,3 +14,6 @@ class PixelGS(Strategy):
         return mean_per_view(stats["pix_grad"], stats["pix"])
 
     split_values = clone_values
+
+    def dcc_base_values(self, stats: dict[str, np.ndarray]) -> np.ndarray:
+        return mean_per_view(stats["dcc_pix"], stats["pix"])

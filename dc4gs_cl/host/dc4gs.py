@@ -1,0 +1,122 @@
+"""DC4GS on the host (../shared/docs/dc4gs-spec.md sections 3 to 5): the DC-weighted split criterion's
+value, the split position from the candidates' costs, and the DC-guided split itself.
+
+The statistics are gathered on the device (kernels/rasterize_backward.cl, kernels/densify_stats.cl); this
+module reads the window at a densification step.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..model import logit
+from ..reference.dc4gs import principal_axis
+from .ops import GaussianSet, replace_with_children
+
+POOLINGS = ("view", "window")       # per view (the paper) or over the window (the authors' release)
+SPLIT_PICKS = ("poly", "argmin", "dense")
+DCC_READINGS = ("abs", "base")
+DENSE_CANDIDATES = 59               # --split-pick dense without --split-candidates
+CONSTANT_COSTS = 1e-7               # relative spread below which the costs carry no preference: split in the middle
+
+
+@dataclass(frozen=True)
+class DC4GSConfig:
+    dcc: bool = True                # DC-weighted split criterion
+    dcs: bool = True                # DC-guided split placement
+    pooling: str = "view"
+    split_pick: str = "poly"
+    candidates: int = 5             # odd
+    dcc_reading: str = "abs"        # abs: (1 - kappa) |ghat|; base: (1 - kappa) x the base's own per-view term
+
+    def __post_init__(self):
+        if self.pooling not in POOLINGS or self.split_pick not in SPLIT_PICKS or self.dcc_reading not in DCC_READINGS:
+            raise ValueError(f"DC4GS settings: pooling {self.pooling!r}, split pick {self.split_pick!r}, "
+                             f"DCC reading {self.dcc_reading!r}")
+        if self.candidates < 3 or self.candidates % 2 == 0:
+            raise ValueError(f"--split-candidates {self.candidates} must be odd and at least 3")
+
+
+def candidate_positions(n: int) -> np.ndarray:
+    """Normalised positions x_k = (k + 1) / (n + 1) along the diameter (x = 0 at mu - 3 sigma p)."""
+    return (np.arange(n) + 1.0) / (n + 1)
+
+
+def search_interval(n: int) -> tuple[float, float]:
+    """[1/(2(n+1)), 1 - 1/(2(n+1))]: [1/12, 11/12] for 5 candidates, as the release searches."""
+    half = 0.5 / (n + 1)
+    return half, 1.0 - half
+
+
+def interpolating_polynomials(costs: np.ndarray) -> np.ndarray:
+    """(M, n) costs at the candidate positions -> (M, n) coefficients, lowest power first, of the degree
+    n - 1 polynomial through them (exact interpolation: the Vandermonde system solved once)."""
+    x = candidate_positions(costs.shape[1])
+    return np.linalg.solve(np.vander(x, increasing=True), np.asarray(costs, np.float64).T).T
+
+
+def polynomial_minimum(coeffs: np.ndarray, lo: float, hi: float, grid: int = 2049) -> np.ndarray:
+    """x in [lo, hi] minimising each polynomial exactly: a dense grid finds the best basin (an end point or
+    a bracketed critical point, where the derivative changes sign), bisection on the derivative then
+    pins the critical point to float64 precision."""
+    if len(coeffs) == 0:
+        return np.zeros(0)
+    poly = np.polynomial.polynomial
+    xs = np.linspace(lo, hi, grid)
+    best = poly.polyval(xs, coeffs.T).argmin(axis=1)               # polyval gives (M, grid)
+    deriv = np.stack([poly.polyder(c) for c in coeffs])
+
+    def slope(at):                                                 # p'(at[m]) of each polynomial m
+        return np.einsum("mk,mk->m", deriv, at[:, None] ** np.arange(deriv.shape[1]))
+
+    a, b = xs[np.maximum(best - 1, 0)], xs[np.minimum(best + 1, grid - 1)]
+    interior = (best > 0) & (best < grid - 1) & (slope(a) < 0) & (slope(b) > 0)
+    for _ in range(60):
+        mid = 0.5 * (a + b)
+        down = slope(mid) < 0
+        a, b = np.where(down, mid, a), np.where(down, b, mid)
+    return np.where(interior, 0.5 * (a + b), xs[best])
+
+
+def split_positions(costs: np.ndarray, pick: str) -> np.ndarray:
+    """(M, n) candidate costs -> (M,) split positions in (0, 1). Costs that do not prefer any position
+    (all zero, constant, or not finite) split in the middle, 0.5."""
+    costs = np.asarray(costs, np.float64)
+    n = costs.shape[1]
+    x = candidate_positions(n)
+    if pick == "poly":
+        out = polynomial_minimum(interpolating_polynomials(costs), *search_interval(n))
+    else:   # argmin and dense: the best candidate (dense differs only in how many there are)
+        out = x[np.argmin(costs, axis=1)]
+    spread = costs.max(axis=1) - costs.min(axis=1)
+    flat = ~np.isfinite(costs).all(axis=1) | (spread <= CONSTANT_COSTS * np.abs(costs).max(axis=1))
+    return np.where(flat, 0.5, out)
+
+
+def split_at(gs: GaussianSet, idx: np.ndarray, x: np.ndarray) -> int:
+    """The DC-guided split: each Gaussian idx[i] becomes two children on its principal axis, cut at
+    normalised position x[i] (spec section 5): centres mu - 3 sigma (1 - x) p and mu + 3 sigma x p, scales
+    along the axis sigma x and sigma (1 - x), opacities o x and o (1 - x), rotation and colour copied; the
+    children's Adam moments start at zero."""
+    if len(idx) == 0:
+        return 0
+    p = {k: v[idx].astype(np.float64) for k, v in gs.params.items()}
+    axis, sigma, direction = principal_axis(p["log_scales"], p["quats"])
+    x = np.asarray(x, np.float64)
+    offsets = [-3 * sigma * (1 - x), 3 * sigma * x]
+    fractions = [x, 1 - x]
+    opacity = 1 / (1 + np.exp(-p["opacity_logits"][:, 0]))
+    children = {k: [] for k in p}
+    for offset, fraction in zip(offsets, fractions):
+        log_scales = p["log_scales"].copy()
+        log_scales[np.arange(len(idx)), axis] = np.log(sigma * fraction)
+        children["means"].append(p["means"] + offset[:, None] * direction)
+        children["log_scales"].append(log_scales)
+        children["opacity_logits"].append(logit(opacity * fraction)[:, None])
+        for k in ("quats", "sh"):
+            children[k].append(p[k])
+    # Children of one parent in a row, as replace_with_children expects.
+    stacked = {k: np.stack(v, axis=1).reshape(2 * len(idx), -1) for k, v in children.items()}
+    replace_with_children(gs, idx, stacked)
+    return len(idx)

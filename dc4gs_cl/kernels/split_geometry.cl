@@ -1,0 +1,52 @@
+// split_geometry.cl: where a Gaussian's split candidates (DC4GS' DC-guided split) fall in this view.
+//
+// The candidates lie on the principal axis: a = the first axis of largest scale, sigma = its scale,
+// p = R e_a; candidate k = 0 .. N-1 (N = SPLIT_CANDIDATES, odd) at mu + (k - (N-1)/2) * 6 sigma / (N+1) * p,
+// and the axis' end at mu + 3 sigma p. Projected with project_point (the projection of the centres), they
+// lie on one image line, in order. A pixel q is left of candidate k exactly when t(q) < t_k, with
+// t(q) = dot(q - c0, dir), c0 the first candidate's pixel and dir the unit direction to the end's pixel, so
+// every candidate's sides follow from one scalar per pixel (a pixel with t(q) == t_k counts as right, as in
+// the paper's algorithm 3).
+//   in  means, log_scales, quats: the parameters; radius [N] int: 0 = not visible (no geometry)
+//   in  min_scale: only a Gaussian whose largest scale exceeds this can be split (smaller ones are cloned),
+//       so only those get a line and cost the rasterizer backward split terms
+//   out geometry [N*SPLIT_GEOMETRY] float: c0.x, c0.y, dir.x, dir.y, t_1 .. t_{N-1} (t_0 = 0), px;
+//       dir = (0, 0) where there is no usable line: too small to split, not visible, a candidate or the end at or behind
+//       the near plane, or the projected axis shorter than 1e-6 px. The rasterizer backward then adds no
+//       split terms for the Gaussian in this view.
+
+#include "project.h"
+
+#define SPLIT_GEOMETRY (SPLIT_CANDIDATES + 3)
+
+__kernel void split_geometry(const int n, const Camera cam, const float min_scale, __global const float *means,
+                             __global const float *log_scales, __global const float *quats,
+                             __global const int *radius, __global float *geometry) {
+    int i = get_global_id(0);
+    if (i >= n) return;
+    __global float *out = geometry + (size_t)i * SPLIT_GEOMETRY;
+    out[2] = out[3] = 0.f;
+    if (radius[i] <= 0) return;
+    float3 s = exp(vload3(i, log_scales));
+    int a = s.y > s.x ? (s.z > s.y ? 2 : 1) : (s.z > s.x ? 2 : 0);   // ties: the first axis
+    float sigma = a == 0 ? s.x : (a == 1 ? s.y : s.z);
+    if (!(sigma > min_scale)) return;
+    float Rq[9];
+    quat_to_rotmat(normalized_quat(vload4(i, quats)), Rq);
+    float3 axis = (float3)(Rq[a], Rq[3 + a], Rq[6 + a]) * sigma;   // sigma p
+    float3 mu = vload3(i, means);
+    float step = 6.f / (float)(SPLIT_CANDIDATES + 1);
+    float3 end = world_to_camera(&cam, mu + 3.f * axis);
+    float3 first = world_to_camera(&cam, mu - step * (float)(SPLIT_CANDIDATES / 2) * axis);
+    if (!(end.z > NEAR_PLANE) || !(first.z > NEAR_PLANE)) return;   // the middle ones lie between these
+    float2 c0 = project_point(&cam, first);
+    float2 d = project_point(&cam, end) - c0;
+    float len2 = dot(d, d);
+    if (!(len2 > 1e-4f) || !isfinite(len2)) return;   // shorter than 0.01 px: it separates no pixels
+    float2 dir = d * rsqrt(len2);
+    for (int k = 1; k < SPLIT_CANDIDATES; ++k) {
+        float3 ck = world_to_camera(&cam, mu + step * (float)(k - SPLIT_CANDIDATES / 2) * axis);
+        out[3 + k] = dot(project_point(&cam, ck) - c0, dir);
+    }
+    out[0] = c0.x; out[1] = c0.y; out[2] = dir.x; out[3] = dir.y;
+}

@@ -1,0 +1,200 @@
+"""Training benchmark: every COLMAP scene of ../shared/data trained with each densification strategy, one
+markdown table row per (scene, strategy).
+
+    python tools/bench_train.py [--scenes S ...] [--strategies 3dgs absgs pixelgs] [--iterations 3000] [-r K]
+                                [--out DIR] [--json PATH] [--device D] [--quick]
+
+Per run, measured in this process through the library (one Runtime, profiling on):
+- test-view PSNR and SSIM (dc4gs_cl.evaluate; every 8th image by name is a test view);
+- Gaussians at the start, at the end and at their peak;
+- wall time per iteration: Trainer.step() in a loop, from the first step until the queue is done after
+  the last (densification included; evaluation, model saving and image decoding not);
+- device time per iteration and stage, summed over the OpenCL profiling events of every training kernel;
+- peak device memory: the high-water mark of the bytes held in device buffers (Runtime.memory_peak,
+  restarted before each run once the previous run's buffers are gone), and that divided by the peak
+  Gaussian count (it includes the per-image buffers, so it overstates what a Gaussian costs in small models);
+- host peak RSS (getrusage), restarted before each run through /proc/self/clear_refs on Linux; where
+  that is not possible it is the peak of the process so far (the JSON says which).
+
+Images are read (and distorted ones undistorted) before a scene's first run, and each strategy's kernels
+built by a two-step warm-up, so no run pays for either. The default -r makes every scene at most 400 px
+wide (-r = ceil(width / 400)); the 3DGS schedule is scaled to --iterations by the trainer. Each run gets
+its own output folder (DIR/<scene>-<strategy> with --out, else a temporary one) holding the final PLY,
+results.json and the test renders, which `dc4gs-cl eval` can read.
+"""
+from __future__ import annotations
+
+import argparse
+import gc
+import json
+import math
+import resource
+import sys
+import tempfile
+import time
+from collections import Counter
+from pathlib import Path
+
+from dc4gs_cl.errors import InputError
+from dc4gs_cl.evaluate import evaluate, write_results
+from dc4gs_cl.host.strategy import STRATEGIES
+from dc4gs_cl.runtime import Runtime, describe
+from dc4gs_cl.scene import Scene, load_scene
+from dc4gs_cl.scene.colmap import model_dir
+from dc4gs_cl.train import TrainConfig, Trainer, write_run_files
+
+DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+MAX_WIDTH = 400                # default -r: images at most this wide
+QUICK_SCENES = ("temple_sparse_ring", "fountain_p11")
+STAGES = ("project", "isect", "sort", "rasterize", "loss", "rasterize_backward", "project_backward",
+          "densify_stats", "adam")
+EVENTS_EVERY = 100             # iterations between collections of the profiling events (bounds how many are held)
+MB = 2 ** 20
+
+
+def colmap_scenes() -> list[str]:
+    return sorted(d.name for d in DATA.iterdir() if d.is_dir() and model_dir(d) is not None)
+
+
+def reset_host_peak() -> bool:
+    """Restart the peak RSS that getrusage reports (Linux); False where that is not possible."""
+    try:
+        Path("/proc/self/clear_refs").write_text("5")
+        return True
+    except OSError:
+        return False
+
+
+def host_peak_bytes() -> int:
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    return peak if sys.platform == "darwin" else peak * 1024   # bytes on macOS, kilobytes elsewhere
+
+
+def load(name: str, resolution: int | None, cache: Path) -> tuple[Scene, int]:
+    """The scene at -r `resolution` (default: at most MAX_WIDTH wide) with every image decoded."""
+    path = DATA / name
+    if resolution is None:
+        full = load_scene(path, resolution=1)
+        resolution = math.ceil(max(c.width for c in full.train + full.test) / MAX_WIDTH)
+    scene = load_scene(path, resolution=resolution, cache_dir=cache / "undistorted" / name)
+    for cam in scene.train + scene.test:
+        scene.image(cam)
+    return scene, resolution
+
+
+def config(scene: Scene, strategy: str, iterations: int, resolution: int) -> TrainConfig:
+    return TrainConfig(scene=str(scene.root), iterations=iterations, strategy=strategy, resolution=resolution)
+
+
+def warm_up(rt: Runtime, scene: Scene, strategies: list[str], resolution: int, out: Path) -> None:
+    """Two iterations per strategy, so that the kernels are built before anything is timed."""
+    for strategy in strategies:
+        trainer = Trainer(config(scene, strategy, 1000, resolution), scene, rt, out)
+        for _ in range(2):
+            trainer.step()
+    rt.stage_times()
+
+
+def train_one(rt: Runtime, scene: Scene, cfg: TrainConfig, out: Path) -> dict:
+    """Train one run in `out`, then evaluate it; the measurements listed at the top."""
+    gc.collect()                           # the previous run's buffers go before the peaks restart
+    at_start = rt.memory_in_use
+    rt.reset_memory_peak()
+    rss_per_run = reset_host_peak()
+    trainer = Trainer(cfg, scene, rt, out)
+    write_run_files(out, cfg, scene)
+    initial = peak = trainer.params.n
+    stages = Counter()
+    rt.stage_times()
+    start = time.perf_counter()
+    while trainer.iteration < cfg.iterations:
+        trainer.step()
+        peak = max(peak, trainer.params.n)
+        if trainer.iteration % EVENTS_EVERY == 0 or trainer.iteration == cfg.iterations:
+            stages.update(rt.stage_times())   # waits for the queue
+    wall = time.perf_counter() - start
+    device_peak, host_peak = rt.memory_peak, host_peak_bytes()
+    trainer.save_model()
+    result = evaluate(rt, trainer.renderer, trainer.params, scene, scene.test, trainer.sh_degree,
+                      out / "test" / f"ours_{cfg.iterations}")
+    write_results(out, cfg.iterations, result)
+    per_it = 1e3 / cfg.iterations
+    return {"psnr": result["mean"]["PSNR"], "ssim": result["mean"]["SSIM"], "test_views": result["views"],
+            "gaussians_initial": initial, "gaussians_final": trainer.params.n, "gaussians_peak": peak,
+            "wall_ms_per_it": wall * per_it, "device_ms_per_it": {s: t * per_it for s, t in stages.items()},
+            "device_peak_bytes": device_peak, "device_bytes_at_start": at_start,
+            "bytes_per_gaussian": device_peak / peak, "host_peak_rss_bytes": host_peak,
+            "host_peak_rss_per_run": rss_per_run, "output": str(out)}
+
+
+HEADER = ("| scene | strategy | size | PSNR | SSIM | G init | G final | G peak | wall ms/it | "
+          + " | ".join(STAGES) + " | B/Gaussian | device MB | RSS MB |")
+
+
+def table_row(r: dict) -> str:
+    stage_ms = " | ".join(f"{r['device_ms_per_it'].get(s, 0.0):.2f}" for s in STAGES)
+    return (f"| {r['scene']} | {r['strategy']} | {r['size']} | {r['psnr']:.2f} | {r['ssim']:.4f} | "
+            f"{r['gaussians_initial']:,} | {r['gaussians_final']:,} | {r['gaussians_peak']:,} | "
+            f"{r['wall_ms_per_it']:.1f} | {stage_ms} | {r['bytes_per_gaussian']:,.0f} | "
+            f"{r['device_peak_bytes'] / MB:.1f} | {r['host_peak_rss_bytes'] / MB:.0f} |")
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--scenes", nargs="+", default=None,
+                    help="scene folders of ../shared/data (default: every COLMAP one)")
+    ap.add_argument("--strategies", nargs="+", choices=sorted(STRATEGIES), default=None,
+                    help="densification strategies (default: 3dgs absgs pixelgs)")
+    ap.add_argument("--iterations", type=int, default=None, help="iterations per run (default 3000)")
+    ap.add_argument("-r", "--resolution", type=int, default=None,
+                    help=f"downscale factor for every scene (default: per scene, at most {MAX_WIDTH} px wide)")
+    ap.add_argument("--out", type=Path, default=None, help="keep each run's folder under DIR (default: temporary)")
+    ap.add_argument("--json", type=Path, default=None, help="also write the results here (rewritten after each run)")
+    ap.add_argument("--device", default=None)
+    ap.add_argument("--quick", action="store_true",
+                    help=f"smoke test: one scene ({' or '.join(QUICK_SCENES)}), strategy 3dgs, 200 iterations")
+    args = ap.parse_args(argv)
+    if not DATA.is_dir():
+        print(f"no scene data at {DATA}: nothing to benchmark (the COLMAP scenes of ../shared/data are needed)")
+        return 0
+    available = colmap_scenes()
+    if args.quick:
+        args.scenes = args.scenes or [next(s for s in QUICK_SCENES if s in available)]
+        args.strategies = args.strategies or ["3dgs"]
+        args.iterations = args.iterations or 200
+    scenes = args.scenes or available
+    strategies = args.strategies or ["3dgs", "absgs", "pixelgs"]
+    iterations = args.iterations or 3000
+    unknown = [s for s in scenes if s not in available]
+    if unknown:
+        ap.error(f"not COLMAP scenes of {DATA}: {', '.join(unknown)} (there are: {', '.join(available)})")
+
+    rt = Runtime(args.device, profiling=True)
+    print(f"device: {describe(rt.device)}; {iterations:,} iterations per run", file=sys.stderr)
+    report = {"device": describe(rt.device), "iterations": iterations, "runs": []}
+    with tempfile.TemporaryDirectory(prefix="bench_train-") as tmp:
+        root = args.out or Path(tmp)
+        print(HEADER + "\n|" + "---|" * (HEADER.count("|") - 1), flush=True)
+        for name in scenes:
+            try:
+                scene, r = load(name, args.resolution, root)
+            except InputError as e:
+                print(f"{name}: skipped, the scene does not load: {e}", file=sys.stderr)
+                continue
+            cam = scene.train[0]
+            size = f"{cam.width}x{cam.height}"
+            print(f"{name}: -r {r} -> {size}, {len(scene.train)} train / {len(scene.test)} test views, "
+                  f"{len(scene.points):,} SfM points", file=sys.stderr)
+            warm_up(rt, scene, strategies, r, Path(tmp) / "warm-up")
+            for strategy in strategies:
+                run = train_one(rt, scene, config(scene, strategy, iterations, r), root / f"{name}-{strategy}")
+                row = {"scene": name, "strategy": strategy, "resolution": r, "size": size, **run}
+                report["runs"].append(row)
+                print(table_row(row), flush=True)
+                if args.json:
+                    args.json.write_text(json.dumps(report, indent=2))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
