@@ -274,3 +274,9 @@ def test_dc_guided_split_children(rng):
             np.testing.assert_array_equal(gs.params["sh"][child], params["sh"][parent])
             for moments in (gs.m, gs.v):
                 assert all(np.all(moments[k][child] == 0) for k in moments)
+
+
+def test_noise_sized_costs_split_in_the_middle(rng):
+    from dc4gs_cl.host.dc4gs import split_positions
+    noise = rng.normal(0, 1e-16, (4, 5))         # vanishing gradients leave only rounding noise
+    np.testing.assert_array_equal(split_positions(np.abs(noise), "poly"), 0.5)

@@ -2,7 +2,12 @@
 markdown table row per (scene, strategy).
 
     python tools/bench_train.py [--scenes S ...] [--strategies 3dgs absgs pixelgs] [--iterations 3000] [-r K]
-                                [--out DIR] [--json PATH] [--device D] [--quick]
+                                [--out DIR] [--json PATH] [--device D] [--quick] [--dc4gs]
+
+A strategy is a base (3dgs, absgs, pixelgs) with optional DC4GS parts and settings: "absgs+dc4gs" (DCC and
+DCS), "absgs+dcc", "absgs+dcs", and ":" options, e.g. "absgs+dc4gs:window:argmin" (pooling, split pick,
+or "abs" / "base" for the DCC reading). --dc4gs runs the DC4GS results table: each base with and without
+DC4GS and the AbsGS ablation (base, +DCC, +DCS, +both), then prints each DC4GS row against its base.
 
 Per run, measured in this process through the library (one Runtime, profiling on):
 - test-view PSNR and SSIM (dc4gs_cl.evaluate; every 8th image by name is a test view);
@@ -46,7 +51,7 @@ from dc4gs_cl.train import TrainConfig, Trainer, write_run_files
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 MAX_WIDTH = 400                # default -r: images at most this wide
 QUICK_SCENES = ("temple_sparse_ring", "fountain_p11")
-STAGES = ("project", "isect", "sort", "rasterize", "loss", "rasterize_backward", "project_backward",
+STAGES = ("project", "isect", "sort", "rasterize", "loss", "split_geometry", "rasterize_backward", "project_backward",
           "densify_stats", "adam")
 EVENTS_EVERY = 100             # iterations between collections of the profiling events (bounds how many are held)
 MB = 2 ** 20
@@ -82,8 +87,52 @@ def load(name: str, resolution: int | None, cache: Path) -> tuple[Scene, int]:
     return scene, resolution
 
 
+DC4GS_TABLE = ("3dgs", "3dgs+dc4gs", "absgs", "absgs+dcc", "absgs+dcs", "absgs+dc4gs", "pixelgs", "pixelgs+dc4gs")
+PARTS = {"dc4gs": {"dcc": True, "dcs": True}, "dcc": {"dcc": True}, "dcs": {"dcs": True}}
+OPTIONS = {"view": ("dc_pooling", "view"), "window": ("dc_pooling", "window"), "poly": ("split_pick", "poly"),
+           "argmin": ("split_pick", "argmin"), "dense": ("split_pick", "dense"), "abs": ("dcc_reading", "abs"),
+           "base": ("dcc_reading", "base")}
+
+
+def variant(spec: str) -> dict:
+    """"absgs+dc4gs:window" -> TrainConfig settings (raises ValueError on anything unknown)."""
+    head, *options = spec.split(":")
+    base, *parts = head.split("+")
+    if base not in STRATEGIES or any(p not in PARTS for p in parts) or any(o not in OPTIONS for o in options):
+        raise ValueError(f"unknown strategy {spec!r}: a base ({', '.join(STRATEGIES)}), then +dc4gs, +dcc or "
+                         f"+dcs, then :options ({', '.join(OPTIONS)})")
+    settings = {"strategy": base}
+    for p in parts:
+        settings.update(PARTS[p])
+    settings.update(dict(OPTIONS[o] for o in options))
+    return settings
+
+
 def config(scene: Scene, strategy: str, iterations: int, resolution: int) -> TrainConfig:
-    return TrainConfig(scene=str(scene.root), iterations=iterations, strategy=strategy, resolution=resolution)
+    return TrainConfig(scene=str(scene.root), iterations=iterations, resolution=resolution, **variant(strategy))
+
+
+def dc4gs_summary(runs: list[dict]) -> list[str]:
+    """Each DC4GS row against its base on the same scene: Gaussians and PSNR, and the paper's claim."""
+    lines = ["| scene | variant | Gaussians vs base | PSNR vs base | SSIM vs base | wall time vs base |", "|---|---|---|---|---|---|"]
+    by_key = {(r["scene"], r["strategy"]): r for r in runs}
+    fewer, gain = [], []
+    for r in runs:
+        base = by_key.get((r["scene"], r["strategy"].split("+")[0].split(":")[0]))
+        if base is None or base is r:
+            continue
+        dg = r["gaussians_final"] / base["gaussians_final"] - 1
+        dp = r["psnr"] - base["psnr"]
+        lines.append(f"| {r['scene']} | {r['strategy']} | {dg:+.1%} | {dp:+.2f} dB | {r['ssim'] - base['ssim']:+.4f} | "
+                     f"{r['wall_ms_per_it'] / base['wall_ms_per_it'] - 1:+.1%} |")
+        if r["strategy"].endswith("+dc4gs"):
+            fewer.append(-dg)
+            gain.append(dp)
+    if fewer:
+        lines.append(f"\nwith DC4GS over {len(fewer)} (scene, base) pairs: {sum(fewer) / len(fewer):.1%} fewer Gaussians "
+                     f"on average, PSNR {sum(gain) / len(gain):+.2f} dB on average "
+                     f"(paper: 17-24% fewer at equal or better PSNR)")
+    return lines
 
 
 def warm_up(rt: Runtime, scene: Scene, strategies: list[str], resolution: int, out: Path) -> None:
@@ -143,8 +192,9 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--scenes", nargs="+", default=None,
                     help="scene folders of ../shared/data (default: every COLMAP one)")
-    ap.add_argument("--strategies", nargs="+", choices=sorted(STRATEGIES), default=None,
-                    help="densification strategies (default: 3dgs absgs pixelgs)")
+    ap.add_argument("--strategies", nargs="+", default=None,
+                    help="densification strategies, e.g. absgs absgs+dc4gs absgs+dcc:window (default: 3dgs absgs pixelgs)")
+    ap.add_argument("--dc4gs", action="store_true", help=f"the DC4GS results table: {' '.join(DC4GS_TABLE)}")
     ap.add_argument("--iterations", type=int, default=None, help="iterations per run (default 3000)")
     ap.add_argument("-r", "--resolution", type=int, default=None,
                     help=f"downscale factor for every scene (default: per scene, at most {MAX_WIDTH} px wide)")
@@ -163,7 +213,12 @@ def main(argv=None) -> int:
         args.strategies = args.strategies or ["3dgs"]
         args.iterations = args.iterations or 200
     scenes = args.scenes or available
-    strategies = args.strategies or ["3dgs", "absgs", "pixelgs"]
+    strategies = args.strategies or (list(DC4GS_TABLE) if args.dc4gs else ["3dgs", "absgs", "pixelgs"])
+    for spec in strategies:
+        try:
+            variant(spec)
+        except ValueError as e:
+            ap.error(str(e))
     iterations = args.iterations or 3000
     unknown = [s for s in scenes if s not in available]
     if unknown:
@@ -193,6 +248,8 @@ def main(argv=None) -> int:
                 print(table_row(row), flush=True)
                 if args.json:
                     args.json.write_text(json.dumps(report, indent=2))
+    if any("+" in s for s in strategies):
+        print("\n" + "\n".join(dc4gs_summary(report["runs"])))
     return 0
 
 

@@ -19,6 +19,7 @@ SPLIT_PICKS = ("poly", "argmin", "dense")
 DCC_READINGS = ("abs", "base")
 DENSE_CANDIDATES = 59               # --split-pick dense without --split-candidates
 CONSTANT_COSTS = 1e-7               # relative spread below which the costs carry no preference: split in the middle
+NEGLIGIBLE_COSTS = 1e-12            # ... and costs this small are float noise of vanishing gradients
 
 
 @dataclass(frozen=True)
@@ -81,7 +82,7 @@ def polynomial_minimum(coeffs: np.ndarray, lo: float, hi: float, grid: int = 204
 
 def split_positions(costs: np.ndarray, pick: str) -> np.ndarray:
     """(M, n) candidate costs -> (M,) split positions in (0, 1). Costs that do not prefer any position
-    (all zero, constant, or not finite) split in the middle, 0.5."""
+    (all zero or float noise, constant, or not finite) split in the middle, 0.5."""
     costs = np.asarray(costs, np.float64)
     n = costs.shape[1]
     x = candidate_positions(n)
@@ -90,7 +91,8 @@ def split_positions(costs: np.ndarray, pick: str) -> np.ndarray:
     else:   # argmin and dense: the best candidate (dense differs only in how many there are)
         out = x[np.argmin(costs, axis=1)]
     spread = costs.max(axis=1) - costs.min(axis=1)
-    flat = ~np.isfinite(costs).all(axis=1) | (spread <= CONSTANT_COSTS * np.abs(costs).max(axis=1))
+    largest = np.abs(costs).max(axis=1)
+    flat = ~np.isfinite(costs).all(axis=1) | (spread <= CONSTANT_COSTS * largest) | (largest <= NEGLIGIBLE_COSTS)
     return np.where(flat, 0.5, out)
 
 
