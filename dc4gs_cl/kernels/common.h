@@ -1,9 +1,9 @@
 // common.h: device code shared by every kernel file.
 // Constants (TILE_SIZE, NEAR_PLANE, ALPHA_MIN, SH_C*, ...) arrive as -D options from dc4gs_cl/constants.py.
 //
-// Hot loops avoid builtin calls: in the PoCL builds we run on, builtins such as exp, fmin and floor are
-// opaque calls that stop the compiler from vectorising a loop across pixels (7x slower measured in
-// the rasterizer), so the helpers below are plain arithmetic and selects.
+// Hot code avoids builtin calls: in the PoCL builds we run on, builtins such as exp, sqrt, fmin, floor and
+// even vload3 are opaque calls that stop the compiler from vectorising a loop across pixels or across
+// work-items (7x slower measured in the rasterizer), so the helpers below are plain arithmetic and selects.
 
 #ifndef DC4GS_COMMON_H
 #define DC4GS_COMMON_H
@@ -39,19 +39,25 @@ typedef struct {
 #define EARLY_STOP 1
 #endif
 
-// exp(x) for x <= 0: x = k ln2 + r with |r| <= ln2/2, exp(r) by a degree-5 minimax polynomial, 2^k
-// through the exponent bits. Max relative error 1.8e-7 over [-87, 0] (float32 exp: 2.0e-7); below -87
-// it returns exp(-87) ~ 1.6e-38, far under any alpha threshold. k = (int)(x log2(e) - 0.5) rounds to
-// nearest for x <= 0 with a plain conversion (no floor call).
-inline float exp_nonpositive(float x) {
-#if FAST_EXP
-    x = CLAMPF(x, -87.0f, 0.0f);
-    int k = (int)(x * 1.4426950408889634f - 0.5f);
+// exp(x) by range reduction: x = k ln2 + r with |r| <= ln2/2, exp(r) by a degree-5 minimax polynomial,
+// 2^k through the exponent bits; x is clamped to [-87, 88]. Max relative error 1.8e-7 (float32 exp:
+// 2.0e-7). k rounds to nearest with a plain conversion (no floor call).
+inline float exp_poly(float x) {
+    x = CLAMPF(x, -87.0f, 88.0f);
+    float y = x * 1.4426950408889634f;
+    int k = (int)(y + (y < 0.0f ? -0.5f : 0.5f));
     float kf = (float)k;
     float r = x - kf * 0.693145751953125f - kf * 1.428606765330187e-06f;
     float p = 1.0f + r * (0.9999997019767761f + r * (0.4999915063381195f + r * (0.1666763573884964f
               + r * (0.04189793020486832f + r * 0.008290314115583897f))));
     return p * as_float((k + 127) << 23);
+}
+
+// exp(x) for x <= 0, the rasterizer's: ours (FAST_EXP) or the driver's; below -87 it is exp(-87) ~ 1.6e-38,
+// far under any alpha threshold.
+inline float exp_nonpositive(float x) {
+#if FAST_EXP
+    return exp_poly(MINF(x, 0.0f));
 #else
     return exp(MINF(x, 0.0f));
 #endif
@@ -65,6 +71,33 @@ inline float rsqrt_nocall(float x) {
     y = y * (1.5f - 0.5f * x * y * y);
     return y * (1.5f - 0.5f * x * y * y);
 }
+
+inline float sqrt_nocall(float x) { return x > 0.f ? x * rsqrt_nocall(x) : 0.f; }
+
+// log(x) for x > 0: x = m 2^e with m in [sqrt(1/2), sqrt(2)), log m = 2 atanh(s), s = (m - 1) / (m + 1),
+// |s| <= 0.172, by its series to s^9 (truncation 5e-10). Relative error ~1e-7.
+inline float log_nocall(float x) {
+    int bits = as_int(x);
+    int e = ((bits >> 23) & 0xff) - 127;
+    float m = as_float((bits & 0x7fffff) | 0x3f800000);
+    int big = m > 1.41421356f;
+    m = big ? 0.5f * m : m;
+    e += big;
+    float s = (m - 1.0f) / (m + 1.0f), s2 = s * s;
+    return (float)e * 0.6931471805599453f + 2.0f * s * (1.0f + s2 * (1.0f / 3 + s2 * (1.0f / 5 + s2 * (1.0f / 7 + s2 * (1.0f / 9)))));
+}
+
+// ceil(x) for 0 <= x < 2^31.
+inline float ceil_nonnegative(float x) {
+    float f = (float)(int)x;
+    return f < x ? f + 1.0f : f;
+}
+
+#define IS_FINITE(x) ((x) - (x) == 0.0f)   // false for NaN and +-infinity
+// Three floats at index i of a packed array (vload3 / vstore3 are calls under PoCL).
+#define LOAD3(p, i) ((float3)((p)[3 * (i)], (p)[3 * (i) + 1], (p)[3 * (i) + 2]))
+#define STORE3(v, p, i) ((p)[3 * (i)] = (v).x, (p)[3 * (i) + 1] = (v).y, (p)[3 * (i) + 2] = (v).z)
+#define DOT3(a, b) ((a).x * (b).x + (a).y * (b).y + (a).z * (b).z)
 
 // Emulated float atomic add (compare-and-swap on the bit pattern): OpenCL 1.2 has no float atomics.
 #define DEFINE_ATOMIC_ADD_FLOAT(name, space)                                                       \
@@ -83,7 +116,7 @@ DEFINE_ATOMIC_ADD_FLOAT(local_add_float, __local)
 
 // Tile rectangle [x0, x1) x [y0, y1) covered by the box mean +- half_size (px), clamped to the tile grid.
 // Shared by projection (tile counts) and pair emission, so both always agree.
-inline int4 tile_rect(float2 mean, float2 half_size, int tiles_x, int tiles_y) {
+ALWAYS_INLINE int4 tile_rect(float2 mean, float2 half_size, int tiles_x, int tiles_y) {
     float inv = 1.0f / (float)TILE_SIZE;
     float x0 = CLAMPF((mean.x - half_size.x) * inv, 0.0f, (float)tiles_x);
     float y0 = CLAMPF((mean.y - half_size.y) * inv, 0.0f, (float)tiles_y);
@@ -92,12 +125,12 @@ inline int4 tile_rect(float2 mean, float2 half_size, int tiles_x, int tiles_y) {
     return (int4)((int)x0, (int)y0, (int)x1, (int)y1);   // values are >= 0: truncation is floor
 }
 
-inline int rect_area(int4 r) { return max(r.z - r.x, 0) * max(r.w - r.y, 0); }
+inline int rect_area(int4 r) { return (r.z > r.x ? r.z - r.x : 0) * (r.w > r.y ? r.w - r.y : 0); }
 
 // The tiles a Gaussian's pairs go to: its 3-sigma box (the reference rasterizers' rule) cut down to the
 // box where alpha can reach ALPHA_MIN. Tiles outside the second box hold no pixel it could blend, so
 // the image is exactly that of the 3-sigma rule, with fewer pairs to sort and walk.
-inline int4 pair_rect(float2 mean, float radius, float2 alpha_extent, int tiles_x, int tiles_y) {
+ALWAYS_INLINE int4 pair_rect(float2 mean, float radius, float2 alpha_extent, int tiles_x, int tiles_y) {
 #if ALPHA_CUT
     return tile_rect(mean, (float2)(MINF(radius, alpha_extent.x), MINF(radius, alpha_extent.y)), tiles_x, tiles_y);
 #else

@@ -32,47 +32,49 @@ __kernel void project(const int n, const Camera cam, const int sh_degree, const 
     radius[i] = 0;
     tiles_touched[i] = 0;
 
-    float3 mu = vload3(i, means);
+    float3 mu = LOAD3(means, i);
     float3 pc = world_to_camera(&cam, mu);
     depth[i] = pc.z;
     if (!(pc.z > NEAR_PLANE)) return;   // also rejects NaN
 
     float Rq[9], M[9], T[6], TM[6];
-    rotation_scale(normalized_quat(vload4(i, quats)), exp(vload3(i, log_scales)), Rq, M);
+    rotation_scale(normalized_quat(load_quat(quats, i)), load_scales(log_scales, i), Rq, M);
     float2 t_clamped;
     int2 free;
     ewa_jacobian(&cam, pc, T, &t_clamped, &free);
     float3 cov = covariance_2d(T, M, TM);
     float a = cov.x, b = cov.y, c = cov.z;
     float det = a * c - b * b;
-    if (!(det > 0.f) || !isfinite(det)) return;
+    if (!(det > 0.f) || !IS_FINITE(det)) return;
     float inv_det = 1.f / det;
 
     float mid = 0.5f * (a + c);
-    float lambda_max = mid + sqrt(MAXF(MIN_EIGEN_GAP, mid * mid - det));
-    float r_px = ceil(RADIUS_SIGMAS * sqrt(lambda_max));
+    float lambda_max = mid + sqrt_nocall(MAXF(MIN_EIGEN_GAP, mid * mid - det));
+    // capped at 1e7 px: keeps the int conversion defined; the tile rectangle is clamped anyway
+    float r_px = ceil_nonnegative(MINF(RADIUS_SIGMAS * sqrt_nocall(lambda_max), 1e7f));
     float2 m2 = project_point(&cam, pc);
-    if (!(r_px > 0.f) || !isfinite(m2.x) || !isfinite(m2.y)) return;
-    r_px = MINF(r_px, 1e7f);   // keeps the int conversion defined; the tile rectangle is clamped anyway
+    if (!(r_px > 0.f) || !IS_FINITE(m2.x) || !IS_FINITE(m2.y)) return;
     if (rect_area(tile_rect(m2, (float2)(r_px, r_px), tiles_x, tiles_y)) == 0) return;
 
-    float op = 1.f / (1.f + exp(-opacity_logits[i]));
+    float op = 1.f / (1.f + exp_poly(-opacity_logits[i]));
     // alpha >= ALPHA_MIN needs the Mahalanobis distance q <= 2 ln(op / ALPHA_MIN); the box of that
     // ellipse has half-sizes sqrt(q a) and sqrt(q c) (a, c: the 2D covariance's diagonal).
-    float q = op >= ALPHA_MIN ? 2.f * log(op / ALPHA_MIN) : 0.f;
-    float2 ext = (float2)(sqrt(q * a), sqrt(q * c)) + 0.01f;
+    float q = op >= ALPHA_MIN ? 2.f * log_nocall(op / ALPHA_MIN) : 0.f;
+    float2 ext = (float2)(sqrt_nocall(q * a), sqrt_nocall(q * c)) + 0.01f;
     uint tiles = (uint)rect_area(pair_rect(m2, r_px, ext, tiles_x, tiles_y));
 #if ALPHA_CUT
     if (op < ALPHA_MIN) tiles = 0;   // alpha = opacity * exp(power) < ALPHA_MIN everywhere
 #endif
 
-    float3 dir = normalize(mu - (float3)(cam.campos[0], cam.campos[1], cam.campos[2]));
+    float3 v = mu - (float3)(cam.campos[0], cam.campos[1], cam.campos[2]);
+    float3 dir = v * rsqrt_nocall(DOT3(v, v));
     float3 col = sh_colour(sh_degree, sh + (size_t)i * (SH_COEFFS * 3), dir);
 
-    vstore2(m2, i, mean2d);
-    vstore4((float4)(c * inv_det, -b * inv_det, a * inv_det, op), i, conic_opacity);
-    vstore3(max(col, 0.f), i, rgb);
-    vstore2(ext, i, alpha_extent);
+    mean2d[2 * i] = m2.x; mean2d[2 * i + 1] = m2.y;
+    conic_opacity[4 * i] = c * inv_det; conic_opacity[4 * i + 1] = -b * inv_det;
+    conic_opacity[4 * i + 2] = a * inv_det; conic_opacity[4 * i + 3] = op;
+    STORE3((float3)(MAXF(col.x, 0.f), MAXF(col.y, 0.f), MAXF(col.z, 0.f)), rgb, i);
+    alpha_extent[2 * i] = ext.x; alpha_extent[2 * i + 1] = ext.y;
     radius[i] = (int)r_px;
     tiles_touched[i] = tiles;
 }

@@ -19,7 +19,7 @@ inline float2 project_point(const Camera *cam, float3 pc) {
 }
 
 // Row-major rotation matrix of a normalised quaternion (w, x, y, z).
-inline void quat_to_rotmat(float4 q, float *R) {
+ALWAYS_INLINE void quat_to_rotmat(float4 q, float *R) {
     float w = q.x, x = q.y, y = q.z, z = q.w;
     R[0] = 1.f - 2.f * (y * y + z * z); R[1] = 2.f * (x * y - w * z);       R[2] = 2.f * (x * z + w * y);
     R[3] = 2.f * (x * y + w * z);       R[4] = 1.f - 2.f * (x * x + z * z); R[5] = 2.f * (y * z - w * x);
@@ -28,12 +28,21 @@ inline void quat_to_rotmat(float4 q, float *R) {
 
 // Unit quaternion; a zero quaternion stands for the identity rotation (and gets no gradient).
 inline float4 normalized_quat(float4 q) {
-    float n2 = dot(q, q);
-    return n2 > 0.f ? q * rsqrt(n2) : (float4)(1.f, 0.f, 0.f, 0.f);
+    float n2 = q.x * q.x + q.y * q.y + q.z * q.z + q.w * q.w;
+    return n2 > 0.f ? q * rsqrt_nocall(n2) : (float4)(1.f, 0.f, 0.f, 0.f);
+}
+
+inline float4 load_quat(__global const float *quats, int i) {
+    return (float4)(quats[4 * i], quats[4 * i + 1], quats[4 * i + 2], quats[4 * i + 3]);
+}
+
+// exp of the stored log-scales
+inline float3 load_scales(__global const float *log_scales, int i) {
+    return (float3)(exp_poly(log_scales[3 * i]), exp_poly(log_scales[3 * i + 1]), exp_poly(log_scales[3 * i + 2]));
 }
 
 // M = R(q) diag(s), so that Sigma = M M^T.
-inline void rotation_scale(float4 q, float3 s, float *Rq, float *M) {
+ALWAYS_INLINE void rotation_scale(float4 q, float3 s, float *Rq, float *M) {
     quat_to_rotmat(q, Rq);
     for (int r = 0; r < 3; ++r) {
         M[3 * r] = Rq[3 * r] * s.x; M[3 * r + 1] = Rq[3 * r + 1] * s.y; M[3 * r + 2] = Rq[3 * r + 2] * s.z;
@@ -43,7 +52,7 @@ inline void rotation_scale(float4 q, float3 s, float *Rq, float *M) {
 // T = J W (2x3, row-major): the EWA Jacobian J at the camera-space point pc, with x/z and y/z clamped to
 // FOV_CLAMP times the half field of view, times the world-to-camera rotation W. *t_clamped gets the
 // clamped (x/z, y/z), *free whether each was inside the limits (gradient flows only then).
-inline void ewa_jacobian(const Camera *cam, float3 pc, float *T, float2 *t_clamped, int2 *free) {
+ALWAYS_INLINE void ewa_jacobian(const Camera *cam, float3 pc, float *T, float2 *t_clamped, int2 *free) {
     float lim_x = FOV_CLAMP * 0.5f * (float)cam->width / cam->fx, lim_y = FOV_CLAMP * 0.5f * (float)cam->height / cam->fy;
     float rz = 1.f / pc.z, ux = pc.x * rz, uy = pc.y * rz;
     float tx = CLAMPF(ux, -lim_x, lim_x), ty = CLAMPF(uy, -lim_y, lim_y);
@@ -57,7 +66,7 @@ inline void ewa_jacobian(const Camera *cam, float3 pc, float *T, float2 *t_clamp
 }
 
 // 2D covariance (a, b, c) = T Sigma T^T + dilation, with TM = T M kept for the backward.
-inline float3 covariance_2d(const float *T, const float *M, float *TM) {
+ALWAYS_INLINE float3 covariance_2d(const float *T, const float *M, float *TM) {
     for (int r = 0; r < 2; ++r)
         for (int c = 0; c < 3; ++c)
             TM[3 * r + c] = T[3 * r] * M[c] + T[3 * r + 1] * M[3 + c] + T[3 * r + 2] * M[6 + c];
@@ -67,7 +76,7 @@ inline float3 covariance_2d(const float *T, const float *M, float *TM) {
 }
 
 // The real SH basis of degree <= 3 at unit direction d (16 values; unused ones left alone).
-inline void sh_basis(int degree, float3 d, float *b) {
+ALWAYS_INLINE void sh_basis(int degree, float3 d, float *b) {
     float x = d.x, y = d.y, z = d.z;
     b[0] = SH_C0;
     if (degree < 1) return;
@@ -108,12 +117,12 @@ inline void sh_basis_gradient(int degree, float3 d, float *gx, float *gy, float 
 }
 
 // Colour before the clamp at 0: sum_k basis_k(d) c[k] + 0.5, for the coefficients c[K][3] of one Gaussian.
-inline float3 sh_colour(int degree, __global const float *c, float3 d) {
+ALWAYS_INLINE float3 sh_colour(int degree, __global const float *c, float3 d) {
     float b[16];
     sh_basis(degree, d, b);
     float3 res = (float3)(0.5f);
     int k_active = (degree + 1) * (degree + 1);
-    for (int k = 0; k < k_active; ++k) res += b[k] * vload3(k, c);
+    for (int k = 0; k < k_active; ++k) res += b[k] * LOAD3(c, k);
     return res;
 }
 

@@ -23,9 +23,9 @@ __kernel void project_backward(const int n, const Camera cam, const int sh_degre
     if (i >= n) return;
     __global float *dsh = d_sh + (size_t)i * SH_COEFFS * 3;
     if (radius[i] <= 0) {
-        vstore3((float3)(0.f), i, d_means);
-        vstore3((float3)(0.f), i, d_log_scales);
-        vstore4((float4)(0.f), i, d_quats);
+        STORE3((float3)(0.f), d_means, i);
+        STORE3((float3)(0.f), d_log_scales, i);
+        d_quats[4 * i] = d_quats[4 * i + 1] = d_quats[4 * i + 2] = d_quats[4 * i + 3] = 0.f;
         d_opacity_logits[i] = 0.f;
         for (int k = 0; k < SH_COEFFS * 3; ++k) dsh[k] = 0.f;
         return;
@@ -36,11 +36,11 @@ __kernel void project_backward(const int n, const Camera cam, const int sh_degre
     float3 v_rgb = (float3)(g[SUM_RGB], g[SUM_RGB + 1], g[SUM_RGB + 2]);
 
     // Forward quantities again (cheaper than storing them).
-    float3 mu = vload3(i, means);
+    float3 mu = LOAD3(means, i);
     float3 pc = world_to_camera(&cam, mu);
-    float4 q_raw = vload4(i, quats);
+    float4 q_raw = load_quat(quats, i);
     float4 q = normalized_quat(q_raw);
-    float3 s = exp(vload3(i, log_scales));
+    float3 s = load_scales(log_scales, i);
     float Rq[9], M[9], T[6], TM[6];
     rotation_scale(q, s, Rq, M);
     float2 t_clamped;
@@ -102,7 +102,7 @@ __kernel void project_backward(const int n, const Camera cam, const int sh_degre
     float3 ds = (float3)(dM[0] * Rq[0] + dM[3] * Rq[3] + dM[6] * Rq[6],
                          dM[1] * Rq[1] + dM[4] * Rq[4] + dM[7] * Rq[7],
                          dM[2] * Rq[2] + dM[5] * Rq[5] + dM[8] * Rq[8]);
-    vstore3(ds * s, i, d_log_scales);
+    STORE3(ds * s, d_log_scales, i);
     float dR[9];
     for (int r = 0; r < 3; ++r) { dR[3 * r] = dM[3 * r] * s.x; dR[3 * r + 1] = dM[3 * r + 1] * s.y; dR[3 * r + 2] = dM[3 * r + 2] * s.z; }
     float w = q.x, x = q.y, y = q.z, z = q.w;
@@ -111,13 +111,15 @@ __kernel void project_backward(const int n, const Camera cam, const int sh_degre
         y * dR[1] + z * dR[2] + y * dR[3] - 2.f * x * dR[4] - w * dR[5] + z * dR[6] + w * dR[7] - 2.f * x * dR[8],
         -2.f * y * dR[0] + x * dR[1] + w * dR[2] + x * dR[3] + z * dR[5] - w * dR[6] + z * dR[7] - 2.f * y * dR[8],
         -2.f * z * dR[0] - w * dR[1] + x * dR[2] + w * dR[3] - 2.f * z * dR[4] + y * dR[5] + x * dR[6] + y * dR[7]);
-    float qn2 = dot(q_raw, q_raw);
+    float qn2 = q_raw.x * q_raw.x + q_raw.y * q_raw.y + q_raw.z * q_raw.z + q_raw.w * q_raw.w;
     // Through the normalisation q / |q| (no gradient for a zero quaternion).
-    vstore4(qn2 > 0.f ? (dq - q * dot(q, dq)) * rsqrt(qn2) : (float4)(0.f), i, d_quats);
+    float4 d_quat = qn2 > 0.f ? (dq - q * (q.x * dq.x + q.y * dq.y + q.z * dq.z + q.w * dq.w)) * rsqrt_nocall(qn2)
+                              : (float4)(0.f);
+    d_quats[4 * i] = d_quat.x; d_quats[4 * i + 1] = d_quat.y; d_quats[4 * i + 2] = d_quat.z; d_quats[4 * i + 3] = d_quat.w;
 
     // SH colour along the view direction; no gradient through a channel clamped at 0.
     float3 v = mu - (float3)(cam.campos[0], cam.campos[1], cam.campos[2]);
-    float inv_len = rsqrt(dot(v, v));
+    float inv_len = rsqrt_nocall(DOT3(v, v));
     float3 dir = v * inv_len;
     __global const float *coef = sh + (size_t)i * SH_COEFFS * 3;
     float3 raw = sh_colour(sh_degree, coef, dir);
@@ -129,16 +131,16 @@ __kernel void project_backward(const int n, const Camera cam, const int sh_degre
     float3 d_dir = (float3)(0.f);
     for (int k = 0; k < SH_COEFFS; ++k) {
         if (k < k_active) {
-            vstore3(basis[k] * vr, k, dsh);
-            float cv = dot(vload3(k, coef), vr);
+            STORE3(basis[k] * vr, dsh, k);
+            float cv = DOT3(LOAD3(coef, k), vr);
             d_dir += cv * (float3)(gx[k], gy[k], gz[k]);
         } else {
-            vstore3((float3)(0.f), k, dsh);
+            STORE3((float3)(0.f), dsh, k);
         }
     }
-    dmu += (d_dir - dir * dot(dir, d_dir)) * inv_len;
-    vstore3(dmu, i, d_means);
+    dmu += (d_dir - dir * DOT3(dir, d_dir)) * inv_len;
+    STORE3(dmu, d_means, i);
 
-    float o = 1.f / (1.f + exp(-opacity_logits[i]));
+    float o = 1.f / (1.f + exp_poly(-opacity_logits[i]));
     d_opacity_logits[i] = g[SUM_OPACITY] * o * (1.f - o);
 }

@@ -27,26 +27,27 @@ __kernel void split_geometry(const int n, const Camera cam, const float min_scal
     __global float *out = geometry + (size_t)i * SPLIT_GEOMETRY;
     out[2] = out[3] = 0.f;
     if (radius[i] <= 0) return;
-    float3 s = exp(vload3(i, log_scales));
+    float3 s = load_scales(log_scales, i);
     int a = s.y > s.x ? (s.z > s.y ? 2 : 1) : (s.z > s.x ? 2 : 0);   // ties: the first axis
     float sigma = a == 0 ? s.x : (a == 1 ? s.y : s.z);
     if (!(sigma > min_scale)) return;
     float Rq[9];
-    quat_to_rotmat(normalized_quat(vload4(i, quats)), Rq);
+    quat_to_rotmat(normalized_quat(load_quat(quats, i)), Rq);
     float3 axis = (float3)(Rq[a], Rq[3 + a], Rq[6 + a]) * sigma;   // sigma p
-    float3 mu = vload3(i, means);
+    float3 mu = LOAD3(means, i);
     float step = 6.f / (float)(SPLIT_CANDIDATES + 1);
     float3 end = world_to_camera(&cam, mu + 3.f * axis);
     float3 first = world_to_camera(&cam, mu - step * (float)(SPLIT_CANDIDATES / 2) * axis);
     if (!(end.z > NEAR_PLANE) || !(first.z > NEAR_PLANE)) return;   // the middle ones lie between these
     float2 c0 = project_point(&cam, first);
     float2 d = project_point(&cam, end) - c0;
-    float len2 = dot(d, d);
-    if (!(len2 > 1e-4f) || !isfinite(len2)) return;   // shorter than 0.01 px: it separates no pixels
-    float2 dir = d * rsqrt(len2);
+    float len2 = d.x * d.x + d.y * d.y;
+    if (!(len2 > 1e-4f) || !IS_FINITE(len2)) return;   // shorter than 0.01 px: it separates no pixels
+    float2 dir = d * rsqrt_nocall(len2);
     for (int k = 1; k < SPLIT_CANDIDATES; ++k) {
         float3 ck = world_to_camera(&cam, mu + step * (float)(k - SPLIT_CANDIDATES / 2) * axis);
-        out[3 + k] = dot(project_point(&cam, ck) - c0, dir);
+        float2 q = project_point(&cam, ck) - c0;
+        out[3 + k] = q.x * dir.x + q.y * dir.y;
     }
     out[0] = c0.x; out[1] = c0.y; out[2] = dir.x; out[3] = dir.y;
 }
