@@ -24,7 +24,7 @@ from .train import RECIPE_ITERATIONS
 BUILTIN_ITERATIONS = 5_000   # the default run on the built-in scene: about five minutes on 2 CPU cores
 TRAIN_SETTINGS = ("scene", "strategy", "iterations", "resolution", "test_every", "save_at", "densify_until",
                   "checkpoint_every", "seed", "white_background", "dcc", "dcs", "dc_pooling", "split_pick",
-                  "split_candidates", "dcc_reading")
+                  "split_candidates", "dcc_reading", "dcs_track")
 
 
 def _add_device(p: argparse.ArgumentParser) -> None:
@@ -92,6 +92,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="split position: minimum of the polynomial through the candidates' costs (poly, default), "
                         f"the best candidate (argmin), or the best of many candidates (dense: {DENSE_CANDIDATES})")
     g.add_argument("--split-candidates", type=int, default=None, help="candidate split positions (odd; default 5)")
+    g.add_argument("--dcs-track", type=float, default=None,
+                   help="gather split costs for a Gaussian only in its first views of a window and while its running "
+                        "split criterion is at least this fraction of the threshold (0: every Gaussian that can be "
+                        "split, exact; see the README)")
     g.add_argument("--dcc-reading", choices=DCC_READINGS, default=None,
                    help="what DCC weights on the 3DGS and Pixel-GS bases: the homodirectional gradient (abs, "
                         "default) or the base's own term (base, the paper's literal reading)")

@@ -67,6 +67,7 @@ class TrainConfig:
     split_pick: str = "poly"
     split_candidates: int | None = None    # 5, or DENSE_CANDIDATES with split_pick "dense"
     dcc_reading: str = "abs"
+    dcs_track: float = 0.0                 # DCS: split costs only while the split criterion is >= this x threshold
 
     def __post_init__(self):
         problems = []
@@ -84,6 +85,8 @@ class TrainConfig:
             problems.append(f"--densify-until {self.densify_until} must be >= 0")
         if not 0 <= self.sh_degree <= SH_MAX_DEGREE:
             problems.append(f"--sh-degree {self.sh_degree} must be 0..{SH_MAX_DEGREE}")
+        if not 0 <= self.dcs_track <= 1:
+            problems.append(f"--dcs-track {self.dcs_track} must lie in [0, 1]")
         if self.split_candidates is not None and (self.split_candidates < 3 or self.split_candidates % 2 == 0):
             problems.append(f"--split-candidates {self.split_candidates} must be odd and at least 3")
         for name, value, allowed in (("--dc-pooling", self.dc_pooling, POOLINGS), ("--split-pick", self.split_pick, SPLIT_PICKS),
@@ -98,7 +101,7 @@ class TrainConfig:
             return None
         candidates = self.split_candidates or (DENSE_CANDIDATES if self.split_pick == "dense" else 5)
         return DC4GSConfig(dcc=self.dcc, dcs=self.dcs, pooling=self.dc_pooling, split_pick=self.split_pick,
-                           candidates=candidates, dcc_reading=self.dcc_reading)
+                           candidates=candidates, dcc_reading=self.dcc_reading, track=self.dcs_track)
 
     @property
     def schedule_scale(self) -> float:
@@ -192,7 +195,8 @@ class Trainer:
         self.widths = group_widths(self.params.sh_coeffs)
         self.grads = DeviceArrays(rt, self.widths, self.params.n)
         self.adam = Adam(rt, self.widths, self.params.n)
-        self.window = WindowStats(rt, self.stats_layout, self.extent, self.strategy.window_layout())
+        self.window = WindowStats(rt, self.stats_layout, self.extent, self.strategy.window_layout(),
+                                  self.strategy.track_threshold)
         self.window.reset(self.params.n)
         self.progress = Progress(gaussians=self.params.n)
         self.target = rt.buffer(4)
@@ -237,7 +241,8 @@ class Trainer:
         layout = self.stats_layout if collecting else self.plain_layout
         r = self.renderer
         geometry = split_geometry(rt, r.ws, self.params, cam, res, layout.split_candidates,
-                                  s.config.percent_dense * self.extent) if layout.split_candidates else None
+                                  s.config.percent_dense * self.extent, self.window.buffer,
+                                  self.window.layout.defines()) if layout.split_candidates else None
         sums = rasterize_backward(rt, r.ws, r.tuning, r.defines, layout, res, self.grad_image, self.background,
                                   geometry)
         project_backward(rt, self.params, cam, self.sh_degree, res, sums, layout, self.grads.buffers)
@@ -307,7 +312,8 @@ class Trainer:
         except (OSError, ValueError, KeyError, json.JSONDecodeError, UnicodeDecodeError) as e:
             raise InputError(path, f"corrupt checkpoint ({e.__class__.__name__}: {e})") from None
         mismatched = [k for k in ("scene", "strategy", "iterations", "resolution", "seed", "sh_degree", "test_every",
-                                  "white_background", "dcc", "dcs", "dc_pooling", "split_candidates", "split_pick")
+                                  "white_background", "dcc", "dcs", "dc_pooling", "split_candidates", "split_pick",
+                                  "dcc_reading", "dcs_track")
                       if getattr(saved, k) != getattr(self.cfg, k)]
         if mismatched:
             diffs = ", ".join(f"{k}: checkpoint {getattr(saved, k)!r} vs now {getattr(self.cfg, k)!r}" for k in mismatched)

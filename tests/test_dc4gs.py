@@ -280,3 +280,22 @@ def test_noise_sized_costs_split_in_the_middle(rng):
     from dc4gs_cl.host.dc4gs import split_positions
     noise = rng.normal(0, 1e-16, (4, 5))         # vanishing gradients leave only rounding noise
     np.testing.assert_array_equal(split_positions(np.abs(noise), "poly"), 0.5)
+
+
+def test_split_costs_stop_for_gaussians_whose_criterion_stays_low(rt, rng):
+    """With tracking, a Gaussian whose running split criterion stays under track x threshold after its
+    first views gets no split line (no costs); one above it keeps its line."""
+    from types import SimpleNamespace
+    from dc4gs_cl.host.stats import TRACK_MIN_VIEWS, WindowLayout, WindowStats
+    n, candidates = 4, 5
+    layout = SumsLayout(stats=True, dc_stats=True, split_candidates=candidates)
+    wl = WindowLayout(dc=True, split_candidates=candidates, criterion=("abs", "views"))
+    window = WindowStats(rt, layout, 1.0, wl, track_threshold=1.0)
+    window.reset(n)
+    sums = np.zeros((n, layout.width), np.float32)
+    sums[:, layout.fields["abs"][0]] = [0.1, 5.0, 0.1, 5.0]          # per-view |ghat| below / above 1
+    res = SimpleNamespace(width=10, height=10, proj=SimpleNamespace(radius=rt.to_device(np.full(n, 3, np.int32)),
+                                                                     depth=rt.to_device(np.ones(n, np.float32))))
+    for view in range(TRACK_MIN_VIEWS + 1):
+        assert np.array_equal(window.download()["skip_split"], [0, 0, 0, 0] if view < TRACK_MIN_VIEWS else [1, 0, 1, 0])
+        window.accumulate(res, rt.to_device(sums), rt.to_device(np.zeros((n, candidates + 3), np.float32)))

@@ -7,9 +7,12 @@ A base model is trained for --warm-iterations; then each configuration below ste
 from that same state (same Gaussians, same views, densification and opacity resets off, statistics on),
 in --rounds interleaved rounds; per-stage device times (OpenCL profiling events) and wall times are
 medians over the rounds, and every overhead is a ratio against the base measured in the same run.
-Configurations: the base; +DCC; +DCS; +DC4GS (view pooling, the default) and with window pooling; and
-two skips: split costs for every visible Gaussian (instead of only those large enough to be split),
-and no statistics at all (what an iteration costs once the densification window has closed).
+Configurations: the base; +DCC; +DCS; +DC4GS (view pooling, the default) and with window pooling; with
+split costs tracked only while the split criterion is at least 0.5 or 0.25 of the threshold
+(--dcs-track, an approximation); and two skips: split costs for every visible Gaussian (instead of only
+those large enough to be split), and no statistics at all (what an iteration costs once the
+densification window has closed). The trained state is reached without DC4GS, so the tracking rows start
+a window with every Gaussian tracked, as every window does.
 """
 from __future__ import annotations
 
@@ -30,6 +33,8 @@ NEVER = 10 ** 9
 def configurations(base: str) -> dict[str, dict]:
     return {"base": {}, "+DCC": {"dcc": True}, "+DCS": {"dcs": True}, "+DC4GS": {"dcc": True, "dcs": True},
             "+DC4GS window": {"dcc": True, "dcs": True, "dc_pooling": "window"},
+            "+DC4GS, tracking 0.5": {"dcc": True, "dcs": True, "dcs_track": 0.5},
+            "+DC4GS, tracking 0.25": {"dcc": True, "dcs": True, "dcs_track": 0.25},
             "+DC4GS, split costs for all": {"dcc": True, "dcs": True, "_all": True},
             "no statistics (window closed)": {"_closed": True}}
 

@@ -6,7 +6,7 @@ markdown table row per (scene, strategy).
 
 A strategy is a base (3dgs, absgs, pixelgs) with optional DC4GS parts and settings: "absgs+dc4gs" (DCC and
 DCS), "absgs+dcc", "absgs+dcs", and ":" options, e.g. "absgs+dc4gs:window:argmin" (pooling, split pick,
-or "abs" / "base" for the DCC reading). --dc4gs runs the DC4GS results table: each base with and without
+"abs" / "base" for the DCC reading, or "track=F" for --dcs-track). --dc4gs runs the DC4GS results table: each base with and without
 DC4GS and the AbsGS ablation (base, +DCC, +DCS, +both), then prints each DC4GS row against its base.
 
 Per run, measured in this process through the library (one Runtime, profiling on):
@@ -95,9 +95,11 @@ OPTIONS = {"view": ("dc_pooling", "view"), "window": ("dc_pooling", "window"), "
 
 
 def variant(spec: str) -> dict:
-    """"absgs+dc4gs:window" -> TrainConfig settings (raises ValueError on anything unknown)."""
+    """"absgs+dc4gs:window:track=0.5" -> TrainConfig settings (raises ValueError on anything unknown)."""
     head, *options = spec.split(":")
     base, *parts = head.split("+")
+    track = [o for o in options if o.startswith("track=")]
+    options = [o for o in options if not o.startswith("track=")]
     if base not in STRATEGIES or any(p not in PARTS for p in parts) or any(o not in OPTIONS for o in options):
         raise ValueError(f"unknown strategy {spec!r}: a base ({', '.join(STRATEGIES)}), then +dc4gs, +dcc or "
                          f"+dcs, then :options ({', '.join(OPTIONS)})")
@@ -105,6 +107,8 @@ def variant(spec: str) -> dict:
     for p in parts:
         settings.update(PARTS[p])
     settings.update(dict(OPTIONS[o] for o in options))
+    if track:
+        settings["dcs_track"] = float(track[-1].split("=", 1)[1])
     return settings
 
 

@@ -30,6 +30,7 @@ class DC4GSConfig:
     split_pick: str = "poly"
     candidates: int = 5             # odd
     dcc_reading: str = "abs"        # abs: (1 - kappa) |ghat|; base: (1 - kappa) x the base's own per-view term
+    track: float = 0.0              # split costs only while the running split criterion >= track x threshold (0: exact)
 
     def __post_init__(self):
         if self.pooling not in POOLINGS or self.split_pick not in SPLIT_PICKS or self.dcc_reading not in DCC_READINGS:

@@ -13,6 +13,7 @@ from ..runtime import Runtime
 
 STATS_WG = 64
 PIXELGS_DEPTH_FRACTION = 0.37   # Pixel-GS: gradients of Gaussians nearer than this x extent are scaled down
+TRACK_MIN_VIEWS = 5             # DCS: split costs for every Gaussian in its first views of a window
 
 
 BASE_COLUMNS = ("grad", "abs", "views", "pix_grad", "pix", "max_radius")
@@ -28,6 +29,7 @@ class WindowLayout:
     dc: bool = False
     split_candidates: int = 0
     window_pooling: bool = False
+    criterion: tuple[str, str] = ("grad", "views")   # the split criterion's (total, count) columns
 
     @property
     def columns(self) -> dict[str, tuple[int, int]]:
@@ -38,7 +40,7 @@ class WindowLayout:
             if self.window_pooling:
                 widths += [(k, 1) for k in DC_WINDOW_COLUMNS]
         if self.split_candidates:
-            widths += [("j", self.split_candidates)]
+            widths += [("j", self.split_candidates), ("skip_split", 1)]
             if self.window_pooling:
                 widths += [("total", 5), ("left", 5 * self.split_candidates)]
         out, at = {}, 0
@@ -52,13 +54,17 @@ class WindowLayout:
         return sum(w for _, w in self.columns.values())
 
     def defines(self) -> dict[str, int]:
+        cols = self.columns
         return {"WINDOW_WIDTH": self.width, "DC_WINDOW": int(self.window_pooling),
-                **{f"WIN_{k.upper()}": at for k, (at, _) in self.columns.items()}}
+                "TRACK_TOTAL": cols[self.criterion[0]][0], "TRACK_COUNT": cols[self.criterion[1]][0],
+                "TRACK_MIN_VIEWS": TRACK_MIN_VIEWS, **{f"WIN_{k.upper()}": at for k, (at, _) in cols.items()}}
 
 
 class WindowStats:
-    def __init__(self, rt: Runtime, sums_layout: SumsLayout, extent: float, layout: WindowLayout = WindowLayout()):
+    def __init__(self, rt: Runtime, sums_layout: SumsLayout, extent: float, layout: WindowLayout = WindowLayout(),
+                 track_threshold: float = 0.0):
         self.rt, self.layout, self.sums_layout = rt, layout, sums_layout
+        self.track_threshold = track_threshold
         if layout.dc != sums_layout.dc_stats or layout.split_candidates != sums_layout.split_candidates:
             raise ValueError("the window's DC4GS columns must match the backward's sums")
         self.depth_scale = PIXELGS_DEPTH_FRACTION * extent
@@ -81,7 +87,7 @@ class WindowStats:
             return
         self.rt.launch("densify_stats", self.kernel, -(-n // STATS_WG) * STATS_WG, STATS_WG, np.uint32(n),
                        np.float32(0.5 * res.width), np.float32(0.5 * res.height), np.float32(self.depth_scale),
-                       res.proj.radius, res.proj.depth, sums, split_geometry if split_geometry is not None else sums,
+                       np.float32(self.track_threshold), res.proj.radius, res.proj.depth, sums, split_geometry if split_geometry is not None else sums,
                        self.buffer)
 
     def download(self) -> dict[str, np.ndarray]:

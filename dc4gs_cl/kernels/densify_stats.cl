@@ -26,6 +26,10 @@
 //                        with DC_WINDOW the sides' sums accumulate over the window (WIN_LEFT + 5k + v,
 //                        WIN_TOTAL + v for v = u_x, u_y, count, |g_x|, |g_y|) and every visible view adds
 //                        the cost of the accumulated sums
+//         WIN_SKIP_SPLIT 1 once the Gaussian has been seen in TRACK_MIN_VIEWS views of the window and its
+//                        running split criterion (WIN total TRACK_TOTAL / count TRACK_COUNT) is below
+//                        track_threshold: split_geometry.cl then gives it no line, so no split costs are
+//                        gathered for it (0, every Gaussian that can be split, is exact)
 
 #include "common.h"
 
@@ -46,6 +50,7 @@ inline float side_cost(float ux, float uy, float n, float ax, float ay) {
 }
 
 __kernel void accumulate_view_stats(const uint n, const float ndc_x, const float ndc_y, const float depth_scale,
+                                    const float track_threshold,
                                     __global const int *radius, __global const float *depth,
                                     __global const float *sums, __global const float *split_geometry,
                                     __global float *window) {
@@ -92,5 +97,7 @@ __kernel void accumulate_view_stats(const uint n, const float ndc_x, const float
             w[WIN_J + k] += side_cost(l[0], l[1], l[2], l[3], l[4])
                           + side_cost(total[0] - l[0], total[1] - l[1], total[2] - l[2], total[3] - l[3], total[4] - l[4]);
         }
+    w[WIN_SKIP_SPLIT] = (w[WIN_VIEWS] >= (float)TRACK_MIN_VIEWS
+                         && w[TRACK_TOTAL] < track_threshold * w[TRACK_COUNT]) ? 1.f : 0.f;
 #endif
 }

@@ -10,6 +10,7 @@
 //   in  means, log_scales, quats: the parameters; radius [N] int: 0 = not visible (no geometry)
 //   in  min_scale: only a Gaussian whose largest scale exceeds this can be split (smaller ones are cloned),
 //       so only those get a line and cost the rasterizer backward split terms
+//   in  window [N*WINDOW_WIDTH]: from densify_stats.cl; no line where its WIN_SKIP_SPLIT flag is set
 //   out geometry [N*SPLIT_GEOMETRY] float: c0.x, c0.y, dir.x, dir.y, t_1 .. t_{N-1} (t_0 = 0), px;
 //       dir = (0, 0) where there is no usable line: too small to split, not visible, a candidate or the end at or behind
 //       the near plane, or the projected axis shorter than 1e-6 px. The rasterizer backward then adds no
@@ -21,12 +22,12 @@
 
 __kernel void split_geometry(const int n, const Camera cam, const float min_scale, __global const float *means,
                              __global const float *log_scales, __global const float *quats,
-                             __global const int *radius, __global float *geometry) {
+                             __global const int *radius, __global const float *window, __global float *geometry) {
     int i = get_global_id(0);
     if (i >= n) return;
     __global float *out = geometry + (size_t)i * SPLIT_GEOMETRY;
     out[2] = out[3] = 0.f;
-    if (radius[i] <= 0) return;
+    if (radius[i] <= 0 || window[(size_t)i * WINDOW_WIDTH + WIN_SKIP_SPLIT] != 0.f) return;
     float3 s = load_scales(log_scales, i);
     int a = s.y > s.x ? (s.z > s.y ? 2 : 1) : (s.z > s.x ? 2 : 0);   // ties: the first axis
     float sigma = a == 0 ? s.x : (a == 1 ? s.y : s.z);

@@ -70,16 +70,22 @@ class SumsLayout:
 
 
 def split_geometry(rt: Runtime, ws: Workspace, g: DeviceGaussians, cam: Camera, res: RenderResult,
-                   candidates: int, min_scale: float = 0.0) -> cl.Buffer:
-    """Per visible Gaussian whose largest scale exceeds min_scale (only those can be split), where its split
-    candidates fall in this view (kernels/split_geometry.cl)."""
+                   candidates: int, min_scale: float = 0.0, window: cl.Buffer | None = None,
+                   window_defines: dict | None = None) -> cl.Buffer:
+    """Per visible Gaussian whose largest scale exceeds min_scale (only those can be split) and that the
+    window still tracks (host/stats.py; no window: every one), where its split candidates fall in this view
+    (kernels/split_geometry.cl)."""
     n = g.n
     geometry = ws.get("backward.split_geometry", 4 * (candidates + 3) * max(n, 1))
+    if window is None:
+        window = ws.get("backward.no_window", 4 * max(n, 1))
+        rt.fill(window, np.float32(0), 4 * n)
+        window_defines = {"WINDOW_WIDTH": 1, "WIN_SKIP_SPLIT": 0}
     if n:
-        k = rt.kernel("split_geometry.cl", "split_geometry", {"SPLIT_CANDIDATES": candidates})
+        k = rt.kernel("split_geometry.cl", "split_geometry", {"SPLIT_CANDIDATES": candidates, **window_defines})
         b = g.buffers
         rt.launch("split_geometry", k, -(-n // PROJECT_WG) * PROJECT_WG, PROJECT_WG, np.int32(n), camera_struct(cam),
-                  np.float32(min_scale), b["means"], b["log_scales"], b["quats"], res.proj.radius, geometry)
+                  np.float32(min_scale), b["means"], b["log_scales"], b["quats"], res.proj.radius, window, geometry)
     return geometry
 
 

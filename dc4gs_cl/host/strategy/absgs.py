@@ -3,9 +3,7 @@ gradients do not cancel) with its own threshold, clone on the 3DGS one; a smalle
 opacity clamp at 0.8 every 500 iterations."""
 from __future__ import annotations
 
-import numpy as np
-
-from .base import DensifyConfig, Strategy, mean_per_view
+from .base import DensifyConfig, Strategy
 
 
 class AbsGS(Strategy):
@@ -15,8 +13,5 @@ class AbsGS(Strategy):
     def default_config() -> DensifyConfig:
         return DensifyConfig(split_threshold=4e-4, percent_dense=0.001, opacity_clamp_every=500)
 
-    def split_values(self, stats: dict[str, np.ndarray]) -> np.ndarray:
-        return mean_per_view(stats["abs"], stats["views"])
-
-    def dcc_base_values(self, stats: dict[str, np.ndarray]) -> np.ndarray:
-        return mean_per_view(stats["dcc_abs"], stats["views"])
+    split_columns = ("abs", "views")
+    dcc_base_columns = ("dcc_abs", "views")

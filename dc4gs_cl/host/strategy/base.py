@@ -79,7 +79,14 @@ class Strategy:
 
     def window_layout(self) -> WindowLayout:
         return WindowLayout(dc=self.dc4gs is not None, split_candidates=self.split_candidates,
-                            window_pooling=self.dc4gs is not None and self.dc4gs.pooling == "window")
+                            window_pooling=self.dc4gs is not None and self.dc4gs.pooling == "window",
+                            criterion=self.criterion_columns())
+
+    @property
+    def track_threshold(self) -> float:
+        """Split costs are gathered for a Gaussian while its running split criterion is at least this (and
+        in its first views of a window): DC4GSConfig.track x the split threshold."""
+        return self.dc4gs.track * self.config.split_threshold if self.dc4gs is not None else 0.0
 
     # schedule --------------------------------------------------------------------------------------
     def collecting(self, it: int) -> bool:
@@ -103,19 +110,18 @@ class Strategy:
     def clone_values(self, stats: dict[str, np.ndarray]) -> np.ndarray:
         return mean_per_view(stats["grad"], stats["views"])
 
-    def split_values(self, stats: dict[str, np.ndarray]) -> np.ndarray:
-        return mean_per_view(stats["grad"], stats["views"])
+    # The split criterion as window columns (total, count): its value is total / count.
+    split_columns = ("grad", "views")
+    dcc_base_columns = ("dcc_grad", "views")   # DCC weighting this base's own per-view term (the paper's reading)
 
-    def dcc_base_values(self, stats: dict[str, np.ndarray]) -> np.ndarray:
-        """DCC weighting this base's own per-view term (the paper's reading for 3DGS and Pixel-GS)."""
-        return mean_per_view(stats["dcc_grad"], stats["views"])
+    def criterion_columns(self) -> tuple[str, str]:
+        if self.dc4gs is None or not self.dc4gs.dcc:
+            return self.split_columns
+        return self.dcc_base_columns if self.dc4gs.dcc_reading == "base" else ("dcc_abs", "views")
 
     def split_criterion(self, stats: dict[str, np.ndarray]) -> np.ndarray:
-        if self.dc4gs is None or not self.dc4gs.dcc:
-            return self.split_values(stats)
-        if self.dc4gs.dcc_reading == "base":
-            return self.dcc_base_values(stats)
-        return mean_per_view(stats["dcc_abs"], stats["views"])
+        total, count = self.criterion_columns()
+        return mean_per_view(stats[total], stats[count])
 
     def split(self, gs: GaussianSet, mask: np.ndarray, rng: np.random.Generator, stats: dict[str, np.ndarray]) -> int:
         if not self.split_candidates:

@@ -10,10 +10,8 @@ from .base import Strategy, mean_per_view
 class PixelGS(Strategy):
     name = "pixelgs"
 
+    split_columns = ("pix_grad", "pix")
+    dcc_base_columns = ("dcc_pix", "pix")
+
     def clone_values(self, stats: dict[str, np.ndarray]) -> np.ndarray:
         return mean_per_view(stats["pix_grad"], stats["pix"])
-
-    split_values = clone_values
-
-    def dcc_base_values(self, stats: dict[str, np.ndarray]) -> np.ndarray:
-        return mean_per_view(stats["dcc_pix"], stats["pix"])

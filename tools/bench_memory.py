@@ -1,0 +1,88 @@
+"""Peak device memory per Gaussian while training, at model sizes where the Gaussians (not the images)
+dominate.
+
+    python tools/bench_memory.py [--gaussians 100000 400000] [--iterations 5] [--device D]
+
+The built-in scene's trainer gets N random Gaussians (SH degree 3) in place of its initial model and
+runs --iterations training steps with the densification statistics on (the most memory an iteration
+uses), for the base strategy and with DC4GS (view and window pooling); the peak of the bytes held in
+device buffers (Runtime.memory_peak) is divided by N. What is held per Gaussian is listed below the table.
+"""
+from __future__ import annotations
+
+import argparse
+import gc
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from dc4gs_cl.runtime import Runtime, describe
+from dc4gs_cl.scene import load_scene
+from dc4gs_cl.testing import random_model
+from dc4gs_cl.train import Trainer, TrainConfig
+
+CONFIGS = {"absgs": {}, "absgs+DC4GS": {"dcc": True, "dcs": True},
+           "absgs+DC4GS window": {"dcc": True, "dcs": True, "dc_pooling": "window"}}
+
+
+def trained_state(rt: Runtime, scene, n: int, iterations: int, settings: dict) -> tuple[Trainer, int]:
+    """A trainer on N random Gaussians after a few steps, and the peak bytes it added."""
+    from dc4gs_cl.host.ops import GaussianSet
+    gc.collect()
+    rt.reset_memory_peak()
+    before = rt.memory_in_use
+    trainer = Trainer(TrainConfig(scene="bench", strategy="absgs", **settings), scene, rt, Path("/nonexistent"))
+    model = random_model(np.random.default_rng(0), n, sh_degree=3, spread=1.5, scale_range=(0.005, 0.03))
+    params = {k: getattr(model, k).reshape(n, -1) for k in trainer.widths}
+    moments = lambda: {k: np.zeros_like(v) for k, v in params.items()}
+    trainer.load_set(GaussianSet(params, moments(), moments()))
+    trainer.window.reset(n)
+    trainer.iteration = 1_000           # inside the densification window, between densification steps
+    for _ in range(iterations):
+        trainer.step()
+    rt.queue.finish()
+    return trainer, rt.memory_peak - before
+
+
+def breakdown(trainer: Trainer) -> dict[str, int]:
+    """Bytes held now by each kind of buffer (the workspace's by name)."""
+    arrays = {"parameters": trainer.params, "gradients": trainer.grads, "Adam m": trainer.adam.m,
+              "Adam v": trainer.adam.v}
+    out = {k: sum(b.size for b in a.buffers.values()) for k, a in arrays.items()}
+    out["window statistics"] = trainer.window.buffer.size
+    for name, buf in trainer.renderer.ws._buffers.items():
+        out[name] = buf.size
+    return out
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--gaussians", type=int, nargs="+", default=[100_000, 400_000])
+    ap.add_argument("--iterations", type=int, default=5)
+    ap.add_argument("--device", default=None)
+    args = ap.parse_args(argv)
+    rt = Runtime(args.device)
+    scene = load_scene("builtin")
+    cam = scene.train[0]
+    print(f"device: {describe(rt.device)}; built-in scene {cam.width}x{cam.height}, {args.iterations} iterations")
+    print("| strategy | Gaussians | peak device MB | bytes per Gaussian |")
+    print("|---|---|---|---|")
+    details = {}
+    for n in args.gaussians:
+        for name, settings in CONFIGS.items():
+            trainer, peak = trained_state(rt, scene, n, args.iterations, settings)
+            print(f"| {name} | {n:,} | {peak / 2**20:.1f} | {peak / n:,.0f} |", flush=True)
+            details[(name, n)] = breakdown(trainer)
+            del trainer
+    for (name, n), parts in details.items():
+        if n == max(args.gaussians):
+            print(f"\nheld after the steps, {name}, {n:,} Gaussians (bytes per Gaussian; capacity can exceed N):")
+            for part, size in sorted(parts.items(), key=lambda kv: -kv[1]):
+                if size / n >= 1:
+                    print(f"  {part:28s} {size / n:8.1f}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
