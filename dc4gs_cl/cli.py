@@ -7,24 +7,20 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import shutil
 import sys
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
 from .errors import DeviceError, InputError
+from .files import replace_folder, staging_folder
 from .host.strategy import STRATEGIES as STRATEGY_NAMES
 from .scene.builtin import BUILTIN_SCENE
 from .host.dc4gs import DCC_READINGS, DENSE_CANDIDATES, POOLINGS, SPLIT_PICKS
 from .train import RECIPE_ITERATIONS
 
 BUILTIN_ITERATIONS = 5_000   # the default run on the built-in scene: about five minutes on 2 CPU cores
-TRAIN_SETTINGS = ("scene", "strategy", "iterations", "resolution", "test_every", "save_at", "densify_until",
-                  "checkpoint_every", "seed", "white_background", "dcc", "dcs", "dc_pooling", "split_pick",
-                  "split_candidates", "dcc_reading", "dcs_track")
 
 
 def _add_device(p: argparse.ArgumentParser) -> None:
@@ -53,7 +49,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "from (the scene's SfM points), which shows whether a scene's cameras are read right")
     p.add_argument("--scene", default=BUILTIN_SCENE,
                    help=f'COLMAP or NeRF (transforms*.json) scene folder, or "{BUILTIN_SCENE}" (the default)')
-    p.add_argument("--out", required=True, type=Path, help="output folder (PNGs under OUT/<split>/renders/)")
+    p.add_argument("--out", required=True, type=Path, help="output folder (PNGs under OUT/<split>/renders/; --split all writes train/ and test/)")
     p.add_argument("--split", choices=["test", "train", "all"], default="test")
     p.add_argument("-r", "--resolution", type=_resolution, default=None,
                    help="downscale images by this factor (default: widths above 1600 px scaled to 1600)")
@@ -61,7 +57,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--profile", action="store_true", help="print per-stage device times (median over views)")
     _add_device(p)
 
-    p = sub.add_parser("train", help="train a scene (no arguments: the built-in scene, about five minutes on 2 cores)")
+    p = sub.add_parser("train", help="train a scene (no arguments: the built-in scene, about three minutes on 2 cores)")
     p.add_argument("--scene", default=None,
                    help=f'COLMAP or NeRF scene folder, or "{BUILTIN_SCENE}" (the default)')
     p.add_argument("--out", type=Path, default=None,
@@ -70,14 +66,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--strategy", choices=sorted(STRATEGY_NAMES), default=None, help="densification criterion (3dgs)")
     p.add_argument("--iterations", type=int, default=None,
                    help=f"training iterations (default {RECIPE_ITERATIONS:,}; {BUILTIN_ITERATIONS:,} for the built-in "
-                        "scene). Runs shorter than 30,000 scale the 3DGS schedule to their length")
+                        f"scene). Runs shorter than {RECIPE_ITERATIONS:,} scale the 3DGS schedule to their length")
     p.add_argument("-r", "--resolution", type=_resolution, default=None,
                    help="downscale images by this factor (default: widths above 1600 px scaled to 1600)")
     p.add_argument("--test-every", type=int, default=None, help="every N-th image (by name) is a test image (8; 0: none)")
     p.add_argument("--save-at", type=int, nargs="*", default=None, help="also write the PLY at these iterations")
     p.add_argument("--densify-until", type=int, default=None, help="end of the densification window (0: no densification)")
     p.add_argument("--checkpoint-every", type=int, default=None, help="iterations between checkpoints (1000)")
-    p.add_argument("--seed", type=int, default=None)
+    p.add_argument("--seed", type=int, default=None, help="random seed: the same seed gives the same model (0)")
+    p.add_argument("--sh-degree", type=int, default=None, help="largest spherical-harmonics degree, 0 to 3 (3)")
     p.add_argument("--white-background", action="store_true", default=None, help="white background (Blender scenes)")
     g = p.add_argument_group("DC4GS (directional-consistency density control, on any base strategy)")
     g.add_argument("--dc4gs", action="store_true", default=None, help="DCC and DCS together")
@@ -114,10 +111,11 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def cmd_devices(args) -> int:
-    from .runtime import choose_device, describe, list_devices
+    from .runtime import Capabilities, choose_device, describe, list_devices
     chosen, _ = choose_device(args.device)
     for key, dev in list_devices():
         print(f"{'*' if key == chosen else ' '} {key}  {describe(dev)}")
+        print(f"      {Capabilities.of(dev).summary()}")
     print("(* = the device dc4gs-cl would use; choose another with --device or $DC4GS_DEVICE)")
     return 0
 
@@ -133,30 +131,30 @@ def cmd_render(args) -> int:
     scene = load_scene(args.scene, resolution=args.resolution, cache_dir=args.out / "undistorted",
                        white_background=args.white_background)
     model = read_ply(args.ply) if args.ply else initial_model(scene.points, scene.colors, np.random.default_rng(0))
-    cams = {"test": scene.test, "train": scene.train, "all": scene.train + scene.test}[args.split]
-    if not cams:
+    names = ["train", "test"] if args.split == "all" else [args.split]
+    splits = {name: cams for name in names if (cams := getattr(scene, name))}
+    if not splits:
         raise InputError(args.scene, f"the scene has no {args.split} cameras")
+    cams = [c for split_cams in splits.values() for c in split_cams]
     rt = Runtime(args.device, profiling=args.profile)
     print(f"device: {describe(rt.device)}; {len(model):,} Gaussians (SH degree {model.sh_degree}); "
           f"{len(cams)} {args.split} views", file=sys.stderr)
     renderer = Renderer(rt)
     gaussians = DeviceGaussians(rt, model)
-    final_dir = args.out / args.split / "renders"
-    args.out.mkdir(parents=True, exist_ok=True)
-    staging = Path(tempfile.mkdtemp(prefix=".render-", dir=args.out))
     timings = []
-    try:
-        for cam in cams:
-            res = renderer.render(gaussians, cam, background=scene.background)
-            write_png(staging / (Path(cam.name).stem + ".png"), res.image(rt))
-            if args.profile:
-                timings.append(rt.stage_times())
-        final_dir.mkdir(parents=True, exist_ok=True)
-        for f in sorted(staging.iterdir()):
-            os.replace(f, final_dir / f.name)
-    finally:
-        shutil.rmtree(staging, ignore_errors=True)
-    print(f"wrote {len(cams)} images to {final_dir}", file=sys.stderr)
+    for split, split_cams in splits.items():   # each split in its own folder: Blender scenes reuse names
+        final_dir = args.out / split / "renders"
+        staging = staging_folder(final_dir)
+        try:
+            for cam in split_cams:
+                res = renderer.render(gaussians, cam, background=scene.background)
+                write_png(staging / f"{cam.file_stem}.png", res.image(rt))
+                if args.profile:
+                    timings.append(rt.stage_times())
+            replace_folder(staging, final_dir)
+        finally:
+            shutil.rmtree(staging, ignore_errors=True)
+        print(f"wrote {len(split_cams)} images to {final_dir}", file=sys.stderr)
     if args.profile:
         print_stage_table(timings, cams[0].width, cams[0].height)
     return 0
@@ -176,10 +174,12 @@ def print_stage_table(timings: list[dict[str, float]], width: int, height: int) 
 def train_config(args, out: Path):
     """The run's settings: from the arguments, or with --resume from the run's config.json (explicit
     arguments must then agree with it)."""
+    from dataclasses import fields
     from .train import CONFIG, TrainConfig
     if args.dc4gs:
         args.dcc = args.dcs = True
-    given = {k: getattr(args, k) for k in TRAIN_SETTINGS if getattr(args, k) is not None}
+    # the TrainConfig fields the command line sets (each flag defaults to None: "not given")
+    given = {f.name: getattr(args, f.name) for f in fields(TrainConfig) if getattr(args, f.name, None) is not None}
     if "save_at" in given:
         given["save_at"] = tuple(given["save_at"])
     if "scene" in given and given["scene"] != BUILTIN_SCENE:

@@ -6,6 +6,8 @@ NumPy references and the device never disagree. Values follow the Inria 3DGS rel
 """
 from __future__ import annotations
 
+import math
+
 TILE_SIZE = 16                 # pixels per tile side
 NEAR_PLANE = 0.2               # cull a Gaussian whose view-space depth is <= this
 EWA_DILATION = 0.3             # px^2 added to the 2D covariance's diagonal (low-pass filter)
@@ -15,6 +17,8 @@ MIN_EIGEN_GAP = 0.1            # lambda_max = mid + sqrt(max(MIN_EIGEN_GAP, mid^
 ALPHA_MAX = 0.99               # alpha = min(ALPHA_MAX, opacity * exp(power))
 ALPHA_MIN = 1.0 / 255.0        # a pair with smaller alpha is skipped
 TRANSMITTANCE_MIN = 1e-4       # stop before blending a Gaussian that would push T below this
+ALPHA_EXTENT_MARGIN = 0.01     # px added to the reach where alpha can reach ALPHA_MIN (float32 rounding)
+MIN_SPLIT_LINE_PX = 0.01       # DCS: a principal axis projecting shorter than this separates no pixels
 
 SH_C0 = 0.28209479177387814
 SH_C1 = 0.4886025119029199
@@ -25,32 +29,29 @@ SH_C3 = (-0.5900435899266435, 2.890611442640554, -0.4570457994644658, 0.37317633
 SH_MAX_DEGREE = 3
 
 
+def tile_grid(width: int, height: int) -> tuple[int, int]:
+    """Tiles across and down an image of width x height pixels."""
+    return -(-width // TILE_SIZE), -(-height // TILE_SIZE)
+
+
 def sh_coeffs(degree: int) -> int:
     """Number of SH coefficients per colour channel for a degree (1, 4, 9, 16)."""
     return (degree + 1) ** 2
 
 
-def _c_float(x: float) -> str:
-    return f"{x!r}f"
+def sh_degree_of(coeffs: int) -> int:
+    """The SH degree that has this many coefficients per channel (the inverse of sh_coeffs)."""
+    return math.isqrt(coeffs) - 1
 
 
-def kernel_defines() -> dict[str, str]:
-    """The constants every kernel sees, as -D name=value pairs (floats as C float literals)."""
-    d = {
-        "TILE_SIZE": str(TILE_SIZE),
-        "NEAR_PLANE": _c_float(NEAR_PLANE),
-        "EWA_DILATION": _c_float(EWA_DILATION),
-        "FOV_CLAMP": _c_float(FOV_CLAMP),
-        "RADIUS_SIGMAS": _c_float(RADIUS_SIGMAS),
-        "MIN_EIGEN_GAP": _c_float(MIN_EIGEN_GAP),
-        "ALPHA_MAX": _c_float(ALPHA_MAX),
-        "ALPHA_MIN": _c_float(ALPHA_MIN),
-        "TRANSMITTANCE_MIN": _c_float(TRANSMITTANCE_MIN),
-        "SH_C0": _c_float(SH_C0),
-        "SH_C1": _c_float(SH_C1),
+def kernel_defines() -> dict[str, int | float]:
+    """The constants every kernel sees, as -D name=value pairs (the runtime writes floats as C float literals)."""
+    d: dict[str, int | float] = {
+        "TILE_SIZE": TILE_SIZE, "NEAR_PLANE": NEAR_PLANE, "EWA_DILATION": EWA_DILATION, "FOV_CLAMP": FOV_CLAMP,
+        "RADIUS_SIGMAS": RADIUS_SIGMAS, "MIN_EIGEN_GAP": MIN_EIGEN_GAP, "ALPHA_MAX": ALPHA_MAX,
+        "ALPHA_MIN": ALPHA_MIN, "TRANSMITTANCE_MIN": TRANSMITTANCE_MIN,
+        "ALPHA_EXTENT_MARGIN": ALPHA_EXTENT_MARGIN, "MIN_SPLIT_LINE_PX": MIN_SPLIT_LINE_PX, "SH_C0": SH_C0, "SH_C1": SH_C1,
     }
-    for i, c in enumerate(SH_C2):
-        d[f"SH_C2_{i}"] = _c_float(c)
-    for i, c in enumerate(SH_C3):
-        d[f"SH_C3_{i}"] = _c_float(c)
+    d.update({f"SH_C2_{i}": c for i, c in enumerate(SH_C2)})
+    d.update({f"SH_C3_{i}": c for i, c in enumerate(SH_C3)})
     return d

@@ -3,13 +3,12 @@ them (results.json and per_view.json keyed by "ours_<iteration>", renders under 
 from __future__ import annotations
 
 import json
-import os
 import shutil
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
+from .files import replace_folder, staging_folder, write_json
 from .metrics import lpips_available, psnr, ssim
 from .render import DeviceGaussians, Renderer
 from .runtime import Runtime
@@ -22,26 +21,21 @@ def evaluate(rt: Runtime, renderer: Renderer, gaussians: DeviceGaussians, scene:
     """PSNR and SSIM per view and their means; with render_dir, also renders/ and gt/ PNGs there
     (written to a staging folder and moved into place once all views are done)."""
     per_view = {"PSNR": {}, "SSIM": {}}
-    staging = None
-    if render_dir:
-        render_dir.parent.mkdir(parents=True, exist_ok=True)
-        staging = Path(tempfile.mkdtemp(prefix=".eval-", dir=render_dir.parent))
+    staging = staging_folder(render_dir) if render_dir else None
     try:
         for cam in cams:
             image = renderer.render(gaussians, cam, sh_degree, scene.background).image(rt)
             target = scene.image(cam)
-            name = Path(cam.name).stem + ".png"
+            name = f"{cam.file_stem}.png"
             per_view["PSNR"][name] = psnr(image, target)
             per_view["SSIM"][name] = ssim(rt, image, target)
             if staging:
                 write_png(staging / "renders" / name, image)
                 write_png(staging / "gt" / name, target)
         if staging:
-            if render_dir.exists():
-                shutil.rmtree(render_dir)
-            os.replace(staging, render_dir)
+            replace_folder(staging, render_dir)
     finally:
-        if staging and staging.exists():
+        if staging:
             shutil.rmtree(staging, ignore_errors=True)
     means = {k: float(np.mean(list(v.values()))) if v else float("nan") for k, v in per_view.items()}
     _, why = lpips_available()
@@ -50,7 +44,6 @@ def evaluate(rt: Runtime, renderer: Renderer, gaussians: DeviceGaussians, scene:
 
 def write_results(model_dir: Path, iteration: int, result: dict) -> None:
     """Merge into model_dir/results.json and per_view.json (other iterations' entries are kept)."""
-    from .train import write_json
     key = f"ours_{iteration}"
     for name, value in (("results.json", result["mean"]), ("per_view.json", result["per_view"])):
         path = model_dir / name

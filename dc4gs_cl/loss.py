@@ -13,18 +13,20 @@ from .runtime import Runtime
 LAMBDA_DSSIM = 0.2      # L = (1 - LAMBDA_DSSIM) L1 + LAMBDA_DSSIM (1 - SSIM)
 SSIM_C1 = 0.01 ** 2
 SSIM_C2 = 0.03 ** 2
-SSIM_WINDOW = 11        # Gaussian window side (pixels); kernels/loss.cl assumes 11 (RADIUS 5)
+SSIM_WINDOW = 11        # Gaussian window side (pixels, odd)
 SSIM_SIGMA = 1.5
 
 STAT_KEYS = ("loss", "l1", "dssim", "mse")   # layout of the device stats buffer (sums over calls)
 
 
 def loss_defines() -> dict:
-    """The SSIM window weights (normalised 1D Gaussian, SSIM_W0 .. SSIM_W10) and constants as -D values."""
+    """The SSIM window (its radius, and its normalised 1D Gaussian weights as a C initializer list) and
+    constants as -D values."""
     r = SSIM_WINDOW // 2
     g = [math.exp(-(k - r) ** 2 / (2 * SSIM_SIGMA ** 2)) for k in range(SSIM_WINDOW)]
-    d = {f"SSIM_W{k}": v / sum(g) for k, v in enumerate(g)}
-    return {**d, "SSIM_C1": SSIM_C1, "SSIM_C2": SSIM_C2, "LAMBDA_DSSIM": LAMBDA_DSSIM}
+    weights = ",".join(f"{v / sum(g)!r}f" for v in g)
+    return {"SSIM_RADIUS": r, "SSIM_WEIGHTS": weights, "SSIM_C1": SSIM_C1, "SSIM_C2": SSIM_C2,
+            "LAMBDA_DSSIM": LAMBDA_DSSIM}
 
 
 class Loss:

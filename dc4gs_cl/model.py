@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .constants import SH_C0, SH_MAX_DEGREE, sh_coeffs
+from .constants import SH_C0, SH_MAX_DEGREE, sh_coeffs, sh_degree_of
 
 INIT_OPACITY = 0.1             # opacity of a freshly initialised Gaussian
 KNN_NEIGHBOURS = 3             # initial scale: sqrt(mean squared distance to this many neighbours)
@@ -46,7 +46,7 @@ class GaussianModel:
     @property
     def sh_degree(self) -> int:
         """Highest SH degree the model stores."""
-        return int(round(np.sqrt(self.sh.shape[1]))) - 1
+        return sh_degree_of(self.sh.shape[1])
 
     # activations -------------------------------------------------------------------------------
     @property
@@ -55,12 +55,16 @@ class GaussianModel:
 
     @property
     def opacities(self) -> np.ndarray:
-        return 1.0 / (1.0 + np.exp(-self.opacity_logits))
+        return sigmoid(self.opacity_logits)
 
 
 def rgb_to_sh_dc(rgb: np.ndarray) -> np.ndarray:
     """Colour in [0, 1] -> SH DC coefficient whose evaluated colour (C0 * dc + 0.5) is that colour."""
     return (np.asarray(rgb, dtype=np.float64) - 0.5) / SH_C0
+
+
+def sigmoid(x: np.ndarray) -> np.ndarray:
+    return 1.0 / (1.0 + np.exp(-x))
 
 
 def logit(p: np.ndarray | float) -> np.ndarray:

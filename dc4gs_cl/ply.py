@@ -8,13 +8,13 @@ the logit, scales are logs and rot is (w, x, y, z), as stored in GaussianModel.
 from __future__ import annotations
 
 import os
-import secrets
 from pathlib import Path
 
 import numpy as np
 
 from .constants import SH_MAX_DEGREE, sh_coeffs
 from .errors import InputError
+from .files import write_atomic
 from .model import GaussianModel
 
 _WRITE_ROWS = 1 << 16          # Gaussians converted and written at a time (bounded memory)
@@ -52,20 +52,14 @@ def ply_header(count: int, sh_degree: int) -> bytes:
 def write_ply(path: str | os.PathLike, model: GaussianModel) -> None:
     """Write `model` as a 3DGS PLY. Atomic: the file appears complete or not at all (a failed write
     leaves an existing file as it was and no temporary file behind). Creates missing parent folders."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.{secrets.token_hex(4)}.tmp")
-    try:
-        with open(tmp, "xb") as f:  # "x": never clobber; unlike mkstemp, honours the umask
+    def write(tmp: Path) -> None:
+        with open(tmp, "xb") as f:  # "x": never clobber
             f.write(ply_header(len(model), model.sh_degree))
             for start in range(0, len(model), _WRITE_ROWS):
                 f.write(_vertex_rows(model, start, start + _WRITE_ROWS).tobytes())
             f.flush()
             os.fsync(f.fileno())  # the data is on disk before the name points at it
-        os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
+    write_atomic(path, write)
 
 
 def _vertex_rows(model: GaussianModel, start: int, stop: int) -> np.ndarray:

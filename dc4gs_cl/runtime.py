@@ -23,6 +23,7 @@ from .constants import kernel_defines
 from .errors import DeviceError
 
 DEVICE_ENV = "DC4GS_DEVICE"   # same forms as --device: "P:D", "gpu", "cpu" or part of the name
+BUFFER_GROWTH = 1.5           # a buffer that must grow gets this much more than asked: fewer reallocations
 
 # The device-side camera; keep in step with `Camera` in kernels/common.h.
 CAMERA_DTYPE = np.dtype([("R", np.float32, 9), ("t", np.float32, 3), ("fx", np.float32), ("fy", np.float32),
@@ -103,7 +104,8 @@ class Capabilities:
     compute_units: int
     max_work_group_size: int
     local_mem_size: int
-    float_atomic_add: bool     # native global float atomic add (cl_ext_float_atomics); else CAS emulation
+    float_atomic_add: bool     # native float atomics (cl_ext_float_atomics); our kernels need none (see
+                               # kernels/common.h), this is reported by `dc4gs-cl devices`
     fp64: bool
 
     @staticmethod
@@ -117,6 +119,11 @@ class Capabilities:
             float_atomic_add="cl_ext_float_atomics" in ext,
             fp64="cl_khr_fp64" in ext,
         )
+
+    def summary(self) -> str:
+        return (f"work-groups up to {self.max_work_group_size}, {self.local_mem_size // 1024} KiB local memory, "
+                f"float atomics: {'native' if self.float_atomic_add else 'none (compare-and-swap emulation)'}, "
+                f"fp64: {'yes' if self.fp64 else 'no'}")
 
 
 class _Buffer(cl.Buffer):
@@ -152,8 +159,7 @@ class Runtime:
 
     # programs -----------------------------------------------------------------------------------
     def build_options(self, defines: dict | None = None) -> list[str]:
-        merged = kernel_defines()
-        merged.update({k: _format_define(v) for k, v in (defines or {}).items()})
+        merged = {k: _format_define(v) for k, v in {**kernel_defines(), **(defines or {})}.items()}
         return [f"-D{k}={v}" for k, v in sorted(merged.items())] + ["-cl-std=CL1.2"]
 
     def program(self, file: str, defines: dict | None = None) -> cl.Program:
@@ -186,6 +192,11 @@ class Runtime:
         if self.profiling:
             self.events[stage].append(ev)
         return ev
+
+    def launch_items(self, stage: str, kernel: cl.Kernel, n: int, wg: int, *args) -> cl.Event:
+        """A 1D launch of n work-items (one per element) in work-groups of wg: the global size is n rounded
+        up, so the kernel must bound-check its index against n."""
+        return self.launch(stage, kernel, -(-n // wg) * wg, wg, *args)
 
     def stage_times(self, reset: bool = True) -> dict[str, float]:
         """Seconds of device time per stage since the last reset (waits for the queue)."""

@@ -6,6 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .constants import sh_coeffs
 from .model import GaussianModel, logit, rgb_to_sh_dc
 from .scene.camera import Camera
 
@@ -13,7 +14,7 @@ from .scene.camera import Camera
 def random_model(rng: np.random.Generator, n: int, sh_degree: int = 3, spread: float = 1.0,
                  scale_range=(0.005, 0.08)) -> GaussianModel:
     """n Gaussians uniform in [-spread, spread]^3 with random shapes, opacities and SH colours."""
-    k = (sh_degree + 1) ** 2
+    k = sh_coeffs(sh_degree)
     return GaussianModel(
         means=rng.uniform(-spread, spread, (n, 3)),
         log_scales=np.log(rng.uniform(*scale_range, (n, 3))),

@@ -11,21 +11,20 @@ from __future__ import annotations
 
 import json
 import math
-import os
 import signal
-import tempfile
-from dataclasses import asdict, dataclass, field, fields, replace
+from dataclasses import asdict, dataclass, fields, replace
 from pathlib import Path
 
 import numpy as np
 
 from .constants import SH_MAX_DEGREE
 from .errors import InputError
+from .files import write_atomic, write_json
 from .host.adam import Adam, exponential_lr
-from .host.dc4gs import DCC_READINGS, DENSE_CANDIDATES, POOLINGS, SPLIT_PICKS, DC4GSConfig
+from .host.dc4gs import DENSE_CANDIDATES, DC4GSConfig
 from .host.ops import GaussianSet
 from .host.stats import WindowStats
-from .host.strategy import STRATEGIES, DensifyConfig, Strategy
+from .host.strategy import STRATEGIES, Strategy
 from .loss import Loss
 from .model import initial_model
 from .render import DeviceGaussians, Renderer
@@ -37,6 +36,7 @@ from .scene.camera import Camera, Scene
 RECIPE_ITERATIONS = 30_000   # the 3DGS schedule is written for this many iterations; shorter runs scale it
 CHECKPOINT = "checkpoint.npz"
 CONFIG = "config.json"
+OUTPUT_SETTINGS = ("save_at", "checkpoint_every")   # TrainConfig fields that do not change the trained model
 
 
 @dataclass(frozen=True)
@@ -85,20 +85,18 @@ class TrainConfig:
             problems.append(f"--densify-until {self.densify_until} must be >= 0")
         if not 0 <= self.sh_degree <= SH_MAX_DEGREE:
             problems.append(f"--sh-degree {self.sh_degree} must be 0..{SH_MAX_DEGREE}")
-        if not 0 <= self.dcs_track <= 1:
-            problems.append(f"--dcs-track {self.dcs_track} must lie in [0, 1]")
-        if self.split_candidates is not None and (self.split_candidates < 3 or self.split_candidates % 2 == 0):
-            problems.append(f"--split-candidates {self.split_candidates} must be odd and at least 3")
-        for name, value, allowed in (("--dc-pooling", self.dc_pooling, POOLINGS), ("--split-pick", self.split_pick, SPLIT_PICKS),
-                                     ("--dcc-reading", self.dcc_reading, DCC_READINGS)):
-            if value not in allowed:
-                problems.append(f"{name} {value!r} is not one of {', '.join(allowed)}")
+        try:   # checked whether or not DC4GS is on, so that a mistyped flag never passes silently
+            self.dc4gs_settings()
+        except ValueError as e:
+            problems.append(str(e))
         if problems:
             raise InputError(None, "; ".join(problems))
 
     def dc4gs(self) -> DC4GSConfig | None:
-        if not (self.dcc or self.dcs):
-            return None
+        """The DC4GS settings, None when DC4GS is off."""
+        return self.dc4gs_settings() if self.dcc or self.dcs else None
+
+    def dc4gs_settings(self) -> DC4GSConfig:
         candidates = self.split_candidates or (DENSE_CANDIDATES if self.split_pick == "dense" else 5)
         return DC4GSConfig(dcc=self.dcc, dcs=self.dcs, pooling=self.dc_pooling, split_pick=self.split_pick,
                            candidates=candidates, dcc_reading=self.dcc_reading, track=self.dcs_track)
@@ -145,34 +143,12 @@ def make_strategy(cfg: TrainConfig) -> Strategy:
     return cls(c, cfg.dc4gs())
 
 
-def write_atomic(path: Path, write) -> None:
-    """Call write(temp_path) and move the result into place: readers see the old file or the new one."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    os.close(fd)
-    try:
-        write(tmp)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-
-
-def write_json(path: Path, data) -> None:
-    def write(tmp):
-        with open(tmp, "w") as f:
-            json.dump(data, f, indent=2)
-    write_atomic(path, write)
-
-
 @dataclass
 class Progress:
     """What the progress bar shows; refreshed every few iterations."""
     loss: float = math.nan
     psnr: float = math.nan
     gaussians: int = 0
-    last_densify: dict = field(default_factory=dict)
 
 
 class Trainer:
@@ -241,8 +217,8 @@ class Trainer:
         layout = self.stats_layout if collecting else self.plain_layout
         r = self.renderer
         geometry = split_geometry(rt, r.ws, self.params, cam, res, layout.split_candidates,
-                                  s.config.percent_dense * self.extent, self.window.buffer,
-                                  self.window.layout.defines()) if layout.split_candidates else None
+                                  s.config.percent_dense * self.extent,
+                                  (self.window.buffer, self.window.layout.defines())) if layout.split_candidates else None
         sums = rasterize_backward(rt, r.ws, r.tuning, r.defines, layout, res, self.grad_image, self.background,
                                   geometry)
         project_backward(rt, self.params, cam, self.sh_degree, res, sums, layout, self.grads.buffers)
@@ -251,7 +227,7 @@ class Trainer:
 
         densify = s.densify_now(it)
         clamp = s.clamp_opacity_now(it)
-        reset = s.reset_opacity_now(it, bool(self.background.max() > 0.5))
+        reset = s.reset_opacity_now(it, self.cfg.white_background)
         if densify:
             self.densify()      # 3DGS takes no optimiser step on a densification iteration
         else:
@@ -263,11 +239,9 @@ class Trainer:
 
     def densify(self) -> None:
         gs = GaussianSet(self.params.download(), self.adam.m.download(), self.adam.v.download())
-        report = self.strategy.densify(gs, self.window.download(), self.iteration, self.extent, self.rng)
+        self.strategy.densify(gs, self.window.download(), self.iteration, self.extent, self.rng)
         self.load_set(gs)
         self.window.reset(gs.n)
-        self.progress.last_densify = {"it": self.iteration, "clone": report.cloned, "split": report.split,
-                                      "prune": report.pruned}
 
     def load_set(self, gs: GaussianSet) -> None:
         self.params.upload(gs.params)
@@ -311,10 +285,8 @@ class Trainer:
             params, m, v, window = group("param"), group("m"), group("v"), group("window")
         except (OSError, ValueError, KeyError, json.JSONDecodeError, UnicodeDecodeError) as e:
             raise InputError(path, f"corrupt checkpoint ({e.__class__.__name__}: {e})") from None
-        mismatched = [k for k in ("scene", "strategy", "iterations", "resolution", "seed", "sh_degree", "test_every",
-                                  "white_background", "dcc", "dcs", "dc_pooling", "split_candidates", "split_pick",
-                                  "dcc_reading", "dcs_track")
-                      if getattr(saved, k) != getattr(self.cfg, k)]
+        mismatched = [f.name for f in fields(TrainConfig)
+                      if f.name not in OUTPUT_SETTINGS and getattr(saved, f.name) != getattr(self.cfg, f.name)]
         if mismatched:
             diffs = ", ".join(f"{k}: checkpoint {getattr(saved, k)!r} vs now {getattr(self.cfg, k)!r}" for k in mismatched)
             raise InputError(path, f"checkpoint is from other settings ({diffs})")
@@ -399,7 +371,7 @@ def write_run_files(out: Path, cfg: TrainConfig, scene: Scene) -> None:
     cfg_args = (f"Namespace(sh_degree={cfg.sh_degree}, source_path={str(scene.root.resolve())!r}, "
                 f"model_path={str(out.resolve())!r}, images='images', resolution={cfg.resolution or -1}, "
                 f"white_background={cfg.white_background}, data_device='cuda', eval={cfg.test_every > 0})")
-    write_atomic(out / "cfg_args", lambda tmp: Path(tmp).write_text(cfg_args))
+    write_atomic(out / "cfg_args", lambda tmp: tmp.write_text(cfg_args))
     cams = [{"id": i, "img_name": Path(c.name).stem, "width": c.width, "height": c.height,
              "position": c.center.tolist(), "rotation": c.R.T.tolist(), "fy": c.fy, "fx": c.fx}
             for i, c in enumerate(scene.train + scene.test)]

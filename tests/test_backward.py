@@ -23,7 +23,7 @@ def small_raster_case(rng, n=12, width=37, height=29):
     opacity = rng.uniform(0.2, 0.8, n)
     rgb = rng.uniform(0, 1, (n, 3))
     depth = rng.uniform(1, 5, n)
-    tiles_x, tiles_y = -(-width // K.TILE_SIZE), -(-height // K.TILE_SIZE)
+    tiles_x, tiles_y = K.tile_grid(width, height)
     radius = np.full(n, 40)
     extent = np.full((n, 2), 1e3)
     _, gaussian_of_pair, ranges = intersect_reference(mean2d, radius, extent, radius, depth, tiles_x, tiles_y)
@@ -128,12 +128,12 @@ def projection_case(rng, n=40):
 def test_project_backward_reference_matches_finite_differences(rng):
     from dc4gs_cl.reference.project import project_backward_reference, project_reference
     model, cam = projection_case(rng)
-    tiles_x, tiles_y = -(-cam.width // K.TILE_SIZE), -(-cam.height // K.TILE_SIZE)
+    tiles_x, tiles_y = K.tile_grid(cam.width, cam.height)
     params = {k: getattr(model, k).astype(np.float64) for k in ("means", "log_scales", "quats", "opacity_logits", "sh")}
     base = project_reference(**params, cam=cam, sh_degree=3, tiles_x=tiles_x, tiles_y=tiles_y)
     visible = base["radius"] > 0
     x_over_z = (params["means"] @ cam.R.T + cam.t)
-    clamped = np.abs(x_over_z[:, 0] / x_over_z[:, 2]) > 1.3 * 0.5 * cam.width / cam.fx
+    clamped = np.abs(x_over_z[:, 0] / x_over_z[:, 2]) > K.FOV_CLAMP * 0.5 * cam.width / cam.fx
     assert visible.sum() > 30 and (visible & clamped).sum() >= 1
     w = {k: rng.normal(size=base[k].shape) for k in ("mean2d", "conic", "opacity", "rgb")}
 
@@ -172,8 +172,8 @@ def test_project_backward_kernel_matches_reference(rt, rng):
     layout = SumsLayout()
     sums_host = rng.normal(size=(n, layout.width)).astype(np.float32)
     widths = group_widths(g.sh_coeffs)
-    grads = {k: rt.to_device(np.full(n * w, POISON, np.uint32)) for k, w in widths.items()}
     for sh_degree in (0, 3):
+        grads = {k: rt.to_device(np.full(n * w, POISON, np.uint32)) for k, w in widths.items()}
         project_backward(rt, g, cam, sh_degree, res, rt.to_device(sums_host), layout, grads)
         got = {k: rt.to_host(grads[k], (n, w)) for k, w in widths.items()}
         visible = rt.to_host(res.proj.radius, n, np.int32) > 0
@@ -199,6 +199,7 @@ def test_whole_image_gradients_match_the_float64_chain(rt, rng):
     from dc4gs_cl.reference.project import project_backward_reference, project_reference
     from dc4gs_cl.render.backward import project_backward
     from dc4gs_cl.render.gaussians import group_widths
+    from dc4gs_cl.render.workspace import POISON
     model = random_model(rng, 2500, spread=1.0)
     cam = random_camera(rng, 120, 90)
     bg = rng.uniform(0, 1, 3)
@@ -210,7 +211,7 @@ def test_whole_image_gradients_match_the_float64_chain(rt, rng):
     sums = rasterize_backward(rt, renderer.ws, renderer.tuning, renderer.defines, layout, res, rt.to_device(dL_dimage), bg)
     widths = group_widths(g.sh_coeffs)
     n = len(model)
-    grads = {k: rt.buffer(4 * n * w) for k, w in widths.items()}
+    grads = {k: rt.to_device(np.full(n * w, POISON, np.uint32)) for k, w in widths.items()}
     project_backward(rt, g, cam, 3, res, sums, layout, grads)
 
     tiles_x, tiles_y = res.tiles_x, res.tiles_y

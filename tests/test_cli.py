@@ -21,7 +21,7 @@ def run_cli(*args) -> subprocess.CompletedProcess:
 def test_help_lists_the_commands():
     out = run_cli("--help")
     assert out.returncode == 0
-    for command in ("devices", "render"):
+    for command in ("devices", "render", "train", "eval"):
         assert command in out.stdout
 
 
@@ -30,6 +30,7 @@ def test_devices_marks_the_chosen_device():
     assert out.returncode == 0, out.stderr
     marked = [line for line in out.stdout.splitlines() if line.startswith("*")]
     assert len(marked) == 1 and "|" in marked[0]
+    assert "float atomics" in out.stdout          # each device's capabilities
 
 
 def test_render_builtin_scene_from_a_ply(tmp_path, rng, capsys):
@@ -43,6 +44,11 @@ def test_render_builtin_scene_from_a_ply(tmp_path, rng, capsys):
     assert image.shape == (72, 96, 3) and image.std() > 0.01
     assert "rasterize" in capsys.readouterr().out
     assert [p.name for p in out.iterdir()] == ["test"]   # no staging folder left behind
+    # --split all: train and test views each in their own folder (Blender scenes reuse names across splits)
+    assert main(["render", "--ply", str(ply), "--out", str(out), "-r", "4", "--split", "all"]) == 0
+    assert sorted(p.name for p in out.iterdir()) == ["test", "train"]
+    assert len(list((out / "train" / "renders").glob("*.png"))) == 28
+    assert read_image(sorted((out / "test" / "renders").glob("*.png"))[0]).shape == (36, 48, 3)   # replaced whole
 
 
 def nan_ply(tmp_path, rng):

@@ -8,7 +8,7 @@ import pytest
 from dc4gs_cl.reference.dc4gs import split_costs_from_sums, split_geometry_reference
 from dc4gs_cl.reference.rasterize import rasterize_backward_reference
 from dc4gs_cl.render import DeviceGaussians, Renderer
-from dc4gs_cl.render.backward import SumsLayout, rasterize_backward, split_geometry
+from dc4gs_cl.render.backward import SumsLayout, rasterize_backward, split_geometry, split_geometry_width
 from helpers import SHAPES, random_camera, random_model
 
 
@@ -43,7 +43,7 @@ def test_split_sums_match_the_papers_algorithm(rt, rng, shape, pair_sums, candid
     radius = rt.to_host(res.proj.radius, n, np.int32)
     cand_px, end_px, valid = split_geometry_reference(model.means, model.log_scales, model.quats, cam, radius > 0,
                                                       candidates)
-    geo = rt.to_host(geometry, (n, candidates + 3))
+    geo = rt.to_host(geometry, (n, split_geometry_width(candidates)))
     device_valid = (geo[:, 2] != 0) | (geo[:, 3] != 0)
     assert np.array_equal(device_valid, valid)
     assert valid.sum() > 500 and not valid[:10].any()
@@ -58,7 +58,7 @@ def test_split_sums_match_the_papers_algorithm(rt, rng, shape, pair_sums, candid
     assert np.isfinite(left).all()
     err = np.linalg.norm(left - ref["split"]) / np.linalg.norm(ref["split"])
     assert err < 2e-3, err           # float32 sums; a pixel within rounding of a split line may change side
-    total = np.concatenate([ref["dc"], ref["abs"]], 1)[:, [0, 1, 2, 3, 4]]
+    total = np.concatenate([ref["dc"], ref["abs"]], 1)
     J_device = split_costs_from_sums(left, np.concatenate([got["dc"], got["abs"]], 1))
     J_reference = split_costs_from_sums(ref["split"], total)
     sel = valid & (ref["dc"][:, 2] > 0)
@@ -69,10 +69,11 @@ def one_view_window(rt, model, cam, target, background, strategy):
     """The window statistics of one view (the device path training takes) for a hand-built model."""
     from dc4gs_cl.host.stats import WindowStats
     from dc4gs_cl.loss import Loss
-    renderer = Renderer(rt)
+    from dc4gs_cl.render.workspace import POISON
+    renderer = Renderer(rt, poison=True)
     g = DeviceGaussians(rt, model)
     res = renderer.render(g, cam, 0, background)
-    grad = rt.buffer(target.nbytes)
+    grad = rt.to_device(np.full(target.size, POISON, np.uint32))
     Loss(rt)(res.raster.image, rt.to_device(target.astype(np.float32)), cam.width, cam.height, grad)
     layout = strategy.sums_layout()
     geometry = split_geometry(rt, renderer.ws, g, cam, res, layout.split_candidates) if layout.split_candidates else None
@@ -181,7 +182,7 @@ def test_window_statistics_follow_the_spec(rt, rng, pooling):
         sums[:, f["split"][0]:f["split"][0] + 5 * candidates] = left.reshape(n, -1)
         radius = rng.integers(0, 3, n).astype(np.int32) * rng.integers(1, 30, n).astype(np.int32)
         depth = rng.uniform(0.5, 3.0, n).astype(np.float32)
-        geometry = np.zeros((n, candidates + 3), np.float32)
+        geometry = np.zeros((n, split_geometry_width(candidates)), np.float32)
         line = rng.random(n) < 0.8
         geometry[line, 2] = 1.0
         res = SimpleNamespace(width=width, height=height, proj=SimpleNamespace(radius=rt.to_device(radius),
@@ -229,7 +230,7 @@ def test_poly_split_position_is_the_exact_minimum_of_the_interpolating_quartic(r
     scale = np.abs(values).max(axis=1)
     assert np.all(ours <= values.min(axis=1) + 1e-12 * scale)    # never worse than a dense grid
     assert np.all((x >= 1 / 12) & (x <= 11 / 12))
-    # it goes through the samples: an interior sample that is a local minimum of the fit is found exactly
+    # and the polynomial is the interpolant: it goes through the candidates' costs
     np.testing.assert_allclose(np.polynomial.polynomial.polyval(np.arange(1, 6) / 6, coeffs.T), costs, rtol=1e-9)
 
 
@@ -298,4 +299,16 @@ def test_split_costs_stop_for_gaussians_whose_criterion_stays_low(rt, rng):
                                                                      depth=rt.to_device(np.ones(n, np.float32))))
     for view in range(TRACK_MIN_VIEWS + 1):
         assert np.array_equal(window.download()["skip_split"], [0, 0, 0, 0] if view < TRACK_MIN_VIEWS else [1, 0, 1, 0])
-        window.accumulate(res, rt.to_device(sums), rt.to_device(np.zeros((n, candidates + 3), np.float32)))
+        window.accumulate(res, rt.to_device(sums), rt.to_device(np.zeros((n, split_geometry_width(candidates)), np.float32)))
+
+    # split_geometry then gives the skipped Gaussians no line, and the others theirs
+    cam, model, _ = flat_scene(n)
+    model.means[:, 0] = [-1.5, -0.5, 0.5, 1.5]
+    model.log_scales[:] = np.log([0.3, 0.05, 0.1])     # longest along world x = image x
+    renderer = Renderer(rt, poison=True)
+    g = DeviceGaussians(rt, model)
+    res = renderer.render(g, cam, 0)
+    assert (rt.to_host(res.proj.radius, n, np.int32) > 0).all()
+    geometry = split_geometry(rt, renderer.ws, g, cam, res, candidates, window=(window.buffer, wl.defines()))
+    geo = rt.to_host(geometry, (n, split_geometry_width(candidates)))
+    np.testing.assert_array_equal(np.abs(geo[:, 2:4]).sum(1) > 0, [False, True, False, True])

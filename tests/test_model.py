@@ -21,14 +21,6 @@ def brute_knn(points, k=3, queries=None):
     return out
 
 
-@pytest.fixture
-def rng():
-    """Fresh inputs every run; the seed is in the failure report."""
-    seed = np.random.SeedSequence().entropy
-    print(f"seed {seed}")
-    return np.random.default_rng(seed)
-
-
 def clustered(rng, n):
     """SfM-like: tight clusters of very different sizes, points on a thin plane, sparse outliers."""
     parts = [rng.normal(rng.uniform(-5, 5, 3), 10.0 ** rng.uniform(-3, -0.5), (n // 20, 3))

@@ -5,7 +5,7 @@ from dc4gs_cl.reference import project_reference
 from dc4gs_cl.reference.project import rect_area, tile_rect_reference
 from dc4gs_cl.render import DeviceGaussians, RenderOptions
 from dc4gs_cl.render.project import project
-from dc4gs_cl.render.renderer import tile_grid
+from dc4gs_cl.constants import tile_grid
 from dc4gs_cl.render.workspace import Workspace
 from helpers import random_camera, random_model
 

@@ -12,9 +12,9 @@ import pycolmap
 import pytest
 
 from dc4gs_cl.errors import InputError
+from conftest import DATA_DIR
 from dc4gs_cl.scene import load_scene
 
-DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 
 
 # ---------------------------------------------------------------------------------------------- helpers
@@ -71,9 +71,9 @@ def gl_c2w(R: np.ndarray, t: np.ndarray) -> list:
 
 @pytest.fixture(scope="module")
 def data() -> Path:
-    if not DATA.is_dir():
-        pytest.skip(f"real test scenes not available: {DATA} not found")
-    return DATA
+    if not DATA_DIR.is_dir():
+        pytest.skip(f"real test scenes not available: {DATA_DIR} not found")
+    return DATA_DIR
 
 
 # scene -> (path under the data folder, train count, test count); test = every 8th image by name
@@ -261,7 +261,7 @@ def test_undistortion_cache_reused_invalidated_and_outside_input(tmp_path, monke
     changed = load_scene(root, cache_dir=cache, test_every=0)
     changed.read_image(changed.train[0])
     assert len(list(cache.iterdir())) == 2
-    assert not [p for p in cache.iterdir() if p.name.startswith(".tmp")]
+    assert not [p for p in cache.iterdir() if p.name.startswith(".")]   # no temporary file left
 
     # Without cache_dir the cache goes to a temporary folder; the input folder is never written.
     default = load_scene(root, test_every=0)

@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 
 from dc4gs_cl.render.sort import RadixSort, digit_plan
-from dc4gs_cl.render.workspace import POISON, Workspace
+from dc4gs_cl.render.workspace import Workspace
 from helpers import SHAPES
 
 
@@ -17,9 +17,9 @@ def test_digit_plan_covers_exactly_the_requested_bits():
 
 @pytest.mark.parametrize("shape", SHAPES)
 def test_radix_sort_is_a_stable_sort_of_the_requested_bits(rt, rng, shape):
-    sort = RadixSort(rt, SHAPES[shape], Workspace(rt, poison=True))
     for n, lo, hi in [(1, 0, 32), (2, 0, 32), (1000, 0, 32), (int(rng.integers(10_000, 200_000)), 0, 32),
                       (50_000, 0, 11), (30_000, 4, 20), (777, 0, 1)]:
+        sort = RadixSort(rt, SHAPES[shape], Workspace(rt, poison=True))   # fresh poisoned scratch per case
         keys = rng.integers(0, 2**32, n, dtype=np.uint64).astype(np.uint32)
         if n > 10:   # many duplicates, so that stability matters
             keys[rng.random(n) < 0.5] = keys[0]

@@ -7,6 +7,7 @@ from dc4gs_cl.host.adam import Adam
 from dc4gs_cl.render import DeviceGaussians, Renderer
 from dc4gs_cl.render.backward import SumsLayout, project_backward, rasterize_backward
 from dc4gs_cl.render.gaussians import DeviceArrays, group_widths
+from dc4gs_cl.render.workspace import POISON
 from dc4gs_cl.loss import Loss
 from dc4gs_cl.scene.camera import Camera
 from dc4gs_cl.testing import random_model
@@ -57,6 +58,8 @@ def test_degenerate_gaussians_stay_finite_through_a_training_step(rt, rng, case)
         res = renderer.render(g, cam, 3, (0.2, 0.3, 0.4))
         image = res.image(rt)
         assert np.isfinite(image).all()
+        for buf in list(grads.buffers.values()) + [grad_image]:
+            rt.fill(buf, POISON, buf.size)    # every value the kernels below should write, poisoned first
         loss(res.raster.image, target_buf, cam.width, cam.height, grad_image)
         sums = rasterize_backward(rt, renderer.ws, renderer.tuning, renderer.defines, layout, res, grad_image,
                                   (0.2, 0.3, 0.4))
@@ -89,7 +92,7 @@ __kernel void hammer_local(__global float *out, const uint reps) {
 """
 
 
-def test_emulated_float_atomic_add_is_exact_under_contention(rt, tmp_path):
+def test_emulated_float_atomic_add_is_exact_under_contention(rt):
     """Many work-items hammer a few addresses with small half-integers (exact in float32 whatever the
     order), so any lost update shows up as a wrong total."""
     import pyopencl as cl

@@ -129,6 +129,11 @@ def test_corrupt_and_mismatched_checkpoints(finished_run, tmp_path, capsys):
     (["--test-every", "-1"], "--test-every"),
     (["--checkpoint-every", "0"], "--checkpoint-every"),
     (["--resume"], "--resume needs --out"),
+    (["--dc4gs", "--split-candidates", "4"], "--split-candidates 4"),
+    (["--split-candidates", "1"], "--split-candidates 1"),      # checked even with DC4GS off
+    (["--dcs", "--dcs-track", "1.5"], "--dcs-track 1.5"),
+    (["--sh-degree", "4"], "--sh-degree 4"),
+    (["--white-background"], "built-in scene"),
 ])
 def test_settings_that_make_no_sense(tmp_path, capsys, args, says):
     out = [] if "--resume" in args else ["--out", str(tmp_path / "o")]

@@ -30,13 +30,14 @@ from dc4gs_cl.train import Trainer, TrainConfig
 NEVER = 10 ** 9
 
 
-def configurations(base: str) -> dict[str, dict]:
-    return {"base": {}, "+DCC": {"dcc": True}, "+DCS": {"dcs": True}, "+DC4GS": {"dcc": True, "dcs": True},
-            "+DC4GS window": {"dcc": True, "dcs": True, "dc_pooling": "window"},
-            "+DC4GS, tracking 0.5": {"dcc": True, "dcs": True, "dcs_track": 0.5},
-            "+DC4GS, tracking 0.25": {"dcc": True, "dcs": True, "dcs_track": 0.25},
-            "+DC4GS, split costs for all": {"dcc": True, "dcs": True, "_all": True},
-            "no statistics (window closed)": {"_closed": True}}
+CONFIGURATIONS = {   # name -> TrainConfig settings; "_" keys are the benchmark's own switches
+    "base": {}, "+DCC": {"dcc": True}, "+DCS": {"dcs": True}, "+DC4GS": {"dcc": True, "dcs": True},
+    "+DC4GS window": {"dcc": True, "dcs": True, "dc_pooling": "window"},
+    "+DC4GS, tracking 0.5": {"dcc": True, "dcs": True, "dcs_track": 0.5},
+    "+DC4GS, tracking 0.25": {"dcc": True, "dcs": True, "dcs_track": 0.25},
+    "+DC4GS, split costs for all": {"dcc": True, "dcs": True, "_all": True},
+    "no statistics (window closed)": {"_closed": True},
+}
 
 
 def trainer_at(state: dict, scene, rt, settings: dict, base: str, resolution) -> Trainer:
@@ -78,7 +79,7 @@ def main(argv=None) -> int:
           f"{args.warm_iterations} iterations: {warm.params.n:,} Gaussians; {args.iterations} iterations x "
           f"{args.rounds} rounds per configuration")
 
-    configs = configurations(args.base)
+    configs = CONFIGURATIONS
     trainers = {name: trainer_at(state, scene, rt, s, args.base, args.resolution) for name, s in configs.items()}
     times = {name: [] for name in configs}
     for name, trainer in trainers.items():       # warm-up: kernels built outside the timed rounds

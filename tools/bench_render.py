@@ -14,28 +14,22 @@ import argparse
 import sys
 import time
 from dataclasses import replace
-from pathlib import Path
 
 import numpy as np
-import pyopencl as cl
 import pyopencl.array as cla
 
+from bench_train import DATA   # the shared data folder beside the repository
 from dc4gs_cl.render import DeviceGaussians, RenderOptions, Renderer
 from dc4gs_cl.render.sort import RadixSort
 from dc4gs_cl.runtime import Runtime, describe
 from dc4gs_cl.scene.camera import Camera
 from dc4gs_cl.testing import gsplat_test_garden, random_model
 
-GARDEN = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "gsplat_test_garden" / "test_garden.npz"
+GARDEN = DATA / "gsplat_test_garden" / "test_garden.npz"
 
 
 def median_ms(values) -> float:
     return float(np.median(values)) * 1e3
-
-
-def event_seconds(ev: cl.Event) -> float:
-    ev.wait()
-    return (ev.profile.end - ev.profile.start) * 1e-9
 
 
 def cases(rng, quick: bool):
@@ -115,7 +109,7 @@ def sort_comparison(rt: Runtime, renderer: Renderer, res, runs: int) -> list[str
     tile_of_pair = rt.to_host(res.isect.tile_of_pair, p, np.uint32)
     gaussian_of_pair = rt.to_host(res.isect.gaussian_of_pair, p, np.uint32)
     tile_bits = res.isect.tile_bits
-    depth_bits = int(depth_keys.min() ^ depth_keys.max()).bit_length() if v > 1 else 0
+    depth_bits = res.isect.depth_bits   # the frame was rendered with every depth bit that varies
     ours = RadixSort(rt, renderer.tuning)
     py32, py64 = PyopenclSort(rt, np.uint32), PyopenclSort(rt, np.uint64)
     rows = []

@@ -31,7 +31,6 @@ from __future__ import annotations
 
 import argparse
 import gc
-import json
 import math
 import resource
 import sys
@@ -42,6 +41,7 @@ from pathlib import Path
 
 from dc4gs_cl.errors import InputError
 from dc4gs_cl.evaluate import evaluate, write_results
+from dc4gs_cl.files import write_json
 from dc4gs_cl.host.strategy import STRATEGIES
 from dc4gs_cl.runtime import Runtime, describe
 from dc4gs_cl.scene import Scene, load_scene
@@ -120,22 +120,25 @@ def dc4gs_summary(runs: list[dict]) -> list[str]:
     """Each DC4GS row against its base on the same scene: Gaussians and PSNR, and the paper's claim."""
     lines = ["| scene | variant | Gaussians vs base | PSNR vs base | SSIM vs base | wall time vs base |", "|---|---|---|---|---|---|"]
     by_key = {(r["scene"], r["strategy"]): r for r in runs}
-    fewer, gain = [], []
+    fewer, gain = {}, {}   # per variant ("+dc4gs", "+dcc", "+dc4gs:window", ...): over scenes and bases
     for r in runs:
-        base = by_key.get((r["scene"], r["strategy"].split("+")[0].split(":")[0]))
+        base_name = variant(r["strategy"])["strategy"]
+        base = by_key.get((r["scene"], base_name))
         if base is None or base is r:
             continue
         dg = r["gaussians_final"] / base["gaussians_final"] - 1
         dp = r["psnr"] - base["psnr"]
         lines.append(f"| {r['scene']} | {r['strategy']} | {dg:+.1%} | {dp:+.2f} dB | {r['ssim'] - base['ssim']:+.4f} | "
                      f"{r['wall_ms_per_it'] / base['wall_ms_per_it'] - 1:+.1%} |")
-        if r["strategy"].endswith("+dc4gs"):
-            fewer.append(-dg)
-            gain.append(dp)
-    if fewer:
-        lines.append(f"\nwith DC4GS over {len(fewer)} (scene, base) pairs: {sum(fewer) / len(fewer):.1%} fewer Gaussians "
-                     f"on average, PSNR {sum(gain) / len(gain):+.2f} dB on average "
-                     f"(paper: 17-24% fewer at equal or better PSNR)")
+        key = r["strategy"][len(base_name):]
+        fewer.setdefault(key, []).append(-dg)
+        gain.setdefault(key, []).append(dp)
+    lines.append("")
+    for key in fewer:
+        n = len(fewer[key])
+        lines.append(f"{key} over {n} (scene, base) pairs: {sum(fewer[key]) / n:.1%} fewer Gaussians on average, "
+                     f"PSNR {sum(gain[key]) / n:+.2f} dB on average")
+    lines.append("(paper, for +dc4gs: 17-24% fewer Gaussians at equal or better PSNR)")
     return lines
 
 
@@ -251,7 +254,7 @@ def main(argv=None) -> int:
                 report["runs"].append(row)
                 print(table_row(row), flush=True)
                 if args.json:
-                    args.json.write_text(json.dumps(report, indent=2))
+                    write_json(args.json, report)
     if any("+" in s for s in strategies):
         print("\n" + "\n".join(dc4gs_summary(report["runs"])))
     return 0

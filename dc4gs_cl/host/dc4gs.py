@@ -10,7 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..model import logit
+from ..model import logit, sigmoid
 from ..reference.dc4gs import principal_axis
 from .ops import GaussianSet, replace_with_children
 
@@ -33,11 +33,21 @@ class DC4GSConfig:
     track: float = 0.0              # split costs only while the running split criterion >= track x threshold (0: exact)
 
     def __post_init__(self):
-        if self.pooling not in POOLINGS or self.split_pick not in SPLIT_PICKS or self.dcc_reading not in DCC_READINGS:
-            raise ValueError(f"DC4GS settings: pooling {self.pooling!r}, split pick {self.split_pick!r}, "
-                             f"DCC reading {self.dcc_reading!r}")
+        if problems := self.problems():
+            raise ValueError("; ".join(problems))
+
+    def problems(self) -> list[str]:
+        """What is wrong with these settings, named by their command-line flags (empty: nothing)."""
+        out = [f"{flag} {value!r} is not one of {', '.join(allowed)}"
+               for flag, value, allowed in (("--dc-pooling", self.pooling, POOLINGS),
+                                            ("--split-pick", self.split_pick, SPLIT_PICKS),
+                                            ("--dcc-reading", self.dcc_reading, DCC_READINGS))
+               if value not in allowed]
         if self.candidates < 3 or self.candidates % 2 == 0:
-            raise ValueError(f"--split-candidates {self.candidates} must be odd and at least 3")
+            out.append(f"--split-candidates {self.candidates} must be odd and at least 3")
+        if not 0 <= self.track <= 1:
+            out.append(f"--dcs-track {self.track} must lie in [0, 1]")
+        return out
 
 
 def candidate_positions(n: int) -> np.ndarray:
@@ -109,7 +119,7 @@ def split_at(gs: GaussianSet, idx: np.ndarray, x: np.ndarray) -> int:
     x = np.asarray(x, np.float64)
     offsets = [-3 * sigma * (1 - x), 3 * sigma * x]
     fractions = [x, 1 - x]
-    opacity = 1 / (1 + np.exp(-p["opacity_logits"][:, 0]))
+    opacity = sigmoid(p["opacity_logits"][:, 0])
     children = {k: [] for k in p}
     for offset, fraction in zip(offsets, fractions):
         log_scales = p["log_scales"].copy()
@@ -120,6 +130,6 @@ def split_at(gs: GaussianSet, idx: np.ndarray, x: np.ndarray) -> int:
         for k in ("quats", "sh"):
             children[k].append(p[k])
     # Children of one parent in a row, as replace_with_children expects.
-    stacked = {k: np.stack(v, axis=1).reshape(2 * len(idx), -1) for k, v in children.items()}
+    stacked = {k: np.stack(v, axis=1).reshape(len(offsets) * len(idx), -1) for k, v in children.items()}
     replace_with_children(gs, idx, stacked)
     return len(idx)

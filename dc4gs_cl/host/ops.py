@@ -9,6 +9,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..model import sigmoid
 from ..reference.project import quat_to_rotmat
 
 SPLIT_CHILDREN = 2
@@ -47,7 +48,7 @@ class GaussianSet:
         return np.exp(self.params["log_scales"].astype(np.float64))
 
     def opacities(self) -> np.ndarray:
-        return 1.0 / (1.0 + np.exp(-self.params["opacity_logits"][:, 0].astype(np.float64)))
+        return sigmoid(self.params["opacity_logits"][:, 0].astype(np.float64))
 
 
 def clone(gs: GaussianSet, mask: np.ndarray) -> int:

@@ -8,10 +8,10 @@ import numpy as np
 import pyopencl as cl
 
 from ..render.backward import SumsLayout
+from ..render.project import PER_GAUSSIAN_WG
 from ..render.renderer import RenderResult
-from ..runtime import Runtime
+from ..runtime import BUFFER_GROWTH, Runtime
 
-STATS_WG = 64
 PIXELGS_DEPTH_FRACTION = 0.37   # Pixel-GS: gradients of Gaussians nearer than this x extent are scaled down
 TRACK_MIN_VIEWS = 5             # DCS: split costs for every Gaussian in its first views of a window
 
@@ -77,7 +77,7 @@ class WindowStats:
         """Zero the accumulators for n Gaussians (after densification, or at the start)."""
         nbytes = 4 * self.layout.width * max(n, 1)
         if self.buffer is None or self.buffer.size < nbytes:
-            self.buffer = self.rt.buffer(int(nbytes * 1.5))
+            self.buffer = self.rt.buffer(int(nbytes * BUFFER_GROWTH))
         self.rt.fill(self.buffer, np.float32(0), 4 * self.layout.width * n)
         self.n = n
 
@@ -85,7 +85,7 @@ class WindowStats:
         n = self.n
         if n == 0:
             return
-        self.rt.launch("densify_stats", self.kernel, -(-n // STATS_WG) * STATS_WG, STATS_WG, np.uint32(n),
+        self.rt.launch_items("densify_stats", self.kernel, n, PER_GAUSSIAN_WG, np.uint32(n),
                        np.float32(0.5 * res.width), np.float32(0.5 * res.height), np.float32(self.depth_scale),
                        np.float32(self.track_threshold), res.proj.radius, res.proj.depth, sums, split_geometry if split_geometry is not None else sums,
                        self.buffer)

@@ -17,6 +17,10 @@ typedef struct {
     int width, height;
 } Camera;
 
+// Floats per Gaussian in split_geometry.cl's output (layout there), for -D SPLIT_CANDIDATES candidates;
+// keep in step with split_geometry_width() in dc4gs_cl/render/backward.py.
+#define SPLIT_GEOMETRY (SPLIT_CANDIDATES + 3)
+
 // Inlined even where the compiler's cost model would not: constant arguments then specialise the body.
 #define ALWAYS_INLINE inline __attribute__((always_inline))
 

@@ -2,8 +2,9 @@
 //
 // One work-item per Gaussian; nothing happens for a Gaussian not visible in the view (radius 0).
 //   in  radius [N] int px, depth [N] view z: from project.cl
-//   in  sums   [N*SUMS_PER_GAUSSIAN]: from rasterize_backward.cl (SUM_MEAN2D in px, SUM_ABS in NDC units,
-//              SUM_PIXELS; see that file)
+//   in  sums   [N*SUMS_PER_GAUSSIAN]: from rasterize_backward.cl (SUM_MEAN2D in px; SUM_ABS in NDC units,
+//              SUM_PIXELS; with DC4GS SUM_DC and SUM_SPLIT; see that file)
+//   in  split_geometry [N*SPLIT_GEOMETRY]: from split_geometry.cl (with SPLIT_CANDIDATES)
 //   io  window [N*WINDOW_WIDTH] float, accumulated since the last densification step (offsets are -D
 //              options built by dc4gs_cl/host/stats.py):
 //         WIN_GRAD       sum over visible views of |sum_j g_j|, NDC units (3DGS)
@@ -20,7 +21,7 @@
 //         with -D DC_WINDOW (the authors' release): kappa from the sums since the last densification step,
 //         WIN_DC_UX, WIN_DC_UY, WIN_DC_N; without (the paper): kappa of this view alone
 //       DC-guided split (-D SPLIT_CANDIDATES = N), only where this view gave the candidates a line
-//       (split_geometry [N*(N+3)], dir != 0):
+//       (split_geometry's dir != 0):
 //         WIN_J + k      split cost of candidate k: per view cost(left_k) + cost(total - left_k), with
 //                        cost(side) = (1 - kappa_side) |(sum |g_x|, sum |g_y|)| over the side's pixels;
 //                        with DC_WINDOW the sides' sums accumulate over the window (WIN_LEFT + 5k + v,
@@ -60,10 +61,11 @@ __kernel void accumulate_view_stats(const uint n, const float ndc_x, const float
     __global float *w = window + (size_t)i * WINDOW_WIDTH;
     float gx = s[SUM_MEAN2D] * ndc_x, gy = s[SUM_MEAN2D + 1] * ndc_y;
     float g = sqrt(gx * gx + gy * gy);
+    float a = sqrt(s[SUM_ABS] * s[SUM_ABS] + s[SUM_ABS + 1] * s[SUM_ABS + 1]);
     float pixels = s[SUM_PIXELS];
     float f = MINF(1.f, (depth[i] / depth_scale) * (depth[i] / depth_scale));
     w[WIN_GRAD] += g;
-    w[WIN_ABS] += sqrt(s[SUM_ABS] * s[SUM_ABS] + s[SUM_ABS + 1] * s[SUM_ABS + 1]);
+    w[WIN_ABS] += a;
     w[WIN_VIEWS] += 1.f;
     w[WIN_PIX_GRAD] += f * g * pixels;
     w[WIN_PIX] += pixels;
@@ -75,13 +77,13 @@ __kernel void accumulate_view_stats(const uint n, const float ndc_x, const float
     uy = w[WIN_DC_UY] += uy;
     count = w[WIN_DC_N] += count;
 #endif
-    float weight = count > 0.f ? 1.f - sqrt(ux * ux + uy * uy) / count : 0.f;
-    w[WIN_DCC_ABS] += weight * sqrt(s[SUM_ABS] * s[SUM_ABS] + s[SUM_ABS + 1] * s[SUM_ABS + 1]);
+    float weight = count > 0.f ? 1.f - sqrt(ux * ux + uy * uy) / count : 0.f;   // 1 - kappa; 0 where no pixel had a gradient
+    w[WIN_DCC_ABS] += weight * a;
     w[WIN_DCC_GRAD] += weight * g;
     w[WIN_DCC_PIX] += weight * f * g * pixels;
 #endif
 #if SPLIT_CANDIDATES
-    __global const float *geo = split_geometry + (size_t)i * (SPLIT_CANDIDATES + 3);
+    __global const float *geo = split_geometry + (size_t)i * SPLIT_GEOMETRY;
     int line = geo[2] != 0.f || geo[3] != 0.f;
     float total[5] = {s[SUM_DC], s[SUM_DC + 1], s[SUM_DC + 2], s[SUM_ABS], s[SUM_ABS + 1]};
     __global const float *left = s + SUM_SPLIT;

@@ -3,7 +3,7 @@
 // Images x (rendered, not clamped) and y (target): [H][W][3] float32, row-major interleaved RGB,
 // nominally in [0, 1]. A row is n3w = 3W floats and a pixel's same-channel neighbour is 3 floats away,
 // so a 1D blur along a row (taps at +-3k floats) blurs the three channels at once. M = H * n3w floats.
-// SSIM per channel: 11-tap Gaussian SSIM_W0..SSIM_W10 (normalised, -D from dc4gs_cl/loss.py), zero
+// SSIM per channel: (2 SSIM_RADIUS + 1)-tap Gaussian SSIM_WEIGHTS (normalised, -D from dc4gs_cl/loss.py), zero
 // padding (outside pixels count 0 in every blurred moment), constants SSIM_C1, SSIM_C2.
 //
 // Two passes, each a vertical blur into local memory followed by a horizontal blur from it:
@@ -23,7 +23,7 @@
 // `vectorize(enable)` lets it reorder the loops' float sums (no fast-math needed), `restrict` rules out
 // aliasing between the buffers. GPUs use SEG = 1, WG = 256.
 
-#define RADIUS 5                     // SSIM_WINDOW / 2
+#define RADIUS SSIM_RADIUS
 #define TAPS (2 * RADIUS + 1)
 #define PAD (3 * RADIUS)             // floats either side of a group's span that its taps reach
 #define SPAN (WG * SEG)              // floats of a row per work-group
@@ -32,8 +32,7 @@
 #define GLOBAL_IN __global const float *restrict
 #define GLOBAL_OUT __global float *restrict
 
-__constant float WIN[TAPS] = {SSIM_W0, SSIM_W1, SSIM_W2, SSIM_W3, SSIM_W4, SSIM_W5,
-                              SSIM_W6, SSIM_W7, SSIM_W8, SSIM_W9, SSIM_W10};
+__constant float WIN[TAPS] = {SSIM_WEIGHTS};
 
 // Row offsets and weights of the vertical taps of row r; a row outside the image gets weight 0 and row
 // r's offset, so every load stays in bounds with no per-float check.

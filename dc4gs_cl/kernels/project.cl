@@ -14,8 +14,8 @@
 //   out radius         [N]    int, px, ceil(3 sigma_max); 0 = culled, or its 3-sigma box misses the image:
 //                             then the Gaussian is not visible in this view
 //   out alpha_extent   [N*2]  px, half-width and half-height of the box outside which alpha < ALPHA_MIN
-//                             (opacity * exp(-q/2) < ALPHA_MIN for the Mahalanobis q), plus a 0.01 px margin
-//   out tiles_touched  [N]    uint, tiles of pair_rect() (common.h): 0 when radius == 0 or opacity < ALPHA_MIN
+//                             (opacity * exp(-q/2) < ALPHA_MIN for the Mahalanobis q), plus ALPHA_EXTENT_MARGIN px
+//   out tiles_touched  [N]    uint, tiles of pair_rect() (common.h): 0 when radius == 0, or (ALPHA_CUT) opacity < ALPHA_MIN
 // -D SH_COEFFS: coefficients stored per channel (1, 4, 9 or 16); the active degree is an argument.
 
 #include "project.h"
@@ -60,7 +60,7 @@ __kernel void project(const int n, const Camera cam, const int sh_degree, const 
     // alpha >= ALPHA_MIN needs the Mahalanobis distance q <= 2 ln(op / ALPHA_MIN); the box of that
     // ellipse has half-sizes sqrt(q a) and sqrt(q c) (a, c: the 2D covariance's diagonal).
     float q = op >= ALPHA_MIN ? 2.f * log_nocall(op / ALPHA_MIN) : 0.f;
-    float2 ext = (float2)(sqrt_nocall(q * a), sqrt_nocall(q * c)) + 0.01f;
+    float2 ext = (float2)(sqrt_nocall(q * a), sqrt_nocall(q * c)) + ALPHA_EXTENT_MARGIN;
     uint tiles = (uint)rect_area(pair_rect(m2, r_px, ext, tiles_x, tiles_y));
 #if ALPHA_CUT
     if (op < ALPHA_MIN) tiles = 0;   // alpha = opacity * exp(power) < ALPHA_MIN everywhere

@@ -4,7 +4,7 @@
 //   in  ranges           [T*2]  uint (first pair, end pair) of each tile, pairs sorted by tile then depth
 //   in  gaussian_of_pair [P]    uint Gaussian index of each pair
 //   in  mean2d [N*2] px, conic_opacity [N*4], rgb [N*3], alpha_extent [N*2] px: from project.cl
-//   in  background       float4 (RGB, unused)
+//   in  background       float4 (RGB; w unused), blended behind the last Gaussian
 //   out image            [H*W*3] RGB, row-major; = sum_i T_i alpha_i c_i + T_final background
 //   out final_T          [H*W]   transmittance left after the last blended Gaussian
 //   out last_pair        [H*W]   int, index of the last pair blended into the pixel (first pair - 1 if none)
@@ -38,7 +38,7 @@ void rasterize(const int width, const int height, const int tiles_x, const float
 #endif
 
     const int row0 = (lid * PIXELS_PER_ITEM) / TILE_SIZE;            // first tile row this item owns
-    const int col0 = (lid * PIXELS_PER_ITEM) % TILE_SIZE;            // and first column (0 for whole rows)   // first tile row this item owns
+    const int col0 = (lid * PIXELS_PER_ITEM) % TILE_SIZE;            // and first column (0 for whole rows)
     float px[PIXELS_PER_ITEM], py[PIXELS_PER_ITEM], T[PIXELS_PER_ITEM];
     float cr[PIXELS_PER_ITEM], cg[PIXELS_PER_ITEM], cb[PIXELS_PER_ITEM];
     int last[PIXELS_PER_ITEM], alive[PIXELS_PER_ITEM];

@@ -4,8 +4,8 @@
 //   out sums: per Gaussian, its terms summed over this view's pixels where it was blended (offsets are -D
 //       options built by dc4gs_cl/render/backward.py). Two designs (-D PAIR_SUMS):
 //         0: sums [N*SUMS_PER_GAUSSIAN], added to with float atomics (the host zeroes it first);
-//         1: sums [P*SUMS_PER_GAUSSIAN], one slot per pair, all written (zeros for pairs past the walk), no
-//            atomics; sum_pairs then adds each Gaussian's slots in a fixed order: deterministic.
+//         1: sums [P*SUMS_PER_GAUSSIAN], one slot per pair, written in full (zeros for pairs past the walk)
+//            except the split sums of a Gaussian with no split line, which sum_pairs skips; no atomics; sum_pairs then adds each Gaussian's slots in a fixed order: deterministic.
 //       The terms:
 //         SUM_MEAN2D +0,1   dL/dmean2d, px
 //         SUM_CONIC  +0,1,2 dL/d(a, b, c) of conic_opacity
@@ -16,7 +16,7 @@
 //         SUM_PIXELS        pixels where blended (Pixel-GS)         (-D STATS)
 //         SUM_DC     +0,1,2 sum of g/|g| and the count, |g| > 0     (-D DC_STATS)
 //         SUM_SPLIT  +5k+0..4 for split candidate k: the same five sums (u_x, u_y, count, |g_x|, |g_y|)
-//                    over the pixels left of it (-D SPLIT_CANDIDATES = N > 0; split_geometry [N*(N+3)]
+//                    over the pixels left of it (-D SPLIT_CANDIDATES = N > 0; split_geometry [N*SPLIT_GEOMETRY]
 //                    from split_geometry.cl says where the candidates fall)
 // Per pair, each work-item sums its pixels' terms privately; the sums reach `sums` once per (tile,
 // Gaussian) pair (-D ITEMS_PER_TILE > 1 first combines the items' partial sums in local memory).
@@ -32,7 +32,6 @@
 #ifndef SPLIT_CANDIDATES
 #define SPLIT_CANDIDATES 0
 #endif
-#define SPLIT_GEOMETRY (SPLIT_CANDIDATES + 3)
 #ifndef DC_STATS
 #define DC_STATS 0
 #endif

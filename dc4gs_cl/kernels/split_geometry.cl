@@ -13,12 +13,10 @@
 //   in  window [N*WINDOW_WIDTH]: from densify_stats.cl; no line where its WIN_SKIP_SPLIT flag is set
 //   out geometry [N*SPLIT_GEOMETRY] float: c0.x, c0.y, dir.x, dir.y, t_1 .. t_{N-1} (t_0 = 0), px;
 //       dir = (0, 0) where there is no usable line: too small to split, not visible, a candidate or the end at or behind
-//       the near plane, or the projected axis shorter than 1e-6 px. The rasterizer backward then adds no
+//       the near plane, or the projected axis shorter than MIN_SPLIT_LINE_PX. The rasterizer backward then adds no
 //       split terms for the Gaussian in this view.
 
 #include "project.h"
-
-#define SPLIT_GEOMETRY (SPLIT_CANDIDATES + 3)
 
 __kernel void split_geometry(const int n, const Camera cam, const float min_scale, __global const float *means,
                              __global const float *log_scales, __global const float *quats,
@@ -43,7 +41,7 @@ __kernel void split_geometry(const int n, const Camera cam, const float min_scal
     float2 c0 = project_point(&cam, first);
     float2 d = project_point(&cam, end) - c0;
     float len2 = d.x * d.x + d.y * d.y;
-    if (!(len2 > 1e-4f) || !IS_FINITE(len2)) return;   // shorter than 0.01 px: it separates no pixels
+    if (!(len2 > MIN_SPLIT_LINE_PX * MIN_SPLIT_LINE_PX) || !IS_FINITE(len2)) return;
     float2 dir = d * rsqrt_nocall(len2);
     for (int k = 1; k < SPLIT_CANDIDATES; ++k) {
         float3 ck = world_to_camera(&cam, mu + step * (float)(k - SPLIT_CANDIDATES / 2) * axis);

@@ -1,4 +1,6 @@
-"""Float64 NumPy references of the device stages, one module per stage with the same name.
+"""Float64 NumPy references of the device stages: projection (and its backward), tile intersection,
+rasterizer (forward and backward), loss and the DC4GS sums, each module named after its kernel file.
+Sort, scan and Adam need none: their tests compare with NumPy's sort, cumsum and Adam's few lines.
 
 They share no code with the kernels and are written for clarity, not speed; tests compare the device
 against them on fresh random inputs.

@@ -89,13 +89,13 @@ def project_reference(means, log_scales, quats, opacity_logits, sh, cam: Camera,
     visible = ok & (radius > 0) & (rect_area(tile_rect_reference(mean2d, radius[:, None], tiles_x, tiles_y)) > 0)
     opacity = 1.0 / (1.0 + np.exp(-np.asarray(opacity_logits, np.float64)))
     q = np.where(opacity >= K.ALPHA_MIN, 2 * np.log(np.maximum(opacity, K.ALPHA_MIN) / K.ALPHA_MIN), 0.0)
-    alpha_extent = np.sqrt(q[:, None] * np.stack([a, c], 1).clip(0)) + 0.01
+    alpha_extent = np.sqrt(q[:, None] * np.stack([a, c], 1).clip(0)) + K.ALPHA_EXTENT_MARGIN
     tiles = np.where(visible & (opacity >= K.ALPHA_MIN),
                      rect_area(pair_rect_reference(mean2d, radius, alpha_extent, tiles_x, tiles_y)), 0)
 
     d = means - cam.center
     d /= np.linalg.norm(d, axis=1, keepdims=True)
-    k = (sh_degree + 1) ** 2
+    k = K.sh_coeffs(sh_degree)
     rgb = np.einsum("nk,nkc->nc", sh_basis(sh_degree, d), np.asarray(sh, np.float64)[:, :k]) + 0.5
     return {
         "mean2d": mean2d, "conic": conic, "opacity": opacity, "rgb": np.maximum(rgb, 0.0), "depth": z,
@@ -202,7 +202,7 @@ def project_backward_reference(means, log_scales, quats, opacity_logits, sh, cam
     v = means - cam.center
     vnorm = np.linalg.norm(v, axis=1)
     d = v / vnorm[:, None]
-    k = (sh_degree + 1) ** 2
+    k = K.sh_coeffs(sh_degree)
     basis = sh_basis(sh_degree, d)
     raw = np.einsum("nk,nkc->nc", basis, sh[:, :k]) + 0.5
     vr = np.where(raw > 0, np.asarray(v_rgb, np.float64), 0.0)

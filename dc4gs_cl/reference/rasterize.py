@@ -40,7 +40,7 @@ def rasterize_reference(mean2d, conic, opacity, rgb, gaussian_of_pair, ranges, w
 def render_reference(means, log_scales, quats, opacity_logits, sh, cam: Camera, sh_degree: int, background,
                      alpha_cut: bool = True):
     """Project, intersect and rasterize entirely in float64 (alpha_cut: see intersect_reference)."""
-    tiles_x, tiles_y = -(-cam.width // K.TILE_SIZE), -(-cam.height // K.TILE_SIZE)
+    tiles_x, tiles_y = K.tile_grid(cam.width, cam.height)
     p = project_reference(means, log_scales, quats, opacity_logits, sh, cam, sh_degree, tiles_x, tiles_y)
     _, gaussian_of_pair, ranges = intersect_reference(p["mean2d"], p["radius"], p["alpha_extent"], p["tiles_touched"],
                                                       p["depth"], tiles_x, tiles_y, alpha_cut)

@@ -1,5 +1,5 @@
 """Backward stages: rasterizer backward (kernels/rasterize_backward.cl) into per-Gaussian sums, and the
-projection backward (kernels/project.cl) from those sums to the parameters' gradients."""
+projection backward (kernels/project_backward.cl) from those sums to the parameters' gradients."""
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -11,7 +11,7 @@ from ..constants import TILE_SIZE
 from ..runtime import Runtime
 from ..scene.camera import Camera
 from .gaussians import DeviceGaussians
-from .project import PROJECT_WG, camera_struct
+from .project import PER_GAUSSIAN_WG, camera_struct
 from .rasterize import rasterize_defines
 from .renderer import RenderResult
 from .tuning import Tuning
@@ -69,22 +69,28 @@ class SumsLayout:
                 for name, (at, w) in self.fields.items()}
 
 
+def split_geometry_width(candidates: int) -> int:
+    """Floats per Gaussian in the split geometry (kernels/split_geometry.cl: c0, dir, t_1..t_{N-1}, px)."""
+    return candidates + 3
+
+
 def split_geometry(rt: Runtime, ws: Workspace, g: DeviceGaussians, cam: Camera, res: RenderResult,
-                   candidates: int, min_scale: float = 0.0, window: cl.Buffer | None = None,
-                   window_defines: dict | None = None) -> cl.Buffer:
+                   candidates: int, min_scale: float = 0.0,
+                   window: tuple[cl.Buffer, dict] | None = None) -> cl.Buffer:
     """Per visible Gaussian whose largest scale exceeds min_scale (only those can be split) and that the
-    window still tracks (host/stats.py; no window: every one), where its split candidates fall in this view
-    (kernels/split_geometry.cl)."""
+    window still tracks (window: the window statistics' buffer and its layout's defines, host/stats.py;
+    None: every one), where its split candidates fall in this view (kernels/split_geometry.cl)."""
     n = g.n
-    geometry = ws.get("backward.split_geometry", 4 * (candidates + 3) * max(n, 1))
+    geometry = ws.get("backward.split_geometry", 4 * split_geometry_width(candidates) * max(n, 1))
     if window is None:
-        window = ws.get("backward.no_window", 4 * max(n, 1))
-        rt.fill(window, np.float32(0), 4 * n)
-        window_defines = {"WINDOW_WIDTH": 1, "WIN_SKIP_SPLIT": 0}
+        no_window = ws.get("backward.no_window", 4 * max(n, 1))
+        rt.fill(no_window, np.float32(0), 4 * n)
+        window = (no_window, {"WINDOW_WIDTH": 1, "WIN_SKIP_SPLIT": 0})
+    window, window_defines = window
     if n:
         k = rt.kernel("split_geometry.cl", "split_geometry", {"SPLIT_CANDIDATES": candidates, **window_defines})
         b = g.buffers
-        rt.launch("split_geometry", k, -(-n // PROJECT_WG) * PROJECT_WG, PROJECT_WG, np.int32(n), camera_struct(cam),
+        rt.launch_items("split_geometry", k, n, PER_GAUSSIAN_WG, np.int32(n), camera_struct(cam),
                   np.float32(min_scale), b["means"], b["log_scales"], b["quats"], res.proj.radius, window, geometry)
     return geometry
 
@@ -115,7 +121,7 @@ def rasterize_backward(rt: Runtime, ws: Workspace, tuning: Tuning, defines: dict
               geometry if geometry is not None else sums, target)
     if tuning.pair_sums and n:
         reduce = rt.kernel("rasterize_backward.cl", "sum_pairs", options)
-        rt.launch("rasterize_backward", reduce, -(-n // PROJECT_WG) * PROJECT_WG, PROJECT_WG, np.uint32(n),
+        rt.launch_items("rasterize_backward", reduce, n, PER_GAUSSIAN_WG, np.uint32(n),
                   res.proj.tiles_touched, res.isect.pair_first, res.isect.pair_of_emission, target,
                   geometry if geometry is not None else sums, sums)
     return sums
@@ -130,7 +136,7 @@ def project_backward(rt: Runtime, g: DeviceGaussians, cam: Camera, sh_degree: in
         return
     k = rt.kernel("project_backward.cl", "project_backward", {"SH_COEFFS": g.sh_coeffs, **layout.defines()})
     b = g.buffers
-    rt.launch("project_backward", k, -(-n // PROJECT_WG) * PROJECT_WG, PROJECT_WG, np.int32(n), camera_struct(cam),
+    rt.launch_items("project_backward", k, n, PER_GAUSSIAN_WG, np.int32(n), camera_struct(cam),
               np.int32(min(sh_degree, g.sh_degree)), b["means"], b["log_scales"], b["quats"], b["opacity_logits"],
               b["sh"], res.proj.radius, sums, grads["means"], grads["log_scales"], grads["quats"],
               grads["opacity_logits"], grads["sh"])

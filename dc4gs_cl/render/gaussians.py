@@ -7,10 +7,10 @@ from __future__ import annotations
 import numpy as np
 import pyopencl as cl
 
+from ..constants import sh_degree_of
 from ..model import GaussianModel
-from ..runtime import Runtime
+from ..runtime import BUFFER_GROWTH, Runtime
 
-GROWTH = 1.5
 PARAM_GROUPS = ("means", "log_scales", "quats", "opacity_logits", "sh")
 
 
@@ -32,7 +32,7 @@ class DeviceArrays:
         """Set the count; growing past the capacity reallocates (contents are then undefined)."""
         want = max(n, capacity, 1)
         if want > self.capacity:
-            self.capacity = max(want, int(self.capacity * GROWTH))
+            self.capacity = max(want, int(self.capacity * BUFFER_GROWTH))
             self.buffers = {k: self.rt.buffer(4 * w * self.capacity) for k, w in self.widths.items()}
         self.n = n
 
@@ -67,7 +67,7 @@ class DeviceGaussians(DeviceArrays):
 
     @property
     def sh_degree(self) -> int:
-        return int(round(np.sqrt(self.sh_coeffs))) - 1
+        return sh_degree_of(self.sh_coeffs)
 
     def upload_model(self, model: GaussianModel) -> None:
         if model.sh.shape[1] != self.sh_coeffs:

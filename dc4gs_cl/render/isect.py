@@ -57,7 +57,7 @@ class Intersect:
         if n:
             offsets = ws.get("isect.visible_offset", 4 * n)
             self.flag_scan(proj.tiles_touched, offsets, n, self.counters, 0, stage="isect")
-            rt.launch("isect", self.k_compact, -(-n // wg) * wg, wg, np.uint32(n), proj.tiles_touched, offsets,
+            rt.launch_items("isect", self.k_compact, n, wg, np.uint32(n), proj.tiles_touched, offsets,
                       proj.depth, visible_ids, depth_keys, self.counters)
             cl.enqueue_copy(rt.queue, counters, self.counters)
         v, kmin, kmax = int(counters[0]), int(counters[1]), int(counters[2])
@@ -68,7 +68,7 @@ class Intersect:
 
         pair_offset = ws.get("isect.pair_offset", 4 * v)
         if v:
-            rt.launch("isect", self.k_gather, -(-v // wg) * wg, wg, np.uint32(v), ids_by_depth,
+            rt.launch_items("isect", self.k_gather, v, wg, np.uint32(v), ids_by_depth,
                       proj.tiles_touched, pair_offset)
         self.count_scan(pair_offset, pair_offset, v, self.counters, 3, stage="isect")
         cl.enqueue_copy(rt.queue, counters, self.counters)
@@ -79,7 +79,7 @@ class Intersect:
         gaussian_of_emission = ws.get("isect.gaussian_of_emission", 4 * p)
         pair_first = ws.get("isect.pair_first", 4 * n)
         if v:
-            rt.launch("isect", self.k_emit, -(-v // wg) * wg, wg, np.uint32(v), np.int32(tiles_x),
+            rt.launch_items("isect", self.k_emit, v, wg, np.uint32(v), np.int32(tiles_x),
                       np.int32(tiles_y), ids_by_depth, pair_offset, proj.mean2d, proj.radius, proj.alpha_extent,
                       tile_of_emission, emission, gaussian_of_emission, pair_first)
         tile_bits = (tiles - 1).bit_length()
@@ -87,13 +87,13 @@ class Intersect:
         gaussian_of_pair = ws.get("isect.gaussian_of_pair", 4 * p)
         pair_of_emission = ws.get("isect.pair_of_emission", 4 * p)
         if p:
-            rt.launch("isect", self.k_gather_pairs, -(-p // wg) * wg, wg, np.uint32(p), emission_sorted,
+            rt.launch_items("isect", self.k_gather_pairs, p, wg, np.uint32(p), emission_sorted,
                       gaussian_of_emission, gaussian_of_pair, pair_of_emission)
 
         ranges = ws.get("isect.ranges", 8 * tiles)
         rt.fill(ranges, np.uint32(0), 8 * tiles)
         if p:
-            rt.launch("isect", self.k_ranges, -(-p // wg) * wg, wg, np.uint32(p), tile_of_pair, ranges)
+            rt.launch_items("isect", self.k_ranges, p, wg, np.uint32(p), tile_of_pair, ranges)
         return Intersections(n_visible=v, n_pairs=p, ranges=ranges, gaussian_of_pair=gaussian_of_pair,
                              tile_of_pair=tile_of_pair, pair_of_emission=pair_of_emission, pair_first=pair_first,
                              depth_bits=depth_bits - lo, tile_bits=tile_bits)

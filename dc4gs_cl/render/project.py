@@ -12,7 +12,7 @@ from ..scene.camera import Camera
 from .gaussians import DeviceGaussians
 from .workspace import Workspace
 
-PROJECT_WG = 64
+PER_GAUSSIAN_WG = 64   # work-group size of the kernels with one work-item per Gaussian
 
 
 def camera_struct(cam: Camera) -> np.void:
@@ -50,7 +50,7 @@ def project(rt: Runtime, ws: Workspace, g: DeviceGaussians, cam: Camera, sh_degr
         return out
     k = rt.kernel("project.cl", "project", {**defines, "SH_COEFFS": g.sh_coeffs})
     b = g.buffers
-    rt.launch("project", k, -(-n // PROJECT_WG) * PROJECT_WG, PROJECT_WG,
+    rt.launch_items("project", k, n, PER_GAUSSIAN_WG,
               np.int32(n), camera_struct(cam), np.int32(min(sh_degree, g.sh_degree)),
               np.int32(tiles_x), np.int32(tiles_y),
               b["means"], b["log_scales"], b["quats"], b["opacity_logits"], b["sh"],

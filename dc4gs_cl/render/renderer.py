@@ -6,7 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..constants import TILE_SIZE
+from ..constants import tile_grid
 from ..runtime import Runtime
 from ..scene.camera import Camera
 from .gaussians import DeviceGaussians
@@ -31,10 +31,6 @@ class RenderResult:
     def image(self, rt: Runtime) -> np.ndarray:
         """(H, W, 3) float32 colour, copied to the host."""
         return rt.to_host(self.raster.image, (self.height, self.width, 3))
-
-
-def tile_grid(width: int, height: int) -> tuple[int, int]:
-    return -(-width // TILE_SIZE), -(-height // TILE_SIZE)
 
 
 class Renderer:

@@ -4,9 +4,8 @@ from __future__ import annotations
 import numpy as np
 import pyopencl as cl
 
-from ..runtime import Runtime
+from ..runtime import BUFFER_GROWTH, Runtime
 
-GROWTH = 1.5
 POISON = np.uint32(0x7FC00001)   # a NaN as float32, a huge count as uint32
 
 
@@ -19,12 +18,8 @@ class Workspace:
     def get(self, name: str, nbytes: int) -> cl.Buffer:
         buf = self._buffers.get(name)
         if buf is None or buf.size < nbytes:
-            size = max(int(nbytes), int(buf.size * GROWTH) if buf is not None else 0, 64)
+            size = max(int(nbytes), int(buf.size * BUFFER_GROWTH) if buf is not None else 0, 64)
             buf = self._buffers[name] = self.rt.buffer(size)
             if self.poison:
                 self.rt.fill(buf, POISON, buf.size)
         return buf
-
-    @property
-    def nbytes(self) -> int:
-        return sum(b.size for b in self._buffers.values())

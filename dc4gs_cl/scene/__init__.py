@@ -36,12 +36,12 @@ def load_scene(path: str | os.PathLike, resolution: int | None = None, cache_dir
     test_every: COLMAP and transforms.json scenes hold out every test_every-th image by name (0: none).
     """
     if str(path) == BUILTIN_SCENE:
+        if white_background:
+            raise InputError(None, "--white-background: the built-in scene has its own sky colour as background")
         return builtin_scene(resolution=resolution, test_every=test_every)
     path = Path(path)
     if not path.exists():
         raise InputError(path, "scene folder not found")
-    if resolution is not None and resolution < 1:
-        raise InputError(None, f"-r {resolution}: the resolution divisor must be an integer >= 1")
     points = colors = None
     if path.is_dir() and colmap.model_dir(path) is not None:
         cameras, distorted, points, colors = colmap.read_colmap(path)
@@ -50,23 +50,11 @@ def load_scene(path: str | os.PathLike, resolution: int | None = None, cache_dir
         train, test, distorted = nerf.read_nerf(files, test_every)
     else:
         raise InputError(path, "not a COLMAP or NeRF scene: expected sparse/0/ or transforms*.json")
-    train = [_at_resolution(c, resolution) for c in train]
-    test = [_at_resolution(c, resolution) for c in test]
+    train = [c.at_resolution(resolution, DEFAULT_MAX_WIDTH) for c in train]
+    test = [c.at_resolution(resolution, DEFAULT_MAX_WIDTH) for c in test]
     background = np.full(3, 1.0 if white_background else 0.0, dtype=np.float32)
     return Scene(root=path if path.is_dir() else path.parent, train=train, test=test, points=points, colors=colors,
                  background=background, read_image=_ImageReader(distorted, background, cache_dir))
-
-
-def _at_resolution(cam: Camera, resolution: int | None) -> Camera:
-    w, h = cam.width, cam.height
-    if resolution is None:
-        scale, setting = min(1.0, DEFAULT_MAX_WIDTH / w), f"scaling to width {DEFAULT_MAX_WIDTH}"
-    else:
-        scale, setting = 1.0 / resolution, f"-r {resolution}"
-    width, height = round(w * scale), round(h * scale)
-    if width == 0 or height == 0:
-        raise InputError(cam.image_path, f"{setting} makes a {w}x{h} image vanish")
-    return cam.resized(width, height)
 
 
 class _ImageReader:

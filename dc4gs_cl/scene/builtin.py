@@ -19,7 +19,6 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import InputError
 from .camera import Camera, Scene, split_train_test
 
 BUILTIN_SCENE = "builtin"
@@ -261,16 +260,9 @@ class _Renderer:
 def builtin_scene(resolution: int | None = None, test_every: int = 8, n_views: int = 32,
                   base_size: tuple[int, int] = (192, 144)) -> Scene:
     """The built-in scene at base_size (resolution None or 1) or 1/resolution of it (the CLI's -r)."""
-    if resolution is not None and resolution < 1:
-        raise InputError(None, f"-r {resolution}: the resolution divisor must be an integer >= 1")
-    w, h = base_size
-    r = resolution or 1
-    width, height = round(w / r), round(h / r)
-    if width == 0 or height == 0:
-        raise InputError(None, f"-r {resolution} makes the built-in scene's {w}x{h} images vanish")
     train, test = split_train_test(_cameras(n_views, base_size), test_every)
-    scene = Scene(root=Path(BUILTIN_SCENE), train=[c.resized(width, height) for c in train],
-                  test=[c.resized(width, height) for c in test], points=None, colors=None,
+    scene = Scene(root=Path(BUILTIN_SCENE), train=[c.at_resolution(resolution) for c in train],
+                  test=[c.at_resolution(resolution) for c in test], points=None, colors=None,
                   background=SKY.copy(), read_image=_Renderer())
     # points from the base-size cameras, so that -r changes nothing but the images
     scene.points, scene.colors = _points(train or test, scene.extent, np.random.default_rng(SEED))

@@ -13,6 +13,8 @@ from typing import Callable
 
 import numpy as np
 
+from ..errors import InputError
+
 
 @dataclass(frozen=True)
 class Camera:
@@ -27,6 +29,28 @@ class Camera:
     t: np.ndarray                  # (3,) float64 world-to-camera translation
     image_path: Path | None = None  # file the pixels come from (None: a generated scene)
     source_size: tuple[int, int] | None = None  # (width, height) the file must have
+
+    def at_resolution(self, resolution: int | None, max_width: int | None = None) -> "Camera":
+        """This camera after the CLI's -r: 1/resolution of its size, or (None) its size but at most
+        max_width wide. InputError if the setting makes no sense or the image vanishes."""
+        w, h = self.width, self.height
+        if resolution is not None and resolution < 1:
+            raise InputError(None, f"-r {resolution}: the resolution divisor must be an integer >= 1")
+        if resolution is None:
+            scale = 1.0 if max_width is None else min(1.0, max_width / w)
+            setting = f"scaling to width {max_width}"
+        else:
+            scale, setting = 1.0 / resolution, f"-r {resolution}"
+        width, height = round(w * scale), round(h * scale)
+        if width == 0 or height == 0:
+            raise InputError(self.image_path, f"{setting} makes a {w}x{h} image vanish")
+        return self.resized(width, height)
+
+    @property
+    def file_stem(self) -> str:
+        """The image name without its extension, folders joined by "_": a file name for this view's outputs
+        that no other view of the scene shares."""
+        return "_".join(Path(self.name).with_suffix("").parts)
 
     @property
     def center(self) -> np.ndarray:

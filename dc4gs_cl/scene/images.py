@@ -2,13 +2,13 @@
 from __future__ import annotations
 
 import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
 import OpenImageIO as oiio
 
 from ..errors import InputError
+from ..files import write_atomic
 
 # The resize filter for -r downscaling. The Inria code resizes with PIL's bicubic (antialiased on
 # downscaling); OIIO's "cubic" scales its support with the factor in the same way.
@@ -74,24 +74,17 @@ def resize(pixels: np.ndarray, width: int, height: int) -> np.ndarray:
 
 
 def write_png(path: str | os.PathLike, rgb: np.ndarray) -> None:
-    """Write (H, W, 3) float in [0, 1] as an 8-bit PNG; the file appears complete or not at all."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
+    """Write (H, W, C) float in [0, 1] as an 8-bit PNG; the file appears complete or not at all."""
     data = (np.clip(rgb, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=".tmp-", suffix=".png")
-    os.close(fd)
-    try:
-        out = oiio.ImageOutput.create(tmp)
+
+    def write(tmp: Path) -> None:
+        out = oiio.ImageOutput.create(str(tmp))
         spec = oiio.ImageSpec(data.shape[1], data.shape[0], data.shape[2], oiio.UINT8)
         spec.attribute("png:compressionLevel", 1)   # 3.5x faster than the default for 17% more bytes
-        if out is None or not out.open(tmp, spec):
+        if out is None or not out.open(str(tmp), spec):
             raise OSError(f"{path}: cannot write PNG ({oiio.geterror().strip()})")
         ok = out.write_image(data)
         out.close()
         if not ok:
             raise OSError(f"{path}: cannot write PNG ({oiio.geterror().strip()})")
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    write_atomic(path, write)

@@ -6,7 +6,7 @@ numbers (../shared/docs/dc4gs-spec.md sections 3, 5 and 6).
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -40,7 +40,6 @@ class DensifyReport:
     cloned: int = 0
     split: int = 0
     pruned: int = 0
-    extra: dict = field(default_factory=dict)
 
 
 def mean_per_view(total: np.ndarray, count: np.ndarray) -> np.ndarray:
