@@ -23,6 +23,7 @@ from .constants import kernel_defines
 from .errors import DeviceError
 
 DEVICE_ENV = "DC4GS_DEVICE"   # same forms as --device: "P:D", "gpu", "cpu" or part of the name
+RELAXED_MATH = "RELAXED_MATH"  # a define that, set to 1, also builds the program with -cl-fast-relaxed-math
 BUFFER_GROWTH = 1.5           # a buffer that must grow gets this much more than asked: fewer reallocations
 
 # The device-side camera; keep in step with `Camera` in kernels/common.h.
@@ -160,7 +161,8 @@ class Runtime:
     # programs -----------------------------------------------------------------------------------
     def build_options(self, defines: dict | None = None) -> list[str]:
         merged = {k: _format_define(v) for k, v in {**kernel_defines(), **(defines or {})}.items()}
-        return [f"-D{k}={v}" for k, v in sorted(merged.items())] + ["-cl-std=CL1.2"]
+        flags = ["-cl-fast-relaxed-math"] if merged.get(RELAXED_MATH) == "1" else []
+        return [f"-D{k}={v}" for k, v in sorted(merged.items())] + ["-cl-std=CL1.2"] + flags
 
     def program(self, file: str, defines: dict | None = None) -> cl.Program:
         key = (file, tuple(sorted((defines or {}).items())))

@@ -100,3 +100,18 @@ def test_exact_skips_change_no_pixel_and_fast_exp_matches_driver_exp(rt, rng):
     np.testing.assert_array_equal(images["no_alpha_cut"], images["default"])
     np.testing.assert_array_equal(images["no_early_stop"], images["default"])
     np.testing.assert_allclose(images["driver_exp"], images["default"], atol=2e-6)
+
+
+def test_relaxed_math_is_built_with_the_flag_and_stays_close(rt, rng):
+    from dc4gs_cl.render import RenderOptions
+    relaxed = RenderOptions(relaxed_math=True)
+    assert "-cl-fast-relaxed-math" in rt.build_options(relaxed.defines())
+    assert "-cl-fast-relaxed-math" not in rt.build_options(RenderOptions().defines())
+    model = random_model(rng, 2000, spread=1.0)
+    cam = random_camera(rng, 96, 64)
+    g = DeviceGaussians(rt, model)
+    exact = Renderer(rt, SHAPES["cpu"], poison=True).render(g, cam, 3, (0.3, 0.3, 0.3)).image(rt)
+    approx = Renderer(rt, SHAPES["cpu"], relaxed, poison=True).render(g, cam, 3, (0.3, 0.3, 0.3)).image(rt)
+    assert np.isfinite(approx).all()
+    # An approximation: how far it may move a pixel is what tools/bench_render.py reports; here only a bound.
+    np.testing.assert_allclose(approx, exact, atol=1e-3)

@@ -146,6 +146,8 @@ def variant_rows(rt: Runtime, base: Renderer, g: DeviceGaussians, cam: Camera, r
     for label, opts in [("skip off: alpha cut (3-sigma pairs)", RenderOptions(alpha_cut=False)),
                         ("skip off: early stop of saturated tiles", RenderOptions(early_stop=False)),
                         ("driver exp instead of ours", RenderOptions(fast_exp=False)),
+                        ("approx: -cl-fast-relaxed-math", RenderOptions(relaxed_math=True)),
+                        ("approx: relaxed math with the driver's exp", RenderOptions(fast_exp=False, relaxed_math=True)),
                         ("approx: depth sorted on top 16 bits", RenderOptions(depth_sort_bits=16)),
                         ("approx: depth sorted on top 10 bits", RenderOptions(depth_sort_bits=10))]:
         r = Renderer(rt, base.tuning, opts)

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from ..runtime import RELAXED_MATH
+
 
 @dataclass(frozen=True)
 class RenderOptions:
@@ -11,6 +13,8 @@ class RenderOptions:
     alpha_cut: bool = True             # pairs and tile rows only where alpha can reach 1/255 (exact)
     early_stop: bool = True            # a tile stops once all its pixels are saturated (exact)
     depth_sort_bits: int | None = None  # approximation: sort only the top bits of the depth keys
+    relaxed_math: bool = False         # approximation: build the forward kernels with -cl-fast-relaxed-math
 
     def defines(self) -> dict[str, int]:
-        return {"FAST_EXP": int(self.fast_exp), "ALPHA_CUT": int(self.alpha_cut), "EARLY_STOP": int(self.early_stop)}
+        return {"FAST_EXP": int(self.fast_exp), "ALPHA_CUT": int(self.alpha_cut), "EARLY_STOP": int(self.early_stop),
+                RELAXED_MATH: int(self.relaxed_math)}
