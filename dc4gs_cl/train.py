@@ -2,8 +2,9 @@
 densification strategy; checkpoints written atomically, so that an interrupted run resumes.
 
 One iteration: pick a training camera -> render -> loss and dL/dimage -> rasterizer backward (with the
-densification statistics while the window is open) -> projection backward -> fold the statistics ->
-Adam (skipped where 3DGS skips it: on densification steps, and for the opacity on its resets).
+densification statistics while the window is open) -> fold the statistics -> projection backward with
+Adam's step fused in (skipped where 3DGS skips the step: on densification iterations, and for the opacity
+on its resets).
 Per iteration the host uploads the target image and reads back two counts (visible Gaussians, pairs);
 the loss is read every few iterations for the progress bar.
 """
@@ -27,9 +28,9 @@ from .host.stats import WindowStats
 from .host.strategy import STRATEGIES, Strategy
 from .loss import Loss
 from .model import initial_model
-from .render import DeviceGaussians, Renderer
+from .render import DeviceGaussians, Renderer, Tuning
 from .render.backward import SumsLayout, project_backward, rasterize_backward, split_geometry
-from .render.gaussians import DeviceArrays, group_widths
+from .render.gaussians import group_widths
 from .runtime import Runtime
 from .scene.camera import Camera, Scene
 
@@ -60,14 +61,15 @@ class TrainConfig:
     lr_scales: float = 5e-3
     lr_quats: float = 1e-3
     densify_until: int | None = None       # override the strategy's (scaled) window end; 0 disables densification
+    low_memory: bool = False               # backward sums with float atomics, no per-pair slots (not bit-reproducible)
     # DC4GS (off unless dcc or dcs); see host/dc4gs.py
     dcc: bool = False
     dcs: bool = False
-    dc_pooling: str = "view"
-    split_pick: str = "poly"
-    split_candidates: int | None = None    # 5, or DENSE_CANDIDATES with split_pick "dense"
-    dcc_reading: str = "abs"
-    dcs_track: float = 0.0                 # DCS: split costs only while the split criterion is >= this x threshold
+    dc_pooling: str = DC4GSConfig.pooling
+    split_pick: str = DC4GSConfig.split_pick
+    split_candidates: int | None = None    # DC4GSConfig.candidates, or DENSE_CANDIDATES with split_pick "dense"
+    dcc_reading: str = DC4GSConfig.dcc_reading
+    dcs_track: float = DC4GSConfig.track   # DCS: split costs only while the split criterion is >= this x threshold
 
     def __post_init__(self):
         problems = []
@@ -97,7 +99,7 @@ class TrainConfig:
         return self.dc4gs_settings() if self.dcc or self.dcs else None
 
     def dc4gs_settings(self) -> DC4GSConfig:
-        candidates = self.split_candidates or (DENSE_CANDIDATES if self.split_pick == "dense" else 5)
+        candidates = self.split_candidates or (DENSE_CANDIDATES if self.split_pick == "dense" else DC4GSConfig.candidates)
         return DC4GSConfig(dcc=self.dcc, dcs=self.dcs, pooling=self.dc_pooling, split_pick=self.split_pick,
                            candidates=candidates, dcc_reading=self.dcc_reading, track=self.dcs_track)
 
@@ -157,7 +159,8 @@ class Trainer:
         if not scene.train:
             raise InputError(scene.root, "the scene has no training cameras")
         self.strategy = make_strategy(cfg)
-        self.renderer = Renderer(rt)
+        tuning = Tuning.for_device(rt.caps)
+        self.renderer = Renderer(rt, replace(tuning, pair_sums=False) if cfg.low_memory else tuning)
         self.loss = Loss(rt)
         self.background = scene.background
         self.extent = scene.extent
@@ -169,7 +172,6 @@ class Trainer:
         model = initial_model(scene.points, scene.colors, self.rng, cfg.sh_degree)
         self.params = DeviceGaussians(rt, model)
         self.widths = group_widths(self.params.sh_coeffs)
-        self.grads = DeviceArrays(rt, self.widths, self.params.n)
         self.adam = Adam(rt, self.widths, self.params.n)
         self.window = WindowStats(rt, self.stats_layout, self.extent, self.strategy.window_layout(),
                                   self.strategy.track_threshold)
@@ -221,7 +223,6 @@ class Trainer:
                                   (self.window.buffer, self.window.layout.defines())) if layout.split_candidates else None
         sums = rasterize_backward(rt, r.ws, r.tuning, r.defines, layout, res, self.grad_image, self.background,
                                   geometry)
-        project_backward(rt, self.params, cam, self.sh_degree, res, sums, layout, self.grads.buffers)
         if collecting:
             self.window.accumulate(res, sums, geometry)
 
@@ -229,9 +230,10 @@ class Trainer:
         clamp = s.clamp_opacity_now(it)
         reset = s.reset_opacity_now(it, self.cfg.white_background)
         if densify:
-            self.densify()      # 3DGS takes no optimiser step on a densification iteration
+            self.densify()      # 3DGS takes no optimiser step on a densification iteration: no gradients needed
         else:
-            self.adam.step(self.params, self.grads, self.learning_rates(skip_opacity=clamp or reset))
+            project_backward(rt, self.params, cam, self.sh_degree, res, sums, layout,
+                             adam_step=self.adam.fused_step(self.learning_rates(skip_opacity=clamp or reset)))
         if clamp:
             self.limit_opacity(s.config.opacity_clamp)
         if reset:
@@ -247,7 +249,6 @@ class Trainer:
         self.params.upload(gs.params)
         self.adam.m.upload(gs.m)
         self.adam.v.upload(gs.v)
-        self.grads.resize(gs.n)
         self.progress.gaussians = gs.n
 
     def limit_opacity(self, ceiling: float) -> None:

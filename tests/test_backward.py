@@ -174,7 +174,7 @@ def test_project_backward_kernel_matches_reference(rt, rng):
     widths = group_widths(g.sh_coeffs)
     for sh_degree in (0, 3):
         grads = {k: rt.to_device(np.full(n * w, POISON, np.uint32)) for k, w in widths.items()}
-        project_backward(rt, g, cam, sh_degree, res, rt.to_device(sums_host), layout, grads)
+        project_backward(rt, g, cam, sh_degree, res, rt.to_device(sums_host), layout, grads=grads)
         got = {k: rt.to_host(grads[k], (n, w)) for k, w in widths.items()}
         visible = rt.to_host(res.proj.radius, n, np.int32) > 0
         parts = layout.split(sums_host.astype(np.float64))
@@ -212,7 +212,7 @@ def test_whole_image_gradients_match_the_float64_chain(rt, rng):
     widths = group_widths(g.sh_coeffs)
     n = len(model)
     grads = {k: rt.to_device(np.full(n * w, POISON, np.uint32)) for k, w in widths.items()}
-    project_backward(rt, g, cam, 3, res, sums, layout, grads)
+    project_backward(rt, g, cam, 3, res, sums, layout, grads=grads)
 
     tiles_x, tiles_y = res.tiles_x, res.tiles_y
     params = dict(means=model.means, log_scales=model.log_scales, quats=model.quats,

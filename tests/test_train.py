@@ -19,9 +19,12 @@ from dc4gs_cl.train import CHECKPOINT, Trainer, TrainConfig
 SMALL = ["--scene", "builtin", "-r", "2", "--no-progress"]
 
 
-def test_training_improves_the_test_views(rt, tmp_path):
+@pytest.mark.parametrize("low_memory", [False, True], ids=["pair-slots", "atomics"])
+def test_training_improves_the_test_views(rt, tmp_path, low_memory):
     scene = load_scene("builtin", resolution=2)
-    trainer = Trainer(TrainConfig(scene="builtin", iterations=600, resolution=2), scene, rt, tmp_path)
+    cfg = TrainConfig(scene="builtin", iterations=600, resolution=2, low_memory=low_memory)
+    trainer = Trainer(cfg, scene, rt, tmp_path)
+    assert trainer.renderer.tuning.pair_sums is not low_memory
 
     def test_psnr():
         return np.mean([psnr(trainer.renderer.render(trainer.params, c, trainer.sh_degree, scene.background).image(rt),

@@ -6,7 +6,7 @@ dominate.
 The built-in scene's trainer gets N random Gaussians (SH degree 3) in place of its initial model and
 runs --iterations training steps with the densification statistics on (the most memory an iteration
 uses), for the base strategy and with DC4GS (view and window pooling), and the base and DC4GS again with
-the atomic backward (no per-pair slots); the peak of the bytes held in device buffers
+--low-memory (float-atomic backward, no per-pair slots); the peak of the bytes held in device buffers
 (Runtime.memory_peak) is divided by N. What is held per Gaussian is listed below the table.
 """
 from __future__ import annotations
@@ -14,7 +14,6 @@ from __future__ import annotations
 import argparse
 import gc
 import sys
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -24,11 +23,11 @@ from dc4gs_cl.scene import load_scene
 from dc4gs_cl.testing import random_model
 from dc4gs_cl.train import Trainer, TrainConfig
 
-CONFIGS = {   # name -> TrainConfig settings; "_atomics": the backward adds into per-Gaussian sums with float
-             # atomics instead of per-pair slots (Tuning.pair_sums off: as fast, not bit-reproducible)
+CONFIGS = {   # name -> TrainConfig settings; low_memory (--low-memory): the backward adds into per-Gaussian
+             # sums with float atomics instead of per-pair slots (as fast, not bit-reproducible)
     "absgs": {}, "absgs+DC4GS": {"dcc": True, "dcs": True},
     "absgs+DC4GS window": {"dcc": True, "dcs": True, "dc_pooling": "window"},
-    "absgs, atomics": {"_atomics": True}, "absgs+DC4GS, atomics": {"dcc": True, "dcs": True, "_atomics": True}}
+    "absgs --low-memory": {"low_memory": True}, "absgs+DC4GS --low-memory": {"dcc": True, "dcs": True, "low_memory": True}}
 
 
 def trained_state(rt: Runtime, scene, n: int, iterations: int, settings: dict) -> tuple[Trainer, int]:
@@ -37,10 +36,7 @@ def trained_state(rt: Runtime, scene, n: int, iterations: int, settings: dict) -
     gc.collect()
     rt.reset_memory_peak()
     before = rt.memory_in_use
-    config = {k: v for k, v in settings.items() if not k.startswith("_")}
-    trainer = Trainer(TrainConfig(scene="bench", strategy="absgs", **config), scene, rt, Path("/nonexistent"))
-    if settings.get("_atomics"):
-        trainer.renderer.tuning = replace(trainer.renderer.tuning, pair_sums=False)
+    trainer = Trainer(TrainConfig(scene="bench", strategy="absgs", **settings), scene, rt, Path("/nonexistent"))
     model = random_model(np.random.default_rng(0), n, sh_degree=3, spread=1.5, scale_range=(0.005, 0.03))
     params = {k: getattr(model, k).reshape(n, -1) for k in trainer.widths}
     moments = lambda: {k: np.zeros_like(v) for k, v in params.items()}
@@ -55,8 +51,7 @@ def trained_state(rt: Runtime, scene, n: int, iterations: int, settings: dict) -
 
 def breakdown(trainer: Trainer) -> dict[str, int]:
     """Bytes held now by each kind of buffer (the workspace's by name)."""
-    arrays = {"parameters": trainer.params, "gradients": trainer.grads, "Adam m": trainer.adam.m,
-              "Adam v": trainer.adam.v}
+    arrays = {"parameters": trainer.params, "Adam m": trainer.adam.m, "Adam v": trainer.adam.v}
     out = {k: sum(b.size for b in a.buffers.values()) for k, a in arrays.items()}
     out["window statistics"] = trainer.window.buffer.size
     for name, buf in trainer.renderer.ws._buffers.items():

@@ -1,7 +1,8 @@
 """Our Adam (PyTorch's update rule, eps 1e-15 as in 3DGS) and the learning-rate schedules.
 
-The host owns the logic: step counts per group, learning rates, which groups step; the device applies
-the element-wise update (kernels/adam.cl), so parameters never leave the device on the hot path.
+The host owns the logic: step counts per group, learning rates, which groups step. The device applies the
+element-wise update inside the projection's backward (kernels/adam.h, fused into project_backward.cl), so
+the parameters' gradients are never stored and the parameters never leave the device on the hot path.
 """
 from __future__ import annotations
 
@@ -9,10 +10,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..render.gaussians import PARAM_GROUPS as GROUPS   # in the order of ADAM_MEANS .. ADAM_SH in kernels/adam.h
 from ..render.gaussians import DeviceArrays
 from ..runtime import Runtime
 
-ADAM_WG = 256
+# Keep in step with AdamStep in kernels/adam.h: one rate per group, then the SH bands above the DC band.
+ADAM_STEP_DTYPE = np.dtype([("lr", np.float32, len(GROUPS) + 1), ("c1", np.float32, len(GROUPS)),
+                            ("c2", np.float32, len(GROUPS)), ("beta1", np.float32), ("beta2", np.float32),
+                            ("eps", np.float32), ("stepping", np.uint32)])
 
 
 @dataclass(frozen=True)
@@ -20,6 +25,14 @@ class AdamConfig:
     beta1: float = 0.9
     beta2: float = 0.999
     eps: float = 1e-15
+
+
+@dataclass
+class AdamStep:
+    """What the fused kernel needs for one step: the AdamStep struct and the moments' buffers."""
+    struct: np.void
+    m: DeviceArrays
+    v: DeviceArrays
 
 
 def exponential_lr(step: int, lr_init: float, lr_final: float, max_steps: int) -> float:
@@ -32,29 +45,33 @@ class Adam:
     """Moments m and v on the device (same groups and layout as the parameters), step count per group."""
 
     def __init__(self, rt: Runtime, widths: dict[str, int], n: int, config: AdamConfig = AdamConfig()):
+        if set(widths) != set(GROUPS):
+            raise ValueError(f"Adam steps the groups {GROUPS}, not {tuple(widths)}")
         self.rt, self.config = rt, config
         self.m = DeviceArrays(rt, widths, n)
         self.v = DeviceArrays(rt, widths, n)
         self.m.zero()
         self.v.zero()
         self.steps = {k: 0 for k in widths}
-        self.kernel = rt.kernel("adam.cl", "adam_step")
 
-    def step(self, params: DeviceArrays, grads: DeviceArrays, lrs: dict[str, float | tuple[float, float]],
-             split_lanes: int = 3) -> None:
-        """One step of every group named in lrs. A pair of rates (low, high) steps the first split_lanes
-        floats of each Gaussian's row with low and the rest with high (SH: DC band vs the others)."""
+    def fused_step(self, lrs: dict[str, float | tuple[float, float]]) -> AdamStep:
+        """Counts one step of every group named in lrs and returns what project_backward needs to take it.
+        The SH group's rate is a pair (DC band, higher bands)."""
         cfg = self.config
-        for name, lr in lrs.items():
+        s = np.zeros(1, ADAM_STEP_DTYPE)[0]
+        s["beta1"], s["beta2"], s["eps"] = cfg.beta1, cfg.beta2, cfg.eps
+        stepping = 0
+        for g, name in enumerate(GROUPS):
+            if name not in lrs:
+                continue
             self.steps[name] += 1
             t = self.steps[name]
-            width, rows = params.widths[name], params.n
-            low, high = lr if isinstance(lr, tuple) else (lr, lr)
-            if rows == 0:
-                continue
-            per_group = max(1, ADAM_WG // width)
-            self.rt.launch("adam", self.kernel, (width, -(-rows // per_group) * per_group), (width, per_group),
-                           np.uint32(rows), np.uint32(split_lanes if isinstance(lr, tuple) else width),
-                           np.float32(low), np.float32(high), np.float32(cfg.beta1), np.float32(cfg.beta2),
-                           np.float32(cfg.eps), np.float32(1 - cfg.beta1 ** t), np.float32(1 - cfg.beta2 ** t),
-                           params.buffers[name], grads.buffers[name], self.m.buffers[name], self.v.buffers[name])
+            stepping |= 1 << g
+            s["c1"][g], s["c2"][g] = 1 - cfg.beta1 ** t, 1 - cfg.beta2 ** t
+            lr = lrs[name]
+            if name == "sh":
+                s["lr"][g], s["lr"][len(GROUPS)] = lr
+            else:
+                s["lr"][g] = lr
+        s["stepping"] = stepping
+        return AdamStep(s, self.m, self.v)

@@ -29,7 +29,7 @@ class DC4GSConfig:
     pooling: str = "view"
     split_pick: str = "poly"
     candidates: int = 5             # odd
-    dcc_reading: str = "abs"        # abs: (1 - kappa) |ghat|; base: (1 - kappa) x the base's own per-view term
+    dcc_reading: str = "base"       # base: (1 - kappa) x the base's own per-view term; abs: (1 - kappa) |ghat|
     track: float = 0.0              # split costs only while the running split criterion >= track x threshold (0: exact)
 
     def __post_init__(self):

@@ -1,33 +1,69 @@
-// project_backward.cl: from the gradients of the projection's outputs to the parameters' gradients.
+// project_backward.cl: from the gradients of the projection's outputs to the parameters' gradients, and,
+// with -D FUSED_ADAM=1 (training), Adam's step on each parameter where its gradient is computed, so the
+// gradients are never stored (adam.h).
 //
 // One work-item per Gaussian. Buffers (N = Gaussian count, float32 unless stated):
-//   in  means, log_scales, quats, opacity_logits, sh: the parameters, as in project.cl
+//   in  means, log_scales, quats, opacity_logits, sh: the parameters, as in project.cl; stepped in place
+//       with FUSED_ADAM (each work-item reads its Gaussian's parameters before it steps any)
 //   in  radius [N]  int, from the forward: 0 = not visible in this view (all its gradients are 0)
 //   in  sums   [N*SUMS_PER_GAUSSIAN]  from rasterize_backward.cl: dL/dmean2d (px) at SUM_MEAN2D,
 //              dL/dconic (a, b, c as stored) at SUM_CONIC, dL/dopacity (after the sigmoid) at
 //              SUM_OPACITY, dL/drgb at SUM_RGB
-//   out d_means [N*3], d_log_scales [N*3], d_quats [N*4], d_opacity_logits [N], d_sh [N*SH_COEFFS*3]
+//   FUSED_ADAM=0:  out d_means [N*3], d_log_scales [N*3], d_quats [N*4], d_opacity_logits [N], d_sh [N*SH_COEFFS*3]
+//   FUSED_ADAM=1:  in step (AdamStep); in/out m_<group>, v_<group>: Adam's moments, shaped like the parameters
 // The chain: conic -> 2D covariance -> (EWA Jacobian, 3D covariance) -> camera-space position, rotation,
 // scales; projected mean -> position; colour -> SH coefficients and the view direction -> position.
 // No gradient flows through a clamped x/z or y/z, nor through a colour channel clamped at 0.
 
 #include "project.h"
 
+#ifndef FUSED_ADAM
+#define FUSED_ADAM 0
+#endif
+
+#if FUSED_ADAM
+#include "adam.h"
+#define PARAM __global float
+// EMIT(group, buffer, index, gradient): Adam steps the parameter at buffer[index] by the gradient.
+#define EMIT(grp, buf, idx, g) adam_update(&step, grp, step.lr[grp], buf + (idx), m_##buf + (idx), v_##buf + (idx), g)
+#define EMIT_SH(k, idx, g) adam_update(&step, ADAM_SH, step.lr[(k) == 0 ? ADAM_SH : ADAM_SH_REST], sh + (idx), \
+                                       m_sh + (idx), v_sh + (idx), g)
+#else
+#define PARAM __global const float
+// EMIT(group, buffer, index, gradient): the gradient is stored in d_<buffer>[index].
+#define EMIT(grp, buf, idx, g) (d_##buf[idx] = (g))
+#define EMIT_SH(k, idx, g) (d_sh[idx] = (g))
+#endif
+#define EMIT3(grp, buf, i, g3) (EMIT(grp, buf, 3 * (i), (g3).x), EMIT(grp, buf, 3 * (i) + 1, (g3).y), \
+                                EMIT(grp, buf, 3 * (i) + 2, (g3).z))
+#define EMIT4(grp, buf, i, g4) (EMIT(grp, buf, 4 * (i), (g4).x), EMIT(grp, buf, 4 * (i) + 1, (g4).y), \
+                                EMIT(grp, buf, 4 * (i) + 2, (g4).z), EMIT(grp, buf, 4 * (i) + 3, (g4).w))
+#define EMIT_SH3(k, idx, g3) (EMIT_SH(k, idx, (g3).x), EMIT_SH(k, (idx) + 1, (g3).y), EMIT_SH(k, (idx) + 2, (g3).z))
+
 __kernel void project_backward(const int n, const Camera cam, const int sh_degree,
-                               __global const float *means, __global const float *log_scales,
-                               __global const float *quats, __global const float *opacity_logits,
-                               __global const float *sh, __global const int *radius, __global const float *sums,
+                               PARAM *means, PARAM *log_scales, PARAM *quats, PARAM *opacity_logits, PARAM *sh,
+                               __global const int *radius, __global const float *sums,
+#if FUSED_ADAM
+                               const AdamStep step,
+                               __global float *m_means, __global float *v_means,
+                               __global float *m_log_scales, __global float *v_log_scales,
+                               __global float *m_quats, __global float *v_quats,
+                               __global float *m_opacity_logits, __global float *v_opacity_logits,
+                               __global float *m_sh, __global float *v_sh
+#else
                                __global float *d_means, __global float *d_log_scales, __global float *d_quats,
-                               __global float *d_opacity_logits, __global float *d_sh) {
+                               __global float *d_opacity_logits, __global float *d_sh
+#endif
+                               ) {
     int i = get_global_id(0);
     if (i >= n) return;
-    __global float *dsh = d_sh + (size_t)i * SH_COEFFS * 3;
-    if (radius[i] <= 0) {
-        STORE3((float3)(0.f), d_means, i);
-        STORE3((float3)(0.f), d_log_scales, i);
-        d_quats[4 * i] = d_quats[4 * i + 1] = d_quats[4 * i + 2] = d_quats[4 * i + 3] = 0.f;
-        d_opacity_logits[i] = 0.f;
-        for (int k = 0; k < SH_COEFFS * 3; ++k) dsh[k] = 0.f;
+    const size_t sh_row = (size_t)i * SH_COEFFS * 3;
+    if (radius[i] <= 0) {   // not visible: zero gradients (Adam still steps, on its moments alone)
+        EMIT3(ADAM_MEANS, means, i, (float3)(0.f));
+        EMIT3(ADAM_SCALES, log_scales, i, (float3)(0.f));
+        EMIT4(ADAM_QUATS, quats, i, (float4)(0.f));
+        EMIT(ADAM_OPACITY, opacity_logits, i, 0.f);
+        for (int k = 0; k < SH_COEFFS; ++k) EMIT_SH3(k, sh_row + 3 * k, (float3)(0.f));
         return;
     }
     __global const float *g = sums + (size_t)i * SUMS_PER_GAUSSIAN;
@@ -102,7 +138,7 @@ __kernel void project_backward(const int n, const Camera cam, const int sh_degre
     float3 ds = (float3)(dM[0] * Rq[0] + dM[3] * Rq[3] + dM[6] * Rq[6],
                          dM[1] * Rq[1] + dM[4] * Rq[4] + dM[7] * Rq[7],
                          dM[2] * Rq[2] + dM[5] * Rq[5] + dM[8] * Rq[8]);
-    STORE3(ds * s, d_log_scales, i);
+    EMIT3(ADAM_SCALES, log_scales, i, ds * s);
     float dR[9];
     for (int r = 0; r < 3; ++r) { dR[3 * r] = dM[3 * r] * s.x; dR[3 * r + 1] = dM[3 * r + 1] * s.y; dR[3 * r + 2] = dM[3 * r + 2] * s.z; }
     float w = q.x, x = q.y, y = q.z, z = q.w;
@@ -115,13 +151,13 @@ __kernel void project_backward(const int n, const Camera cam, const int sh_degre
     // Through the normalisation q / |q| (no gradient for a zero quaternion).
     float4 d_quat = qn2 > 0.f ? (dq - q * (q.x * dq.x + q.y * dq.y + q.z * dq.z + q.w * dq.w)) * rsqrt_nocall(qn2)
                               : (float4)(0.f);
-    d_quats[4 * i] = d_quat.x; d_quats[4 * i + 1] = d_quat.y; d_quats[4 * i + 2] = d_quat.z; d_quats[4 * i + 3] = d_quat.w;
+    EMIT4(ADAM_QUATS, quats, i, d_quat);
 
     // SH colour along the view direction; no gradient through a channel clamped at 0.
     float3 v = mu - (float3)(cam.campos[0], cam.campos[1], cam.campos[2]);
     float inv_len = rsqrt_nocall(DOT3(v, v));
     float3 dir = v * inv_len;
-    __global const float *coef = sh + (size_t)i * SH_COEFFS * 3;
+    __global const float *coef = sh + sh_row;
     float3 raw = sh_colour(sh_degree, coef, dir);
     float3 vr = (float3)(raw.x > 0.f ? v_rgb.x : 0.f, raw.y > 0.f ? v_rgb.y : 0.f, raw.z > 0.f ? v_rgb.z : 0.f);
     float basis[16], gx[16], gy[16], gz[16];
@@ -130,17 +166,17 @@ __kernel void project_backward(const int n, const Camera cam, const int sh_degre
     int k_active = (sh_degree + 1) * (sh_degree + 1);
     float3 d_dir = (float3)(0.f);
     for (int k = 0; k < SH_COEFFS; ++k) {
+        float3 d_coef = (float3)(0.f);
         if (k < k_active) {
-            STORE3(basis[k] * vr, dsh, k);
-            float cv = DOT3(LOAD3(coef, k), vr);
+            d_coef = basis[k] * vr;
+            float cv = DOT3(LOAD3(coef, k), vr);   // read before coefficient k is stepped
             d_dir += cv * (float3)(gx[k], gy[k], gz[k]);
-        } else {
-            STORE3((float3)(0.f), dsh, k);
         }
+        EMIT_SH3(k, sh_row + 3 * k, d_coef);
     }
     dmu += (d_dir - dir * DOT3(dir, d_dir)) * inv_len;
-    STORE3(dmu, d_means, i);
+    EMIT3(ADAM_MEANS, means, i, dmu);
 
     float o = 1.f / (1.f + exp_poly(-opacity_logits[i]));
-    d_opacity_logits[i] = g[SUM_OPACITY] * o * (1.f - o);
+    EMIT(ADAM_OPACITY, opacity_logits, i, g[SUM_OPACITY] * o * (1.f - o));
 }

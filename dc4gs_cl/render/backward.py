@@ -3,6 +3,7 @@ projection backward (kernels/project_backward.cl) from those sums to the paramet
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pyopencl as cl
@@ -10,12 +11,15 @@ import pyopencl as cl
 from ..constants import TILE_SIZE
 from ..runtime import Runtime
 from ..scene.camera import Camera
-from .gaussians import DeviceGaussians
+from .gaussians import PARAM_GROUPS, DeviceGaussians
 from .project import PER_GAUSSIAN_WG, camera_struct
 from .rasterize import rasterize_defines
 from .renderer import RenderResult
 from .tuning import Tuning
 from .workspace import Workspace
+
+if TYPE_CHECKING:   # annotation only: rendering never imports training code
+    from ..host.adam import AdamStep
 
 
 @dataclass(frozen=True)
@@ -128,15 +132,24 @@ def rasterize_backward(rt: Runtime, ws: Workspace, tuning: Tuning, defines: dict
 
 
 def project_backward(rt: Runtime, g: DeviceGaussians, cam: Camera, sh_degree: int, res: RenderResult,
-                     sums: cl.Buffer, layout: SumsLayout, grads: dict[str, cl.Buffer]) -> None:
-    """Parameter gradients (buffers shaped like the parameters, see gaussians.group_widths) from this
-    view's per-Gaussian sums; zero for Gaussians not visible in the view."""
+                     sums: cl.Buffer, layout: SumsLayout, grads: dict[str, cl.Buffer] | None = None,
+                     adam_step: AdamStep | None = None) -> None:
+    """From this view's per-Gaussian sums, either the parameters' gradients into grads (buffers shaped like the
+    parameters, see gaussians.group_widths; zero for Gaussians not visible in the view) or, given adam_step
+    (host.adam.Adam.fused_step), Adam's step on the parameters in place, the gradients never stored."""
+    if (grads is None) == (adam_step is None):
+        raise ValueError("project_backward writes gradients or takes an Adam step: give exactly one")
     n = g.n
     if n == 0:
         return
-    k = rt.kernel("project_backward.cl", "project_backward", {"SH_COEFFS": g.sh_coeffs, **layout.defines()})
+    fused = adam_step is not None
+    k = rt.kernel("project_backward.cl", "project_backward",
+                  {"SH_COEFFS": g.sh_coeffs, "FUSED_ADAM": int(fused), **layout.defines()})
     b = g.buffers
+    if fused:
+        outputs = [adam_step.struct] + [m[name] for name in PARAM_GROUPS
+                                        for m in (adam_step.m.buffers, adam_step.v.buffers)]
+    else:
+        outputs = [grads[name] for name in PARAM_GROUPS]
     rt.launch_items("project_backward", k, n, PER_GAUSSIAN_WG, np.int32(n), camera_struct(cam),
-              np.int32(min(sh_degree, g.sh_degree)), b["means"], b["log_scales"], b["quats"], b["opacity_logits"],
-              b["sh"], res.proj.radius, sums, grads["means"], grads["log_scales"], grads["quats"],
-              grads["opacity_logits"], grads["sh"])
+              np.int32(min(sh_degree, g.sh_degree)), *(b[name] for name in PARAM_GROUPS), res.proj.radius, sums, *outputs)
