@@ -229,11 +229,13 @@ class Trainer:
         densify = s.densify_now(it)
         clamp = s.clamp_opacity_now(it)
         reset = s.reset_opacity_now(it, self.cfg.white_background)
-        if densify:
-            self.densify()      # 3DGS takes no optimiser step on a densification iteration: no gradients needed
-        else:
+        if not densify:         # 3DGS takes no optimiser step on a densification iteration: no gradients needed
             project_backward(rt, self.params, cam, self.sh_degree, res, sums, layout,
                              adam_step=self.adam.fused_step(self.learning_rates(skip_opacity=clamp or reset)))
+        if it in self.cfg.save_at:   # before this iteration's densification and opacity reset, as Inria saves
+            self.save_model()
+        if densify:
+            self.densify()
         if clamp:
             self.limit_opacity(s.config.opacity_clamp)
         if reset:
@@ -316,7 +318,6 @@ class Trainer:
         stop = {"now": False}
         previous = signal.signal(signal.SIGINT, lambda *_: stop.update(now=True)) \
             if threading_main() else None
-        save_at = set(self.cfg.save_at)
         bar = tqdm(total=self.cfg.iterations, initial=self.iteration, disable=not progress, dynamic_ncols=True,
                    unit="it")
         try:
@@ -326,8 +327,6 @@ class Trainer:
                     raise KeyboardInterrupt
                 self.step()
                 bar.update(1)
-                if self.iteration in save_at:
-                    self.save_model()
                 if self.iteration % self.cfg.checkpoint_every == 0:
                     self.save_checkpoint()
                 if self.iteration % log_every == 0 or self.iteration == self.cfg.iterations:

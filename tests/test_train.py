@@ -142,3 +142,18 @@ def test_settings_that_make_no_sense(tmp_path, capsys, args, says):
     out = [] if "--resume" in args else ["--out", str(tmp_path / "o")]
     assert says in bad(capsys, *SMALL, *args, *out)
     assert not (tmp_path / "o").exists()
+
+
+def test_a_saved_iteration_precedes_its_opacity_reset(rt, tmp_path):
+    """--save-at N writes the model after iteration N's optimiser step and before its density control (as
+    the Inria code saves), so a PLY saved at a reset iteration is not the reset, transparent model."""
+    from dc4gs_cl.ply import read_ply
+    scene = load_scene("builtin", resolution=2)
+    trainer = Trainer(TrainConfig(scene="builtin", iterations=600, resolution=2, save_at=(60,)), scene, rt, tmp_path)
+    assert trainer.strategy.reset_opacity_now(60, False)
+    while trainer.iteration < 60:
+        trainer.step()
+    sigmoid = lambda x: 1 / (1 + np.exp(-x))
+    saved = sigmoid(read_ply(tmp_path / "point_cloud" / "iteration_60" / "point_cloud.ply").opacity_logits)
+    now = sigmoid(trainer.params.download_group("opacity_logits"))
+    assert now.max() < 0.0101 and saved.max() > 0.05, (now.max(), saved.max())

@@ -1,10 +1,10 @@
 // project_backward.cl: from the gradients of the projection's outputs to the parameters' gradients, and,
 // with -D FUSED_ADAM=1 (training), Adam's step on each parameter where its gradient is computed, so the
-// gradients are never stored (adam.h).
+// gradients never reach global memory (adam.h).
 //
-// One work-item per Gaussian. Buffers (N = Gaussian count, float32 unless stated):
+// One work-item per Gaussian, work-groups of PB_WG (-D). Buffers (N = Gaussian count, float32 unless stated):
 //   in  means, log_scales, quats, opacity_logits, sh: the parameters, as in project.cl; stepped in place
-//       with FUSED_ADAM (each work-item reads its Gaussian's parameters before it steps any)
+//       with FUSED_ADAM (a work-group reads its Gaussians' parameters before it steps any)
 //   in  radius [N]  int, from the forward: 0 = not visible in this view (all its gradients are 0)
 //   in  sums   [N*SUMS_PER_GAUSSIAN]  from rasterize_backward.cl: dL/dmean2d (px) at SUM_MEAN2D,
 //              dL/dconic (a, b, c as stored) at SUM_CONIC, dL/dopacity (after the sigmoid) at
@@ -24,48 +24,24 @@
 #if FUSED_ADAM
 #include "adam.h"
 #define PARAM __global float
-// EMIT(group, buffer, index, gradient): Adam steps the parameter at buffer[index] by the gradient.
-#define EMIT(grp, buf, idx, g) adam_update(&step, grp, step.lr[grp], buf + (idx), m_##buf + (idx), v_##buf + (idx), g)
-#define EMIT_SH(k, idx, g) adam_update(&step, ADAM_SH, step.lr[(k) == 0 ? ADAM_SH : ADAM_SH_REST], sh + (idx), \
-                                       m_sh + (idx), v_sh + (idx), g)
+// EMIT(group, rate, buffer, index, gradient): Adam steps the parameter at buffer[index] by the gradient.
+#define EMIT(grp, lr, buf, idx, g) adam_update(&step, grp, lr, buf + (idx), m_##buf + (idx), v_##buf + (idx), g)
 #else
 #define PARAM __global const float
-// EMIT(group, buffer, index, gradient): the gradient is stored in d_<buffer>[index].
-#define EMIT(grp, buf, idx, g) (d_##buf[idx] = (g))
-#define EMIT_SH(k, idx, g) (d_sh[idx] = (g))
+// EMIT(group, rate, buffer, index, gradient): the gradient is stored in d_<buffer>[index].
+#define EMIT(grp, lr, buf, idx, g) (d_##buf[idx] = (g))
 #endif
-#define EMIT3(grp, buf, i, g3) (EMIT(grp, buf, 3 * (i), (g3).x), EMIT(grp, buf, 3 * (i) + 1, (g3).y), \
-                                EMIT(grp, buf, 3 * (i) + 2, (g3).z))
-#define EMIT4(grp, buf, i, g4) (EMIT(grp, buf, 4 * (i), (g4).x), EMIT(grp, buf, 4 * (i) + 1, (g4).y), \
-                                EMIT(grp, buf, 4 * (i) + 2, (g4).z), EMIT(grp, buf, 4 * (i) + 3, (g4).w))
-#define EMIT_SH3(k, idx, g3) (EMIT_SH(k, idx, (g3).x), EMIT_SH(k, (idx) + 1, (g3).y), EMIT_SH(k, (idx) + 2, (g3).z))
+// The work-group's rows of one parameter group (`width` floats per Gaussian), element by element from the
+// gradients in local memory: consecutive work-items take consecutive floats (coalesced on GPUs).
+#define EMIT_ROWS(grp, buf, width, grads, rate_of) \
+    for (int e = lid; e < rows * (width); e += PB_WG) EMIT(grp, rate_of, buf, (size_t)first * (width) + e, grads[e])
 
-__kernel void project_backward(const int n, const Camera cam, const int sh_degree,
-                               PARAM *means, PARAM *log_scales, PARAM *quats, PARAM *opacity_logits, PARAM *sh,
-                               __global const int *radius, __global const float *sums,
-#if FUSED_ADAM
-                               const AdamStep step,
-                               __global float *m_means, __global float *v_means,
-                               __global float *m_log_scales, __global float *v_log_scales,
-                               __global float *m_quats, __global float *v_quats,
-                               __global float *m_opacity_logits, __global float *v_opacity_logits,
-                               __global float *m_sh, __global float *v_sh
-#else
-                               __global float *d_means, __global float *d_log_scales, __global float *d_quats,
-                               __global float *d_opacity_logits, __global float *d_sh
-#endif
-                               ) {
-    int i = get_global_id(0);
-    if (i >= n) return;
-    const size_t sh_row = (size_t)i * SH_COEFFS * 3;
-    if (radius[i] <= 0) {   // not visible: zero gradients (Adam still steps, on its moments alone)
-        EMIT3(ADAM_MEANS, means, i, (float3)(0.f));
-        EMIT3(ADAM_SCALES, log_scales, i, (float3)(0.f));
-        EMIT4(ADAM_QUATS, quats, i, (float4)(0.f));
-        EMIT(ADAM_OPACITY, opacity_logits, i, 0.f);
-        for (int k = 0; k < SH_COEFFS; ++k) EMIT_SH3(k, sh_row + 3 * k, (float3)(0.f));
-        return;
-    }
+// The gradients of visible Gaussian i's parameters; it reads them and writes nothing global. The SH
+// coefficients' gradients are basis[k] * v_colour (k below (sh_degree + 1)^2; zero above).
+ALWAYS_INLINE void visible_gradients(int i, const Camera cam, int sh_degree, PARAM *means, PARAM *log_scales,
+                                     PARAM *quats, PARAM *opacity_logits, PARAM *sh, __global const float *sums,
+                                     float3 *g_means, float3 *g_scales, float4 *g_quat, float *g_opacity,
+                                     float3 *v_colour, float *basis) {
     __global const float *g = sums + (size_t)i * SUMS_PER_GAUSSIAN;
     float2 v_mean = (float2)(g[SUM_MEAN2D], g[SUM_MEAN2D + 1]);
     float3 v_conic = (float3)(g[SUM_CONIC], g[SUM_CONIC + 1], g[SUM_CONIC + 2]);
@@ -138,7 +114,7 @@ __kernel void project_backward(const int n, const Camera cam, const int sh_degre
     float3 ds = (float3)(dM[0] * Rq[0] + dM[3] * Rq[3] + dM[6] * Rq[6],
                          dM[1] * Rq[1] + dM[4] * Rq[4] + dM[7] * Rq[7],
                          dM[2] * Rq[2] + dM[5] * Rq[5] + dM[8] * Rq[8]);
-    EMIT3(ADAM_SCALES, log_scales, i, ds * s);
+    *g_scales = ds * s;
     float dR[9];
     for (int r = 0; r < 3; ++r) { dR[3 * r] = dM[3 * r] * s.x; dR[3 * r + 1] = dM[3 * r + 1] * s.y; dR[3 * r + 2] = dM[3 * r + 2] * s.z; }
     float w = q.x, x = q.y, y = q.z, z = q.w;
@@ -149,34 +125,76 @@ __kernel void project_backward(const int n, const Camera cam, const int sh_degre
         -2.f * z * dR[0] - w * dR[1] + x * dR[2] + w * dR[3] - 2.f * z * dR[4] + y * dR[5] + x * dR[6] + y * dR[7]);
     float qn2 = q_raw.x * q_raw.x + q_raw.y * q_raw.y + q_raw.z * q_raw.z + q_raw.w * q_raw.w;
     // Through the normalisation q / |q| (no gradient for a zero quaternion).
-    float4 d_quat = qn2 > 0.f ? (dq - q * (q.x * dq.x + q.y * dq.y + q.z * dq.z + q.w * dq.w)) * rsqrt_nocall(qn2)
-                              : (float4)(0.f);
-    EMIT4(ADAM_QUATS, quats, i, d_quat);
+    *g_quat = qn2 > 0.f ? (dq - q * (q.x * dq.x + q.y * dq.y + q.z * dq.z + q.w * dq.w)) * rsqrt_nocall(qn2)
+                        : (float4)(0.f);
 
     // SH colour along the view direction; no gradient through a channel clamped at 0.
     float3 v = mu - (float3)(cam.campos[0], cam.campos[1], cam.campos[2]);
     float inv_len = rsqrt_nocall(DOT3(v, v));
     float3 dir = v * inv_len;
-    __global const float *coef = sh + sh_row;
+    __global const float *coef = sh + (size_t)i * SH_COEFFS * 3;
     float3 raw = sh_colour(sh_degree, coef, dir);
     float3 vr = (float3)(raw.x > 0.f ? v_rgb.x : 0.f, raw.y > 0.f ? v_rgb.y : 0.f, raw.z > 0.f ? v_rgb.z : 0.f);
-    float basis[16], gx[16], gy[16], gz[16];
+    *v_colour = vr;
+    float gx[16], gy[16], gz[16];
     sh_basis(sh_degree, dir, basis);
     sh_basis_gradient(sh_degree, dir, gx, gy, gz);
     int k_active = (sh_degree + 1) * (sh_degree + 1);
     float3 d_dir = (float3)(0.f);
-    for (int k = 0; k < SH_COEFFS; ++k) {
-        float3 d_coef = (float3)(0.f);
-        if (k < k_active) {
-            d_coef = basis[k] * vr;
-            float cv = DOT3(LOAD3(coef, k), vr);   // read before coefficient k is stepped
-            d_dir += cv * (float3)(gx[k], gy[k], gz[k]);
-        }
-        EMIT_SH3(k, sh_row + 3 * k, d_coef);
-    }
-    dmu += (d_dir - dir * DOT3(dir, d_dir)) * inv_len;
-    EMIT3(ADAM_MEANS, means, i, dmu);
+    for (int k = 0; k < k_active; ++k) d_dir += DOT3(LOAD3(coef, k), vr) * (float3)(gx[k], gy[k], gz[k]);
+    *g_means = dmu + (d_dir - dir * DOT3(dir, d_dir)) * inv_len;
 
     float o = 1.f / (1.f + exp_poly(-opacity_logits[i]));
-    EMIT(ADAM_OPACITY, opacity_logits, i, g[SUM_OPACITY] * o * (1.f - o));
+    *g_opacity = g[SUM_OPACITY] * o * (1.f - o);
+}
+
+
+__kernel __attribute__((reqd_work_group_size(PB_WG, 1, 1)))
+void project_backward(const int n, const Camera cam, const int sh_degree,
+                    PARAM *means, PARAM *log_scales, PARAM *quats, PARAM *opacity_logits, PARAM *sh,
+                    __global const int *radius, __global const float *sums,
+#if FUSED_ADAM
+                    const AdamStep step,
+                    __global float *m_means, __global float *v_means,
+                    __global float *m_log_scales, __global float *v_log_scales,
+                    __global float *m_quats, __global float *v_quats,
+                    __global float *m_opacity_logits, __global float *v_opacity_logits,
+                    __global float *m_sh, __global float *v_sh
+#else
+                    __global float *d_means, __global float *d_log_scales, __global float *d_quats,
+                    __global float *d_opacity_logits, __global float *d_sh
+#endif
+                    ) {
+    // Phase 1: each work-item its Gaussian's gradients (zero where not visible) into local memory, after
+    // reading its parameters. Phase 2: the group's parameters stepped (or its gradients stored) float by
+    // float. Measured on PoCL: 13.2 ms against 15.1 for Adam's updates run per work-item in phase 1 (and
+    // 8.7 for the unfused kernel plus a separate Adam kernel, which needs the gradients stored: 236 B/G).
+    __local float l_means[PB_WG * 3], l_scales[PB_WG * 3], l_quats[PB_WG * 4], l_opacity[PB_WG];
+    __local float l_sh[PB_WG * SH_COEFFS * 3];
+    const int lid = get_local_id(0), i = get_global_id(0), first = get_group_id(0) * PB_WG;
+    if (i < n) {
+        float3 g_means = (float3)(0.f), g_scales = (float3)(0.f), v_colour = (float3)(0.f);
+        float4 g_quat = (float4)(0.f);
+        float g_opacity = 0.f, basis[16];
+        int visible = radius[i] > 0;
+        if (visible)
+            visible_gradients(i, cam, sh_degree, means, log_scales, quats, opacity_logits, sh, sums, &g_means,
+                              &g_scales, &g_quat, &g_opacity, &v_colour, basis);
+        STORE3(g_means, l_means, lid);
+        STORE3(g_scales, l_scales, lid);
+        l_quats[4 * lid] = g_quat.x; l_quats[4 * lid + 1] = g_quat.y;
+        l_quats[4 * lid + 2] = g_quat.z; l_quats[4 * lid + 3] = g_quat.w;
+        l_opacity[lid] = g_opacity;
+        int k_active = visible ? (sh_degree + 1) * (sh_degree + 1) : 0;
+        __local float *l_row = l_sh + lid * SH_COEFFS * 3;
+        for (int k = 0; k < SH_COEFFS; ++k) STORE3(k < k_active ? basis[k] * v_colour : (float3)(0.f), l_row, k);
+    }
+    barrier(CLK_LOCAL_MEM_FENCE);
+    const int rows = n - first < PB_WG ? n - first : PB_WG;
+    EMIT_ROWS(ADAM_MEANS, means, 3, l_means, step.lr[ADAM_MEANS]);
+    EMIT_ROWS(ADAM_SCALES, log_scales, 3, l_scales, step.lr[ADAM_SCALES]);
+    EMIT_ROWS(ADAM_QUATS, quats, 4, l_quats, step.lr[ADAM_QUATS]);
+    EMIT_ROWS(ADAM_OPACITY, opacity_logits, 1, l_opacity, step.lr[ADAM_OPACITY]);
+    // SH: the first 3 floats of a row are the DC band, with their own rate
+    EMIT_ROWS(ADAM_SH, sh, SH_COEFFS * 3, l_sh, step.lr[e % (SH_COEFFS * 3) < 3 ? ADAM_SH : ADAM_SH_REST]);
 }
