@@ -1,5 +1,6 @@
 """Backward stages: rasterizer backward (kernels/rasterize_backward.cl) into per-Gaussian sums, and the
-projection backward (kernels/project_backward.cl) from those sums to the parameters' gradients."""
+projection backward (kernels/project_backward.cl) from those sums to the parameters' gradients, or, in
+training, straight to Adam's step on the parameters (the gradients never stored)."""
 from __future__ import annotations
 
 from dataclasses import dataclass
