@@ -1,6 +1,7 @@
 """Our Adam, fused into the projection's backward, against a float64 NumPy transcription of PyTorch's update
 rule fed with the same kernel's stored gradients; and the learning-rate schedule."""
 import numpy as np
+import pytest
 
 from dc4gs_cl.host.adam import Adam, AdamConfig, exponential_lr
 from dc4gs_cl.render import DeviceGaussians, Renderer
@@ -21,9 +22,10 @@ def rel_l2(got, ref):
     return np.linalg.norm(got - ref) / np.linalg.norm(ref)
 
 
-def test_fused_adam_matches_reference_over_several_steps(rt, rng):
+@pytest.mark.parametrize("sh_degree", [0, 2, 3])   # SH rows of 3, 27, 48 floats: whole and partial float4s
+def test_fused_adam_matches_reference_over_several_steps(rt, rng, sh_degree):
     cam = Camera.look_at("c", (0.3, -3.0, 0.8), (0.0, 0.0, 0.0), 64, 48, fov_x=0.9)
-    model = random_model(rng, 800, sh_degree=3, spread=0.6, scale_range=(0.05, 0.3))
+    model = random_model(rng, 800, sh_degree=sh_degree, spread=0.6, scale_range=(0.05, 0.3))
     model.means[-60:] = cam.center - cam.R[2] * rng.uniform(0.5, 2, (60, 1))   # behind: zero gradient, still steps
     g = DeviceGaussians(rt, model)
     n, widths = g.n, group_widths(g.sh_coeffs)

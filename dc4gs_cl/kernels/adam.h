@@ -1,5 +1,6 @@
-// adam.h: one Adam step (PyTorch's update rule) on one float, fused into project_backward.cl so that the
-// parameters' gradients are never stored: each gradient steps its parameter where it is computed.
+// adam.h: Adam's step (PyTorch's update rule) on up to four consecutive floats, fused into
+// project_backward.cl so that the parameters' gradients are never stored: each gradient steps its parameter
+// where it is computed.
 //
 // AdamStep, passed by value; keep in step with ADAM_STEP_DTYPE in dc4gs_cl/host/adam.py.
 //   lr[ADAM_RATES]  learning rate of each group (ADAM_* below); the SH group has two: its DC band and the rest
@@ -30,16 +31,31 @@ typedef struct {
     uint stepping;
 } AdamStep;
 
-// Steps param (with its moments m, v) by gradient g, if the group steps this iteration.
-ALWAYS_INLINE void adam_update(const AdamStep *s, int group, float lr, __global float *param,
-                               __global float *m, __global float *v, float g) {
+// `count` (1 to 4, a constant after inlining) consecutive floats as the lanes of a float4; lanes beyond
+// count read as 0 and are not written.
+ALWAYS_INLINE float4 load_lanes(__global const float *p, int count) {
+    return (float4)(p[0], count > 1 ? p[1] : 0.f, count > 2 ? p[2] : 0.f, count > 3 ? p[3] : 0.f);
+}
+ALWAYS_INLINE void store_lanes(__global float *p, int count, float4 x) {
+    p[0] = x.x;
+    if (count > 1) p[1] = x.y;
+    if (count > 2) p[2] = x.z;
+    if (count > 3) p[3] = x.w;
+}
+
+// Steps `count` consecutive parameters (and their moments m, v) by gradients g with rates lr, four lanes at
+// once, if the group steps this iteration. Explicit float4 arithmetic: PoCL does not vectorise these
+// updates across work-items, and one float at a time they cost twice as much.
+ALWAYS_INLINE void adam_update(const AdamStep *s, int group, float4 lr, int count, __global float *param,
+                               __global float *m, __global float *v, float4 g) {
     if (!((s->stepping >> group) & 1u)) return;
-    float mi = s->beta1 * *m + (1.f - s->beta1) * g;
-    float vi = s->beta2 * *v + (1.f - s->beta2) * g * g;
-    *m = mi;
-    *v = vi;
-    float vh = vi / s->c2[group];   // sqrt(vh) without a builtin call, so the kernel vectorises on PoCL
-    *param -= (lr / s->c1[group]) * mi / ((vh > 0.f ? vh * rsqrt_nocall(vh) : 0.f) + s->eps);
+    float4 mi = s->beta1 * load_lanes(m, count) + (1.f - s->beta1) * g;
+    float4 vi = s->beta2 * load_lanes(v, count) + (1.f - s->beta2) * g * g;
+    store_lanes(m, count, mi);
+    store_lanes(v, count, vi);
+    float4 vh = vi / s->c2[group];   // sqrt(vh) without a builtin call (an opaque call under PoCL)
+    float4 root = vh > 0.f ? vh * rsqrt4_nocall(vh) : (float4)(0.f);
+    store_lanes(param, count, load_lanes(param, count) - (lr / s->c1[group]) * mi / (root + s->eps));
 }
 
 #endif

@@ -76,6 +76,13 @@ inline float rsqrt_nocall(float x) {
     return y * (1.5f - 0.5f * x * y * y);
 }
 
+inline float4 rsqrt4_nocall(float4 x) {   // rsqrt_nocall lane by lane, the same operations
+    float4 y = as_float4((int4)(0x5f3759df) - (as_int4(x) >> 1));
+    y = y * (1.5f - 0.5f * x * y * y);
+    y = y * (1.5f - 0.5f * x * y * y);
+    return y * (1.5f - 0.5f * x * y * y);
+}
+
 inline float sqrt_nocall(float x) { return x > 0.f ? x * rsqrt_nocall(x) : 0.f; }
 
 // log(x) for x > 0: x = m 2^e with m in [sqrt(1/2), sqrt(2)), log m = 2 atanh(s), s = (m - 1) / (m + 1),

@@ -2,9 +2,9 @@
 // with -D FUSED_ADAM=1 (training), Adam's step on each parameter where its gradient is computed, so the
 // gradients never reach global memory (adam.h).
 //
-// One work-item per Gaussian, work-groups of PB_WG (-D). Buffers (N = Gaussian count, float32 unless stated):
+// One work-item per Gaussian. Buffers (N = Gaussian count, float32 unless stated):
 //   in  means, log_scales, quats, opacity_logits, sh: the parameters, as in project.cl; stepped in place
-//       with FUSED_ADAM (a work-group reads its Gaussians' parameters before it steps any)
+//       with FUSED_ADAM (a work-item reads its Gaussian's parameters before it steps any)
 //   in  radius [N]  int, from the forward: 0 = not visible in this view (all its gradients are 0)
 //   in  sums   [N*SUMS_PER_GAUSSIAN]  from rasterize_backward.cl: dL/dmean2d (px) at SUM_MEAN2D,
 //              dL/dconic (a, b, c as stored) at SUM_CONIC, dL/dopacity (after the sigmoid) at
@@ -21,20 +21,25 @@
 #define FUSED_ADAM 0
 #endif
 
-#if FUSED_ADAM
 #include "adam.h"
+
+#if FUSED_ADAM
 #define PARAM __global float
-// EMIT(group, rate, buffer, index, gradient): Adam steps the parameter at buffer[index] by the gradient.
-#define EMIT(grp, lr, buf, idx, g) adam_update(&step, grp, lr, buf + (idx), m_##buf + (idx), v_##buf + (idx), g)
+// EMIT(group, rates, buffer, index, count, gradients): Adam steps the `count` (<= 4) parameters from
+// buffer[index] by the gradients' lanes, with the rates' lanes.
+#define EMIT(grp, lr, buf, idx, count, g) \
+    adam_update(&step, grp, lr, count, buf + (idx), m_##buf + (idx), v_##buf + (idx), g)
+#define RATE(grp) ((float4)(step.lr[grp]))
+// The SH rates of floats j..j+3 of a row: the first 3 floats are the DC band, with their own rate.
+#define SH_RATES(j) ((float4)((j) < 3 ? step.lr[ADAM_SH] : step.lr[ADAM_SH_REST], \
+                              (j) + 1 < 3 ? step.lr[ADAM_SH] : step.lr[ADAM_SH_REST], \
+                              (j) + 2 < 3 ? step.lr[ADAM_SH] : step.lr[ADAM_SH_REST], step.lr[ADAM_SH_REST]))
 #else
 #define PARAM __global const float
-// EMIT(group, rate, buffer, index, gradient): the gradient is stored in d_<buffer>[index].
-#define EMIT(grp, lr, buf, idx, g) (d_##buf[idx] = (g))
+// EMIT(group, rates, buffer, index, count, gradients): the gradients are stored from d_<buffer>[index].
+#define EMIT(grp, lr, buf, idx, count, g) store_lanes(d_##buf + (idx), count, g)
 #endif
-// The work-group's rows of one parameter group (`width` floats per Gaussian), element by element from the
-// gradients in local memory: consecutive work-items take consecutive floats (coalesced on GPUs).
-#define EMIT_ROWS(grp, buf, width, grads, rate_of) \
-    for (int e = lid; e < rows * (width); e += PB_WG) EMIT(grp, rate_of, buf, (size_t)first * (width) + e, grads[e])
+#define SH_FLOATS (SH_COEFFS * 3)
 
 // The gradients of visible Gaussian i's parameters; it reads them and writes nothing global. The SH
 // coefficients' gradients are basis[k] * v_colour (k below (sh_degree + 1)^2; zero above).
@@ -149,8 +154,7 @@ ALWAYS_INLINE void visible_gradients(int i, const Camera cam, int sh_degree, PAR
 }
 
 
-__kernel __attribute__((reqd_work_group_size(PB_WG, 1, 1)))
-void project_backward(const int n, const Camera cam, const int sh_degree,
+__kernel void project_backward(const int n, const Camera cam, const int sh_degree,
                     PARAM *means, PARAM *log_scales, PARAM *quats, PARAM *opacity_logits, PARAM *sh,
                     __global const int *radius, __global const float *sums,
 #if FUSED_ADAM
@@ -165,36 +169,26 @@ void project_backward(const int n, const Camera cam, const int sh_degree,
                     __global float *d_opacity_logits, __global float *d_sh
 #endif
                     ) {
-    // Phase 1: each work-item its Gaussian's gradients (zero where not visible) into local memory, after
-    // reading its parameters. Phase 2: the group's parameters stepped (or its gradients stored) float by
-    // float. Measured on PoCL: 13.2 ms against 15.1 for Adam's updates run per work-item in phase 1 (and
-    // 8.7 for the unfused kernel plus a separate Adam kernel, which needs the gradients stored: 236 B/G).
-    __local float l_means[PB_WG * 3], l_scales[PB_WG * 3], l_quats[PB_WG * 4], l_opacity[PB_WG];
-    __local float l_sh[PB_WG * SH_COEFFS * 3];
-    const int lid = get_local_id(0), i = get_global_id(0), first = get_group_id(0) * PB_WG;
-    if (i < n) {
-        float3 g_means = (float3)(0.f), g_scales = (float3)(0.f), v_colour = (float3)(0.f);
-        float4 g_quat = (float4)(0.f);
-        float g_opacity = 0.f, basis[16];
-        int visible = radius[i] > 0;
-        if (visible)
-            visible_gradients(i, cam, sh_degree, means, log_scales, quats, opacity_logits, sh, sums, &g_means,
-                              &g_scales, &g_quat, &g_opacity, &v_colour, basis);
-        STORE3(g_means, l_means, lid);
-        STORE3(g_scales, l_scales, lid);
-        l_quats[4 * lid] = g_quat.x; l_quats[4 * lid + 1] = g_quat.y;
-        l_quats[4 * lid + 2] = g_quat.z; l_quats[4 * lid + 3] = g_quat.w;
-        l_opacity[lid] = g_opacity;
-        int k_active = visible ? (sh_degree + 1) * (sh_degree + 1) : 0;
-        __local float *l_row = l_sh + lid * SH_COEFFS * 3;
-        for (int k = 0; k < SH_COEFFS; ++k) STORE3(k < k_active ? basis[k] * v_colour : (float3)(0.f), l_row, k);
-    }
-    barrier(CLK_LOCAL_MEM_FENCE);
-    const int rows = n - first < PB_WG ? n - first : PB_WG;
-    EMIT_ROWS(ADAM_MEANS, means, 3, l_means, step.lr[ADAM_MEANS]);
-    EMIT_ROWS(ADAM_SCALES, log_scales, 3, l_scales, step.lr[ADAM_SCALES]);
-    EMIT_ROWS(ADAM_QUATS, quats, 4, l_quats, step.lr[ADAM_QUATS]);
-    EMIT_ROWS(ADAM_OPACITY, opacity_logits, 1, l_opacity, step.lr[ADAM_OPACITY]);
-    // SH: the first 3 floats of a row are the DC band, with their own rate
-    EMIT_ROWS(ADAM_SH, sh, SH_COEFFS * 3, l_sh, step.lr[e % (SH_COEFFS * 3) < 3 ? ADAM_SH : ADAM_SH_REST]);
+    int i = get_global_id(0);
+    if (i >= n) return;
+    // Not visible: zero gradients (Adam still steps, on its moments alone). One emit section for both.
+    float3 g_means = (float3)(0.f), g_scales = (float3)(0.f), v_colour = (float3)(0.f);
+    float4 g_quat = (float4)(0.f);
+    float g_opacity = 0.f, basis[16];
+    int visible = radius[i] > 0;
+    if (visible)   // reads Gaussian i's parameters, before any of them is stepped below
+        visible_gradients(i, cam, sh_degree, means, log_scales, quats, opacity_logits, sh, sums, &g_means,
+                          &g_scales, &g_quat, &g_opacity, &v_colour, basis);
+    EMIT(ADAM_MEANS, RATE(ADAM_MEANS), means, 3 * i, 3, (float4)(g_means, 0.f));
+    EMIT(ADAM_SCALES, RATE(ADAM_SCALES), log_scales, 3 * i, 3, (float4)(g_scales, 0.f));
+    EMIT(ADAM_QUATS, RATE(ADAM_QUATS), quats, 4 * i, 4, g_quat);
+    EMIT(ADAM_OPACITY, RATE(ADAM_OPACITY), opacity_logits, i, 1, (float4)(g_opacity, 0.f, 0.f, 0.f));
+    int k_active = visible ? (sh_degree + 1) * (sh_degree + 1) : 0;
+    float g_sh[(SH_FLOATS + 3) / 4 * 4];   // whole float4 chunks, the padding zero
+    for (int k = 0; k < SH_COEFFS; ++k) STORE3(k < k_active ? basis[k] * v_colour : (float3)(0.f), g_sh, k);
+    for (int f = SH_FLOATS; f < (SH_FLOATS + 3) / 4 * 4; ++f) g_sh[f] = 0.f;
+    const size_t sh_row = (size_t)i * SH_FLOATS;
+    for (int j = 0; j < SH_FLOATS; j += 4)
+        EMIT(ADAM_SH, SH_RATES(j), sh, sh_row + j, SH_FLOATS - j < 4 ? SH_FLOATS - j : 4,
+             (float4)(g_sh[j], g_sh[j + 1], g_sh[j + 2], g_sh[j + 3]));
 }
