@@ -57,7 +57,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--profile", action="store_true", help="print per-stage device times (median over views)")
     _add_device(p)
 
-    p = sub.add_parser("train", help="train a scene (no arguments: the built-in scene, about three minutes on 2 cores)")
+    p = sub.add_parser("train", help="train a scene (no arguments: the built-in scene, three to five minutes on 2 cores)")
     p.add_argument("--scene", default=None,
                    help=f'COLMAP or NeRF scene folder, or "{BUILTIN_SCENE}" (the default)')
     p.add_argument("--out", type=Path, default=None,
