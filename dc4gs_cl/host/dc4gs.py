@@ -69,9 +69,9 @@ def interpolating_polynomials(costs: np.ndarray) -> np.ndarray:
 
 
 def polynomial_minimum(coeffs: np.ndarray, lo: float, hi: float, grid: int = 2049) -> np.ndarray:
-    """x in [lo, hi] minimising each polynomial exactly: a dense grid finds the best basin (an end point or
-    a bracketed critical point, where the derivative changes sign), bisection on the derivative then
-    pins the critical point to float64 precision."""
+    """x in [lo, hi] minimising each polynomial exactly: a dense grid finds the best basin, bisection on the
+    derivative pins a critical point in either grid cell beside the best grid point to float64 precision
+    (a minimum within a cell of an end point included), and the lowest of those and the grid point wins."""
     if len(coeffs) == 0:
         return np.zeros(0)
     poly = np.polynomial.polynomial
@@ -82,13 +82,19 @@ def polynomial_minimum(coeffs: np.ndarray, lo: float, hi: float, grid: int = 204
     def slope(at):                                                 # p'(at[m]) of each polynomial m
         return np.einsum("mk,mk->m", deriv, at[:, None] ** np.arange(deriv.shape[1]))
 
-    a, b = xs[np.maximum(best - 1, 0)], xs[np.minimum(best + 1, grid - 1)]
-    interior = (best > 0) & (best < grid - 1) & (slope(a) < 0) & (slope(b) > 0)
-    for _ in range(60):
-        mid = 0.5 * (a + b)
-        down = slope(mid) < 0
-        a, b = np.where(down, mid, a), np.where(down, b, mid)
-    return np.where(interior, 0.5 * (a + b), xs[best])
+    def critical_point(a, b):                                      # a minimum inside [a, b], else nan
+        bracketed = (slope(a) < 0) & (slope(b) > 0)
+        for _ in range(60):
+            mid = 0.5 * (a + b)
+            down = slope(mid) < 0
+            a, b = np.where(down, mid, a), np.where(down, b, mid)
+        return np.where(bracketed, 0.5 * (a + b), np.nan)
+
+    at = xs[best]
+    candidates = np.stack([at, critical_point(xs[np.maximum(best - 1, 0)], at),
+                           critical_point(at, xs[np.minimum(best + 1, grid - 1)])], 1)
+    values = np.einsum("mk,mjk->mj", coeffs, candidates[:, :, None] ** np.arange(coeffs.shape[1]))
+    return candidates[np.arange(len(at)), np.where(np.isnan(values), np.inf, values).argmin(axis=1)]
 
 
 def split_positions(costs: np.ndarray, pick: str) -> np.ndarray:
