@@ -47,7 +47,7 @@ class Adam:
     def __init__(self, rt: Runtime, widths: dict[str, int], n: int, config: AdamConfig = AdamConfig()):
         if set(widths) != set(GROUPS):
             raise ValueError(f"Adam steps the groups {GROUPS}, not {tuple(widths)}")
-        self.rt, self.config = rt, config
+        self.config = config
         self.m = DeviceArrays(rt, widths, n)
         self.v = DeviceArrays(rt, widths, n)
         self.m.zero()
