@@ -10,13 +10,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..render.gaussians import PARAM_GROUPS as GROUPS   # in the order of ADAM_MEANS .. ADAM_SH in kernels/adam.h
-from ..render.gaussians import DeviceArrays
+from ..render.gaussians import PARAM_GROUPS, DeviceArrays   # PARAM_GROUPS: in the order of ADAM_MEANS .. ADAM_SH
 from ..runtime import Runtime
 
-# Keep in step with AdamStep in kernels/adam.h: one rate per group, then the SH bands above the DC band.
-ADAM_STEP_DTYPE = np.dtype([("lr", np.float32, len(GROUPS) + 1), ("c1", np.float32, len(GROUPS)),
-                            ("c2", np.float32, len(GROUPS)), ("beta1", np.float32), ("beta2", np.float32),
+# Keep in step with AdamStep in kernels/adam.h: one rate per parameter group, then the SH bands above the DC band.
+ADAM_STEP_DTYPE = np.dtype([("lr", np.float32, len(PARAM_GROUPS) + 1), ("c1", np.float32, len(PARAM_GROUPS)),
+                            ("c2", np.float32, len(PARAM_GROUPS)), ("beta1", np.float32), ("beta2", np.float32),
                             ("eps", np.float32), ("stepping", np.uint32)])
 
 
@@ -45,8 +44,8 @@ class Adam:
     """Moments m and v on the device (same groups and layout as the parameters), step count per group."""
 
     def __init__(self, rt: Runtime, widths: dict[str, int], n: int, config: AdamConfig = AdamConfig()):
-        if set(widths) != set(GROUPS):
-            raise ValueError(f"Adam steps the groups {GROUPS}, not {tuple(widths)}")
+        if set(widths) != set(PARAM_GROUPS):
+            raise ValueError(f"Adam steps the groups {PARAM_GROUPS}, not {tuple(widths)}")
         self.config = config
         self.m = DeviceArrays(rt, widths, n)
         self.v = DeviceArrays(rt, widths, n)
@@ -61,7 +60,7 @@ class Adam:
         s = np.zeros(1, ADAM_STEP_DTYPE)[0]
         s["beta1"], s["beta2"], s["eps"] = cfg.beta1, cfg.beta2, cfg.eps
         stepping = 0
-        for g, name in enumerate(GROUPS):
+        for g, name in enumerate(PARAM_GROUPS):
             if name not in lrs:
                 continue
             self.steps[name] += 1
@@ -70,7 +69,7 @@ class Adam:
             s["c1"][g], s["c2"][g] = 1 - cfg.beta1 ** t, 1 - cfg.beta2 ** t
             lr = lrs[name]
             if name == "sh":
-                s["lr"][g], s["lr"][len(GROUPS)] = lr
+                s["lr"][g], s["lr"][len(PARAM_GROUPS)] = lr
             else:
                 s["lr"][g] = lr
         s["stepping"] = stepping

@@ -69,18 +69,18 @@ inline float exp_nonpositive(float x) {
 
 // 1/sqrt(x) for x > 0 without a builtin call (so a pixel loop using it still vectorises): the classic
 // bit-level first guess and three Newton steps; max relative error 1.5e-7 over [1e-30, 1e30].
+// The float and float4 versions share the seed and the steps (float4: lane by lane, the same operations).
+#define RSQRT_SEED 0x5f3759df
+#define RSQRT_NEWTON(y, x) (y = y * (1.5f - 0.5f * (x) * y * y), y = y * (1.5f - 0.5f * (x) * y * y), \
+                            y * (1.5f - 0.5f * (x) * y * y))
 inline float rsqrt_nocall(float x) {
-    float y = as_float(0x5f3759df - (as_int(x) >> 1));
-    y = y * (1.5f - 0.5f * x * y * y);
-    y = y * (1.5f - 0.5f * x * y * y);
-    return y * (1.5f - 0.5f * x * y * y);
+    float y = as_float(RSQRT_SEED - (as_int(x) >> 1));
+    return RSQRT_NEWTON(y, x);
 }
 
-inline float4 rsqrt4_nocall(float4 x) {   // rsqrt_nocall lane by lane, the same operations
-    float4 y = as_float4((int4)(0x5f3759df) - (as_int4(x) >> 1));
-    y = y * (1.5f - 0.5f * x * y * y);
-    y = y * (1.5f - 0.5f * x * y * y);
-    return y * (1.5f - 0.5f * x * y * y);
+inline float4 rsqrt4_nocall(float4 x) {
+    float4 y = as_float4((int4)(RSQRT_SEED) - (as_int4(x) >> 1));
+    return RSQRT_NEWTON(y, x);
 }
 
 inline float sqrt_nocall(float x) { return x > 0.f ? x * rsqrt_nocall(x) : 0.f; }

@@ -145,8 +145,7 @@ def project_backward(rt: Runtime, g: DeviceGaussians, cam: Camera, sh_degree: in
         return
     fused = adam_step is not None
     k = rt.kernel("project_backward.cl", "project_backward",
-                  {"SH_COEFFS": g.sh_coeffs, "FUSED_ADAM": int(fused),
-                   **layout.defines()})
+                  {"SH_COEFFS": g.sh_coeffs, "FUSED_ADAM": int(fused), **layout.defines()})
     b = g.buffers
     if fused:
         outputs = [adam_step.struct] + [m[name] for name in PARAM_GROUPS
