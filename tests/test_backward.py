@@ -43,6 +43,24 @@ def blend_masks(c):
     return np.concatenate([m.ravel() for m in masks])
 
 
+def undecided_pixels(mean2d, conic, opacity, gaussian_of_pair, ranges, width, height, tiles_x, margin=1e-3):
+    """(height, width) mask of the pixels where float32 and float64 can decide a blend differently: some pair
+    within a relative `margin` of the 1/255 alpha cut-off or the alpha clamp, or transmittance within it of
+    the stop threshold. A flipped decision there moves whole pixels' worth of gradient, not rounding."""
+    out = np.zeros((height, width), bool)
+    near = lambda x, t: np.abs(x - t) < margin * t
+    for tile, (first, end) in enumerate(np.asarray(ranges)):
+        y0, x0 = (tile // tiles_x) * K.TILE_SIZE, (tile % tiles_x) * K.TILE_SIZE
+        ys, xs = np.mgrid[y0:min(y0 + K.TILE_SIZE, height), x0:min(x0 + K.TILE_SIZE, width)]
+        if end <= first or not ys.size:
+            continue
+        _, _, oG, alpha, blend, t_before = _tile_blend(mean2d, conic, opacity, gaussian_of_pair[first:end], xs, ys)
+        ambiguous = near(oG, K.ALPHA_MIN) | near(oG, K.ALPHA_MAX) | (blend & near(t_before * (1 - alpha),
+                                                                                 K.TRANSMITTANCE_MIN))
+        out[ys.ravel(), xs.ravel()] = ambiguous.any(axis=1)
+    return out
+
+
 def test_rasterize_backward_reference_matches_finite_differences(rng):
     case = small_raster_case(rng)
     bg = rng.uniform(0, 1, 3)
@@ -206,7 +224,18 @@ def test_whole_image_gradients_match_the_float64_chain(rt, rng):
     g = DeviceGaussians(rt, model)
     renderer = Renderer(rt, poison=True)
     res = renderer.render(g, cam, 3, bg)
+    tiles_x, tiles_y = res.tiles_x, res.tiles_y
+    params = dict(means=model.means, log_scales=model.log_scales, quats=model.quats,
+                  opacity_logits=model.opacity_logits, sh=model.sh)
+    p = project_reference(**params, cam=cam, sh_degree=3, tiles_x=tiles_x, tiles_y=tiles_y)
+    _, gop, ranges = intersect_reference(p["mean2d"], p["radius"], p["alpha_extent"], p["tiles_touched"], p["depth"],
+                                         tiles_x, tiles_y, alpha_cut=False)
+    # No loss gradient on the pixels whose blend float32 may decide otherwise (about 4% of draws failed on
+    # one such pixel): they would compare a different function, not its rounding.
+    undecided = undecided_pixels(p["mean2d"], p["conic"], p["opacity"], gop, ranges, cam.width, cam.height, tiles_x)
+    assert undecided.mean() < 0.05
     dL_dimage = rng.normal(size=(cam.height, cam.width, 3)).astype(np.float32)
+    dL_dimage[undecided] = 0.0
     layout = SumsLayout()
     sums = rasterize_backward(rt, renderer.ws, renderer.tuning, renderer.defines, layout, res, rt.to_device(dL_dimage), bg)
     widths = group_widths(g.sh_coeffs)
@@ -214,12 +243,6 @@ def test_whole_image_gradients_match_the_float64_chain(rt, rng):
     grads = {k: rt.to_device(np.full(n * w, POISON, np.uint32)) for k, w in widths.items()}
     project_backward(rt, g, cam, 3, res, sums, layout, grads=grads)
 
-    tiles_x, tiles_y = res.tiles_x, res.tiles_y
-    params = dict(means=model.means, log_scales=model.log_scales, quats=model.quats,
-                  opacity_logits=model.opacity_logits, sh=model.sh)
-    p = project_reference(**params, cam=cam, sh_degree=3, tiles_x=tiles_x, tiles_y=tiles_y)
-    _, gop, ranges = intersect_reference(p["mean2d"], p["radius"], p["alpha_extent"], p["tiles_touched"], p["depth"],
-                                         tiles_x, tiles_y, alpha_cut=False)
     r = rasterize_backward_reference(p["mean2d"], p["conic"], p["opacity"], p["rgb"], gop, ranges, cam.width,
                                      cam.height, tiles_x, bg, dL_dimage)
     ref = project_backward_reference(**params, cam=cam, sh_degree=3, v_mean2d=r["mean2d"], v_conic=r["conic"],
