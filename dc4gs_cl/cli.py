@@ -6,19 +6,19 @@ anything else is a bug and keeps its traceback.
 from __future__ import annotations
 
 import argparse
-import json
 import shutil
 import sys
 from pathlib import Path
 
 import numpy as np
 
+from .config import RECIPE_ITERATIONS
 from .errors import DeviceError, InputError
 from .files import replace_folder, staging_folder
-from .host.strategy import STRATEGIES as STRATEGY_NAMES
+from .finite import NonFiniteError
+from .host.densify import STRATEGIES as STRATEGY_NAMES
+from .host.densify.dc4gs import DCC_READINGS, DENSE_CANDIDATES, POOLINGS, SPLIT_PICKS
 from .scene.builtin import BUILTIN_SCENE
-from .host.dc4gs import DCC_READINGS, DENSE_CANDIDATES, POOLINGS, SPLIT_PICKS
-from .train import RECIPE_ITERATIONS
 
 BUILTIN_ITERATIONS = 5_000   # the default run on the built-in scene: about five minutes on 2 CPU cores
 
@@ -27,6 +27,12 @@ def _add_device(p: argparse.ArgumentParser) -> None:
     p.add_argument("--device", default=None,
                    help='OpenCL device: "P:D" (see `dc4gs-cl devices`), "gpu", "cpu" or part of its name; '
                         "default $DC4GS_DEVICE, else the first GPU, else PoCL's CPU device")
+
+
+def _add_check_finite(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--check-finite", action="store_true",
+                   help="debugging: check every stage's outputs and stop at the first NaN or Inf, naming the stage, "
+                        "the iteration (or view) and the buffer (slow: each stage waits and is read back)")
 
 
 def _resolution(value: str) -> int:
@@ -43,18 +49,29 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("devices", help="list OpenCL platforms and devices, and the one that would be chosen")
     _add_device(p)
 
-    p = sub.add_parser("render", help="render a scene's cameras from a 3DGS PLY to PNG files")
-    p.add_argument("--ply", type=Path, default=None,
-                   help="a standard 3DGS PLY (SH degree 0..3); without it, the Gaussians training would start "
-                        "from (the scene's SfM points), which shows whether a scene's cameras are read right")
-    p.add_argument("--scene", default=BUILTIN_SCENE,
-                   help=f'COLMAP or NeRF (transforms*.json) scene folder, or "{BUILTIN_SCENE}" (the default)')
-    p.add_argument("--out", required=True, type=Path, help="output folder (PNGs under OUT/<split>/renders/; --split all writes train/ and test/)")
+    p = sub.add_parser("render", help="render a scene's cameras from a 3DGS PLY or a trained run to PNG files")
+    source = p.add_mutually_exclusive_group()
+    source.add_argument("--ply", type=Path, default=None,
+                        help="a standard 3DGS PLY (SH degree 0..3); with neither --ply nor --model, the Gaussians "
+                             "training would start from (the scene's SfM points), which shows whether a scene's "
+                             "cameras are read right")
+    source.add_argument("--model", type=Path, default=None,
+                        help="a training output folder: its scene, settings and saved model (see --iteration); "
+                             "renders and ground truth go to MODEL/<split>/ours_N/ unless --out is given")
+    p.add_argument("--iteration", type=int, default=None, help="with --model: which saved iteration (default: the last)")
+    p.add_argument("--scene", default=None,
+                   help=f'COLMAP or NeRF (transforms*.json) scene folder, or "{BUILTIN_SCENE}" (the default; with '
+                        "--model, the run's)")
+    p.add_argument("--out", type=Path, default=None,
+                   help="output folder (PNGs under OUT/<split>/renders/; --split all writes train/ and test/); "
+                        "required unless --model")
     p.add_argument("--split", choices=["test", "train", "all"], default="test")
     p.add_argument("-r", "--resolution", type=_resolution, default=None,
-                   help="downscale images by this factor (default: widths above 1600 px scaled to 1600)")
+                   help="downscale images by this factor (default: widths above 1600 px scaled to 1600; with --model, "
+                        "the run's)")
     p.add_argument("--white-background", action="store_true", help="render onto white (Blender scenes)")
     p.add_argument("--profile", action="store_true", help="print per-stage device times (median over views)")
+    _add_check_finite(p)
     _add_device(p)
 
     p = sub.add_parser("train", help="train a scene (no arguments: the built-in scene, three to five minutes on 2 cores)")
@@ -103,6 +120,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--force", action="store_true", help="replace a previous run's files in --out")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--profile", action="store_true", help="print per-stage device time per iteration at the end")
+    _add_check_finite(p)
     _add_device(p)
 
     p = sub.add_parser("eval", help="render a trained model's test views and write PSNR / SSIM (results.json)")
@@ -127,31 +145,48 @@ def cmd_render(args) -> int:
     from .model import initial_model
     from .ply import read_ply
     from .render import DeviceGaussians, Renderer
+    from .run_folder import RunFolder
     from .runtime import Runtime, describe
     from .scene import load_scene
     from .scene.images import write_png
 
-    scene = load_scene(args.scene, resolution=args.resolution, cache_dir=args.out / "undistorted",
-                       white_background=args.white_background)
-    model = read_ply(args.ply) if args.ply else initial_model(scene.points, scene.colors, np.random.default_rng(0))
+    run = RunFolder(args.model) if args.model else None
+    if run is None and args.out is None:
+        raise InputError(None, "render needs --out (or --model, a training output folder)")
+    if args.iteration is not None and run is None:
+        raise InputError(None, "--iteration needs --model")
+    cfg = run.read_config() if run is not None else None
+    scene_name = args.scene or (cfg.scene if cfg else BUILTIN_SCENE)
+    out = args.out
+    scene = load_scene(scene_name, resolution=args.resolution or (cfg.resolution if cfg else None),
+                       cache_dir=(out or run.path) / "undistorted", test_every=cfg.test_every if cfg else 8,
+                       white_background=args.white_background or (cfg is not None and cfg.white_background))
+    if run is not None:
+        iteration, model = run.load_model(args.iteration)
+    else:
+        model = read_ply(args.ply) if args.ply else initial_model(scene.points, scene.colors, np.random.default_rng(0))
     names = ["train", "test"] if args.split == "all" else [args.split]
     splits = {name: cams for name in names if (cams := getattr(scene, name))}
     if not splits:
-        raise InputError(args.scene, f"the scene has no {args.split} cameras")
+        raise InputError(scene_name, f"the scene has no {args.split} cameras")
     cams = [c for split_cams in splits.values() for c in split_cams]
     rt = Runtime(args.device, profiling=args.profile)
     print(f"device: {describe(rt.device)}; {len(model):,} Gaussians (SH degree {model.sh_degree}); "
           f"{len(cams)} {args.split} views", file=sys.stderr)
-    renderer = Renderer(rt)
+    renderer = Renderer(rt, check_finite=args.check_finite)
     gaussians = DeviceGaussians(rt, model)
     timings = []
+    into_run = run is not None and out is None   # renders beside their ground truth, as Inria's render.py
     for split, split_cams in splits.items():   # each split in its own folder: Blender scenes reuse names
-        final_dir = args.out / split / "renders"
+        final_dir = run.views_dir(split, iteration) if into_run else out / split / "renders"
         staging = staging_folder(final_dir)
         try:
             for cam in split_cams:
+                renderer.context.check.at = f"view {cam.name}"
                 res = renderer.render(gaussians, cam, background=scene.background)
-                write_png(staging / f"{cam.file_stem}.png", res.image(rt))
+                write_png(staging / ("renders" if into_run else "") / f"{cam.file_stem}.png", res.image(rt))
+                if into_run:
+                    write_png(staging / "gt" / f"{cam.file_stem}.png", scene.image(cam))
                 if args.profile:
                     timings.append(rt.stage_times())
             replace_folder(staging, final_dir)
@@ -174,78 +209,85 @@ def print_stage_table(timings: list[dict[str, float]], width: int, height: int) 
     print(f"  {'total':12s} {total:9.2f} ms")
 
 
-def train_config(args, out: Path):
+DC4GS_FLAGS = {"dcc": "dcc", "dcs": "dcs", "dc_pooling": "pooling", "split_pick": "split_pick",
+               "split_candidates": "candidates", "dcc_reading": "dcc_reading", "dcs_track": "track"}
+
+
+def train_config(args, run):
     """The run's settings: from the arguments, or with --resume from the run's config.json (explicit
     arguments must then agree with it)."""
-    from dataclasses import fields
-    from .train import CONFIG, TrainConfig
+    from dataclasses import fields, replace
+    from .config import TrainConfig
+    from .host.densify import DC4GSConfig
     if args.dc4gs:
         args.dcc = args.dcs = True
-    # the TrainConfig fields the command line sets (each flag defaults to None: "not given")
+    # the settings the command line gives (each flag defaults to None: "not given")
     given = {f.name: getattr(args, f.name) for f in fields(TrainConfig) if getattr(args, f.name, None) is not None}
+    dc4gs_given = {field: getattr(args, flag) for flag, field in DC4GS_FLAGS.items() if getattr(args, flag) is not None}
     if "save_at" in given:
         given["save_at"] = tuple(given["save_at"])
     if "scene" in given and given["scene"] != BUILTIN_SCENE:
         given["scene"] = str(Path(given["scene"]).resolve())
     if args.resume:
-        path = out / CONFIG
-        if not path.is_file():
-            raise InputError(out, "nothing to resume: no config.json from an earlier run")
-        try:
-            cfg = TrainConfig.from_json(json.loads(path.read_text()))
-        except (ValueError, TypeError) as e:
-            raise InputError(path, f"unreadable run settings ({e})") from None
-        clash = {k: v for k, v in given.items() if getattr(cfg, k) != v}
+        if not run.config_path.is_file():
+            raise InputError(run.path, "nothing to resume: no config.json from an earlier run")
+        cfg = run.read_config()
+        clash = {k: (getattr(cfg, k), v) for k, v in given.items() if getattr(cfg, k) != v}
+        clash |= {f"dc4gs.{k}": (getattr(cfg.dc4gs, k), v) for k, v in dc4gs_given.items() if getattr(cfg.dc4gs, k) != v}
         if clash:
-            raise InputError(path, "--resume continues the saved settings; these differ: " +
-                             ", ".join(f"{k} {getattr(cfg, k)!r} (saved) vs {v!r}" for k, v in clash.items()))
+            raise InputError(run.config_path, "--resume continues the saved settings; these differ: " +
+                             ", ".join(f"{k} {a!r} (saved) vs {b!r}" for k, (a, b) in clash.items()))
         return cfg
     given.setdefault("scene", BUILTIN_SCENE)
     given.setdefault("iterations", BUILTIN_ITERATIONS if given["scene"] == BUILTIN_SCENE else RECIPE_ITERATIONS)
-    for flag in ("white_background", "dcc", "dcs"):
-        given[flag] = bool(given.get(flag))
-    return TrainConfig(**given)
+    given["white_background"] = bool(given.get("white_background"))
+    try:
+        dc4gs = DC4GSConfig(**dc4gs_given)
+    except ValueError as e:   # every DC4GS setting is checked, DC4GS on or off: a mistyped flag never passes
+        raise InputError(None, str(e)) from None
+    return replace(TrainConfig(**given), dc4gs=dc4gs)
 
 
 def cmd_train(args) -> int:
     import time
-    from .evaluate import evaluate, write_results
+    from .evaluate import evaluate
+    from .run_folder import RunFolder
     from .runtime import Runtime, describe
     from .scene import load_scene
-    from .train import CHECKPOINT, Trainer, clear_run, holds_run, write_run_files
+    from .train import Trainer
 
     if args.out is None:
         if args.resume:
             raise InputError(None, "--resume needs --out (the folder of the run to continue)")
         name = Path(args.scene).resolve().name if args.scene and args.scene != BUILTIN_SCENE else BUILTIN_SCENE
         args.out = Path("output") / f"{name}-{time.strftime('%Y%m%d-%H%M%S')}"
-    out = args.out
+    run = RunFolder(args.out)
     if args.resume and args.force:
         raise InputError(None, "--resume and --force exclude each other")
-    if args.resume and not (out / CHECKPOINT).is_file():
-        raise InputError(out, "nothing to resume: no checkpoint.npz")
-    if not args.resume and holds_run(out) and not args.force:
-        raise InputError(out, "holds another run: continue it with --resume, or replace it with --force")
-    cfg = train_config(args, out)
-    scene = load_scene(cfg.scene, resolution=cfg.resolution, cache_dir=out / "undistorted",
+    if args.resume and not run.checkpoint_path.is_file():
+        raise InputError(run.path, "nothing to resume: no checkpoint.npz")
+    if not args.resume and run.holds_run() and not args.force:
+        raise InputError(run.path, "holds another run: continue it with --resume, or replace it with --force")
+    cfg = train_config(args, run)
+    scene = load_scene(cfg.scene, resolution=cfg.resolution, cache_dir=run.path / "undistorted",
                        test_every=cfg.test_every, white_background=cfg.white_background)
     rt = Runtime(args.device, profiling=args.profile)
-    trainer = Trainer(cfg, scene, rt, out)
+    trainer = Trainer(cfg, scene, rt, run, check_finite=args.check_finite)
     if args.resume:
-        trainer.load_checkpoint(out / CHECKPOINT)
+        trainer.resume()
     else:
         if args.force:
-            clear_run(out)
-        write_run_files(out, cfg, scene)
+            run.clear()
+        run.write_settings(cfg, scene)
     print(f"device: {describe(rt.device)}\nscene: {cfg.scene} ({len(scene.train)} train / {len(scene.test)} test views, "
           f"{scene.train[0].width}x{scene.train[0].height}), strategy {trainer.strategy.label}, {cfg.iterations:,} iterations, "
-          f"{trainer.params.n:,} initial Gaussians\noutput: {out}", file=sys.stderr)
+          f"{trainer.model.n:,} initial Gaussians\noutput: {run}", file=sys.stderr)
     start, first = time.perf_counter(), trainer.iteration
     try:
         trainer.run(progress=not args.no_progress)
     except KeyboardInterrupt:
-        print(f"stopped at iteration {trainer.iteration}; a checkpoint is in {out}. Continue with: "
-              f"dc4gs-cl train --out {out} --resume", file=sys.stderr)
+        print(f"stopped at iteration {trainer.iteration}; a checkpoint is in {run}. Continue with: "
+              f"dc4gs-cl train --out {run} --resume", file=sys.stderr)
         return 130
     seconds = time.perf_counter() - start
     if args.profile:
@@ -253,52 +295,37 @@ def cmd_train(args) -> int:
         done = max(trainer.iteration - first, 1)
         print("device time per iteration: " + ", ".join(f"{k} {v / done * 1e3:.2f} ms" for k, v in times.items()))
     print(f"trained {trainer.iteration - first:,} iterations in {seconds:.0f} s "
-          f"({(trainer.iteration - first) / max(seconds, 1e-9):.1f} it/s); {trainer.params.n:,} Gaussians")
+          f"({(trainer.iteration - first) / max(seconds, 1e-9):.1f} it/s); {trainer.model.n:,} Gaussians")
     if scene.test:
         result = evaluate(rt, trainer.renderer, trainer.params, scene, scene.test, trainer.sh_degree,
-                          out / "test" / f"ours_{trainer.iteration}")
-        write_results(out, trainer.iteration, result)
+                          run.views_dir("test", trainer.iteration))
+        run.write_results(trainer.iteration, result)
         print(f"test views: PSNR {result['mean']['PSNR']:.2f} dB, SSIM {result['mean']['SSIM']:.4f} "
               f"({result['views']} views; LPIPS skipped: {result['lpips']})")
-    print(f"model: {out / 'point_cloud' / f'iteration_{trainer.iteration}' / 'point_cloud.ply'}")
+    print(f"model: {run.model_path(trainer.iteration)}")
     return 0
 
 
 def cmd_eval(args) -> int:
-    import re
-    from .evaluate import evaluate, write_results
-    from .ply import read_ply
+    from .evaluate import evaluate
     from .render import DeviceGaussians, Renderer
+    from .run_folder import RunFolder
     from .runtime import Runtime
     from .scene import load_scene
-    from .train import CONFIG, TrainConfig
 
-    model_dir = args.model
-    path = model_dir / CONFIG
-    if not path.is_file():
-        raise InputError(model_dir, "not a training output folder (no config.json)")
-    try:
-        cfg = TrainConfig.from_json(json.loads(path.read_text()))
-    except (ValueError, TypeError) as e:
-        raise InputError(path, f"unreadable run settings ({e})") from None
-    saved = sorted(int(m.group(1)) for d in (model_dir / "point_cloud").glob("iteration_*")
-                   if (m := re.fullmatch(r"iteration_(\d+)", d.name)) and (d / "point_cloud.ply").is_file())
-    if not saved:
-        raise InputError(model_dir / "point_cloud", "no saved model (point_cloud/iteration_N/point_cloud.ply)")
-    iteration = args.iteration if args.iteration is not None else saved[-1]
-    if iteration not in saved:
-        raise InputError(model_dir / "point_cloud", f"no model saved at iteration {iteration} (saved: {saved})")
-    model = read_ply(model_dir / "point_cloud" / f"iteration_{iteration}" / "point_cloud.ply")
-    scene = load_scene(cfg.scene, resolution=cfg.resolution, cache_dir=model_dir / "undistorted",
+    run = RunFolder(args.model)
+    cfg = run.read_config()
+    iteration, model = run.load_model(args.iteration)
+    scene = load_scene(cfg.scene, resolution=cfg.resolution, cache_dir=run.path / "undistorted",
                        test_every=cfg.test_every, white_background=cfg.white_background)
     if not scene.test:
-        raise InputError(model_dir / CONFIG, "the run has no test views (test_every = 0)")
+        raise InputError(run.config_path, "the run has no test views (test_every = 0)")
     rt = Runtime(args.device)
     result = evaluate(rt, Renderer(rt), DeviceGaussians(rt, model), scene, scene.test, model.sh_degree,
-                      None if args.no_renders else model_dir / "test" / f"ours_{iteration}")
-    write_results(model_dir, iteration, result)
+                      None if args.no_renders else run.views_dir("test", iteration))
+    run.write_results(iteration, result)
     print(f"iteration {iteration}: PSNR {result['mean']['PSNR']:.2f} dB, SSIM {result['mean']['SSIM']:.4f} over "
-          f"{result['views']} test views (LPIPS skipped: {result['lpips']}); written to {model_dir / 'results.json'}")
+          f"{result['views']} test views (LPIPS skipped: {result['lpips']}); written to {run.path / 'results.json'}")
     return 0
 
 
@@ -313,6 +340,9 @@ def main(argv: list[str] | None = None) -> int:
     except (InputError, DeviceError) as e:
         print(f"dc4gs-cl {args.command}: error: {e}", file=sys.stderr)
         return 2
+    except NonFiniteError as e:   # --check-finite
+        print(f"dc4gs-cl {args.command}: error: {e}", file=sys.stderr)
+        return 3
     except KeyboardInterrupt:
         print(f"dc4gs-cl {args.command}: interrupted", file=sys.stderr)
         return 130

@@ -1,14 +1,13 @@
-"""Evaluation of test views: renders, per-view and mean PSNR and SSIM, written as the Inria code writes
-them (results.json and per_view.json keyed by "ours_<iteration>", renders under test/ours_<iteration>/)."""
+"""Evaluation of test views: renders, per-view and mean PSNR and SSIM (run_folder.RunFolder.write_results
+stores them as the Inria code does)."""
 from __future__ import annotations
 
-import json
 import shutil
 from pathlib import Path
 
 import numpy as np
 
-from .files import replace_folder, staging_folder, write_json
+from .files import replace_folder, staging_folder
 from .metrics import lpips_available, psnr, ssim
 from .render import DeviceGaussians, Renderer
 from .runtime import Runtime
@@ -40,13 +39,3 @@ def evaluate(rt: Runtime, renderer: Renderer, gaussians: DeviceGaussians, scene:
     means = {k: float(np.mean(list(v.values()))) if v else float("nan") for k, v in per_view.items()}
     _, why = lpips_available()
     return {"mean": means, "per_view": per_view, "views": len(cams), "lpips": why}
-
-
-def write_results(model_dir: Path, iteration: int, result: dict) -> None:
-    """Merge into model_dir/results.json and per_view.json (other iterations' entries are kept)."""
-    key = f"ours_{iteration}"
-    for name, value in (("results.json", result["mean"]), ("per_view.json", result["per_view"])):
-        path = model_dir / name
-        data = json.loads(path.read_text()) if path.exists() else {}
-        data[key] = value
-        write_json(path, data)

@@ -7,8 +7,7 @@ import math
 import numpy as np
 import pyopencl as cl
 
-from .render.workspace import Workspace
-from .runtime import Runtime
+from .render.stage import Stage, StageContext
 
 LAMBDA_DSSIM = 0.2      # L = (1 - LAMBDA_DSSIM) L1 + LAMBDA_DSSIM (1 - SSIM)
 SSIM_C1 = 0.01 ** 2
@@ -29,7 +28,7 @@ def loss_defines() -> dict:
             "LAMBDA_DSSIM": LAMBDA_DSSIM}
 
 
-class Loss:
+class Loss(Stage):
     """The loss of a rendered image against a target, both [H*W*3] float32 (interleaved RGB) buffers.
 
     Work shape (kernels/loss.cl): a work-group of `wg` items owns wg * seg consecutive floats of a row.
@@ -37,19 +36,20 @@ class Loss:
     512 floats and as fast as 4096; at 160x120 all equal; wg > 1 was 2.5x (seg 64, wg 4) to 11x (seg 1,
     wg 256) slower, PoCL not vectorising across work-items here. GPUs: one float per item, 256 per group.
     """
+    FILE, KERNELS = "loss.cl", ("loss_ssim", "loss_grad", "loss_reduce")
 
-    def __init__(self, rt: Runtime, seg: int | None = None, wg: int | None = None, poison: bool = False):
-        """poison: fill new scratch buffers with NaN (tests: a value a kernel failed to write shows up)."""
-        self.rt = rt
-        self.seg = seg or (2304 if rt.caps.is_cpu else 1)
-        self.wg = wg or (1 if rt.caps.is_cpu else 256)
-        defines = {**loss_defines(), "SEG": self.seg, "WG": self.wg}
-        self.k_ssim, self.k_grad, self.k_reduce = (
-            rt.kernel("loss.cl", name, defines) for name in ("loss_ssim", "loss_grad", "loss_reduce"))
-        self.ws = Workspace(rt, poison=poison)
-        self.stats = rt.buffer(4 * len(STAT_KEYS))
-        rt.fill(self.stats, np.float32(0), self.stats.size)
+    def __init__(self, ctx: StageContext, seg: int | None = None, wg: int | None = None):
+        super().__init__(ctx)
+        self.seg = seg or (2304 if self.rt.caps.is_cpu else 1)
+        self.wg = wg or (1 if self.rt.caps.is_cpu else 256)
+        k = self.kernels()
+        self.k_ssim, self.k_grad, self.k_reduce = k["loss_ssim"], k["loss_grad"], k["loss_reduce"]
+        self.stats = self.rt.buffer(4 * len(STAT_KEYS))
+        self.rt.fill(self.stats, np.float32(0), self.stats.size)
         self.calls = 0
+
+    def defines(self) -> dict:
+        return {**loss_defines(), "SEG": self.seg, "WG": self.wg}
 
     def __call__(self, image: cl.Buffer, target: cl.Buffer, width: int, height: int,
                  grad_out: cl.Buffer | None, stage: str = "loss") -> None:
@@ -71,6 +71,8 @@ class Loss:
         rt.launch(stage, self.k_reduce, self.wg, self.wg, np.int32(groups_x * h), np.float32(1 / m), partial,
                   self.stats)
         self.calls += 1
+        if grad_out is not None:
+            self.check(lambda: {"dL_dimage": rt.to_host(grad_out, (h, width, 3))})
 
     def read_stats(self) -> dict[str, float]:
         """Means over the calls since the last read (NaN when there was none) of loss, l1, ssim and mse

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from .loss import Loss
+from .render.stage import StageContext
 from .runtime import Runtime
 
 
@@ -23,7 +24,7 @@ def ssim(rt: Runtime, image, target) -> float:
     x, y = _clamped(image), _clamped(target)
     if x.shape != y.shape or x.ndim != 3 or x.shape[2] != 3:
         raise ValueError(f"images must both be (H, W, 3), got {x.shape} and {y.shape}")
-    loss = Loss(rt)
+    loss = Loss(StageContext(rt))
     loss(rt.to_device(x), rt.to_device(y), x.shape[1], x.shape[0], None, stage="metrics")
     return loss.read_stats()["ssim"]
 

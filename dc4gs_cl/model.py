@@ -16,6 +16,16 @@ import numpy as np
 
 from .constants import SH_C0, SH_MAX_DEGREE, sh_coeffs, sh_degree_of
 
+# The parameter groups in their lane order per Gaussian: the device buffers, the Adam moments, the kernels'
+# group indices (PARAM_<GROUP>, records.param_group_defines) and checkpoints all follow it.
+PARAM_GROUPS = ("means", "log_scales", "quats", "opacity_logits", "sh")
+
+
+def group_widths(sh_coeffs: int) -> dict[str, int]:
+    """Floats per Gaussian of each parameter group, in PARAM_GROUPS order."""
+    return {"means": 3, "log_scales": 3, "quats": 4, "opacity_logits": 1, "sh": 3 * sh_coeffs}
+
+
 INIT_OPACITY = 0.1             # opacity of a freshly initialised Gaussian
 KNN_NEIGHBOURS = 3             # initial scale: sqrt(mean squared distance to this many neighbours)
 KNN_MIN_MEAN_SQ_DIST = 1e-7    # floor on that mean squared distance (Inria's simple-knn)
@@ -47,6 +57,18 @@ class GaussianModel:
     def sh_degree(self) -> int:
         """Highest SH degree the model stores."""
         return sh_degree_of(self.sh.shape[1])
+
+    def groups(self) -> dict[str, np.ndarray]:
+        """The parameters as PARAM_GROUPS rows: name -> (N, width) float32 (views of this model's arrays)."""
+        widths = group_widths(self.sh.shape[1])
+        return {k: getattr(self, k).reshape(len(self), widths[k]) for k in PARAM_GROUPS}
+
+    @staticmethod
+    def from_groups(groups: dict[str, np.ndarray]) -> "GaussianModel":
+        """The inverse of groups()."""
+        n = len(groups["means"])
+        return GaussianModel(means=groups["means"], log_scales=groups["log_scales"], quats=groups["quats"],
+                             opacity_logits=groups["opacity_logits"].reshape(n), sh=groups["sh"].reshape(n, -1, 3))
 
     # activations -------------------------------------------------------------------------------
     @property

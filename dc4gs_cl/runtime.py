@@ -1,9 +1,10 @@
 """OpenCL runtime: device choice, context and queue, the program registry, per-stage profiling.
 
-One `Runtime` per process and device. Programs are built once per (kernel file, -D options) and their
-`Kernel` objects kept, so nothing is rebuilt or looked up on the hot path (PoCL and pyopencl also keep
-compiled binaries on disk, so a new process builds fast). `#include "x.h"` lines in kernel files are
-resolved here, textually, so the source text alone decides what the driver caches. Every device buffer
+One `Runtime` per process and device. Programs are built once per (kernel file, -D options) (PoCL and
+pyopencl also keep compiled binaries on disk, so a new process builds fast); the stage hosts keep their
+`Kernel` objects (render/stage.py), so nothing is rebuilt or looked up on the hot path. `#include "x.h"`
+lines in kernel files are resolved here, textually (generated headers included), so the source text alone
+decides what the driver caches. Every device buffer
 is made here (`buffer`, `to_device`), which counts the bytes held (`memory_in_use`) and their
 high-water mark (`memory_peak`, restarted by `reset_memory_peak()`).
 """
@@ -21,32 +22,42 @@ import pyopencl as cl
 
 from .constants import kernel_defines
 from .errors import DeviceError
+from .records import records_header
 
 DEVICE_ENV = "DC4GS_DEVICE"   # same forms as --device: "P:D", "gpu", "cpu" or part of the name
 RELAXED_MATH = "RELAXED_MATH"  # a define that, set to 1, also builds the program with -cl-fast-relaxed-math
-BUFFER_GROWTH = 1.5           # a buffer that must grow gets this much more than asked: fewer reallocations
-
-# The device-side camera; keep in step with `Camera` in kernels/common.h.
-CAMERA_DTYPE = np.dtype([("R", np.float32, 9), ("t", np.float32, 3), ("fx", np.float32), ("fy", np.float32),
-                         ("cx", np.float32), ("cy", np.float32), ("campos", np.float32, 3),
-                         ("width", np.int32), ("height", np.int32)])
+BUFFER_GROWTH = 1.5           # a buffer that must grow gets this much more than it had: fewer reallocations
 
 _INCLUDE = re.compile(r'^\s*#\s*include\s+"([\w.]+)"\s*$', re.M)
 
 
+def generated_headers() -> dict[str, str]:
+    """Headers written by the host rather than kept as files: records.h, the structs of records.py."""
+    return {"records.h": records_header()}
+
+
 def kernel_source(name: str) -> str:
-    """Text of kernels/<name> with its local #include lines replaced by the headers' text."""
+    """Text of kernels/<name> with its local #include lines replaced by the headers' text (generated
+    headers included), so that the text alone decides what the driver caches."""
     root = resources.files("dc4gs_cl") / "kernels"
+    generated = generated_headers()
 
     def expand(text: str, seen: tuple[str, ...]) -> str:
         def sub(m: re.Match) -> str:
             header = m.group(1)
             if header in seen:
                 return ""
-            return expand((root / header).read_text(), seen + (header,))
+            body = generated[header] if header in generated else (root / header).read_text()
+            return expand(body, seen + (header,))
         return _INCLUDE.sub(sub, text)
 
     return expand((root / name).read_text(), (name,))
+
+
+def grown_size(want: int, have: int) -> int:
+    """What a buffer (or array capacity) that holds `have` and must hold `want` grows to: at least
+    BUFFER_GROWTH x what it had, so that a growing model reallocates rarely. The one growth rule."""
+    return want if want <= have else max(want, int(have * BUFFER_GROWTH))
 
 
 def list_devices() -> list[tuple[str, cl.Device]]:
@@ -150,7 +161,6 @@ class Runtime:
         self.profiling = profiling
         self.caps = Capabilities.of(self.device)
         self._programs: dict[tuple, cl.Program] = {}
-        self._kernels: dict[tuple, cl.Kernel] = {}
         self.events: dict[str, list[cl.Event]] = defaultdict(list)
         self.memory_in_use = 0   # bytes in device buffers made here and not yet released
         self.memory_peak = 0     # the most memory_in_use has been since the last reset_memory_peak()
@@ -175,13 +185,6 @@ class Runtime:
                 raise DeviceError(f"building kernels/{file} with {' '.join(options)} failed:\n{e}") from None
             self._programs[key] = prg
         return prg
-
-    def kernel(self, file: str, name: str, defines: dict | None = None) -> cl.Kernel:
-        key = (file, name, tuple(sorted((defines or {}).items())))
-        k = self._kernels.get(key)
-        if k is None:
-            k = self._kernels[key] = cl.Kernel(self.program(file, defines), name)
-        return k
 
     # launches and buffers -----------------------------------------------------------------------
     def launch(self, stage: str, kernel: cl.Kernel, global_size, local_size, *args) -> cl.Event:

@@ -3,10 +3,11 @@ rule fed with the same kernel's stored gradients; and the learning-rate schedule
 import numpy as np
 import pytest
 
+from dc4gs_cl.backward import GRADIENTS, ProjectBackward
 from dc4gs_cl.host.adam import Adam, AdamConfig, exponential_lr
+from dc4gs_cl.model import group_widths
 from dc4gs_cl.render import DeviceGaussians, Renderer
-from dc4gs_cl.render.backward import SumsLayout, project_backward
-from dc4gs_cl.render.gaussians import DeviceArrays, group_widths
+from dc4gs_cl.render.gaussians import DeviceArrays
 from dc4gs_cl.scene.camera import Camera
 from helpers import random_model
 
@@ -29,7 +30,8 @@ def test_fused_adam_matches_reference_over_several_steps(rt, rng, sh_degree):
     model.means[-60:] = cam.center - cam.R[2] * rng.uniform(0.5, 2, (60, 1))   # behind: zero gradient, still steps
     g = DeviceGaussians(rt, model)
     n, widths = g.n, group_widths(g.sh_coeffs)
-    renderer, layout = Renderer(rt), SumsLayout()
+    renderer, layout = Renderer(rt), GRADIENTS
+    backward = ProjectBackward(renderer.context)
     adam, grads = Adam(rt, widths, n, AdamConfig()), DeviceArrays(rt, widths, n)
     host = {k: v.astype(np.float64) for k, v in g.download().items()}
     m = {k: np.zeros_like(x) for k, x in host.items()}
@@ -39,13 +41,13 @@ def test_fused_adam_matches_reference_over_several_steps(rt, rng, sh_degree):
         res = renderer.render(g, cam, 3)
         assert 0 < (rt.to_host(res.proj.radius, n, np.int32) > 0).sum() < n
         sums = rt.to_device(rng.normal(scale=10.0 ** rng.uniform(-6, 0), size=(n, layout.width)).astype(np.float32))
-        project_backward(rt, g, cam, 3, res, sums, layout, grads=grads.buffers)
+        backward.gradients(g, cam, 3, res, sums, layout, grads.buffers)
         grad = {k: x.astype(np.float64) for k, x in grads.download().items()}
         lrs = {"means": 1e-3 * (it + 1), "log_scales": 5e-3, "quats": 1e-3, "opacity_logits": 0.05,
                "sh": (2.5e-3, 1.25e-4)}
         if it % 2:
             del lrs["opacity_logits"]          # as on an opacity reset: that group does not step
-        project_backward(rt, g, cam, 3, res, sums, layout, adam_step=adam.fused_step(lrs))
+        backward.step(g, cam, 3, res, sums, layout, adam.step_value(lrs), adam.m, adam.v)
         for k, lr in lrs.items():
             steps[k] += 1
             rate = np.repeat([lr[0], lr[1]], [3, widths[k] - 3]) if k == "sh" else lr

@@ -6,8 +6,10 @@ import pytest
 from dc4gs_cl import constants as K
 from dc4gs_cl.reference.isect import intersect_reference
 from dc4gs_cl.reference.rasterize import _tile_blend, rasterize_backward_reference, rasterize_reference
+from dc4gs_cl.backward import GRADIENTS, ProjectBackward, RasterizeBackward, SumsLayout
+from dc4gs_cl.model import group_widths
 from dc4gs_cl.render import DeviceGaussians, Renderer
-from dc4gs_cl.render.backward import SumsLayout, rasterize_backward
+from dc4gs_cl.render.workspace import POISON
 from helpers import SHAPES, random_camera, random_model
 
 
@@ -111,10 +113,9 @@ def test_rasterize_backward_kernel_matches_reference(rt, rng, shape, dc, pair_su
     res = renderer.render(DeviceGaussians(rt, model), cam, 3, bg)
     dL_dimage = rng.normal(size=(cam.height, cam.width, 3)).astype(np.float32)
     layout = SumsLayout(stats=True, dc_stats=dc)
-    sums = rasterize_backward(rt, renderer.ws, renderer.tuning, renderer.defines, layout, res,
-                              rt.to_device(dL_dimage), bg)
+    sums = RasterizeBackward(renderer.context)(res, rt.to_device(dL_dimage), bg, layout)
     n = len(model)
-    got = layout.split(rt.to_host(sums, (n, layout.width)).astype(np.float64))
+    got = layout.views(rt.to_host(sums, (n, layout.width)).astype(np.float64))
     p = download_projected(rt, res, n)
     ref = rasterize_backward_reference(p["mean2d"], p["conic_opacity"][:, :3], p["conic_opacity"][:, 3], p["rgb"],
                                        p["gaussian_of_pair"], p["ranges"], cam.width, cam.height, res.tiles_x, bg,
@@ -177,9 +178,6 @@ def test_project_backward_reference_matches_finite_differences(rng):
 
 def test_project_backward_kernel_matches_reference(rt, rng):
     from dc4gs_cl.reference.project import project_backward_reference
-    from dc4gs_cl.render.backward import project_backward
-    from dc4gs_cl.render.gaussians import group_widths
-    from dc4gs_cl.render.workspace import POISON
     model, cam = projection_case(rng, n=3000)
     model.quats[:20] = 0.0                                   # zero-norm quaternions get no gradient
     model.means[-50:] = cam.center - cam.R[2] * rng.uniform(0.5, 2, (50, 1))   # behind the camera
@@ -187,15 +185,15 @@ def test_project_backward_kernel_matches_reference(rt, rng):
     renderer = Renderer(rt, poison=True)
     res = renderer.render(g, cam, 3)
     n = len(model)
-    layout = SumsLayout()
+    layout = GRADIENTS
     sums_host = rng.normal(size=(n, layout.width)).astype(np.float32)
     widths = group_widths(g.sh_coeffs)
     for sh_degree in (0, 3):
         grads = {k: rt.to_device(np.full(n * w, POISON, np.uint32)) for k, w in widths.items()}
-        project_backward(rt, g, cam, sh_degree, res, rt.to_device(sums_host), layout, grads=grads)
+        ProjectBackward(renderer.context).gradients(g, cam, sh_degree, res, rt.to_device(sums_host), layout, grads)
         got = {k: rt.to_host(grads[k], (n, w)) for k, w in widths.items()}
         visible = rt.to_host(res.proj.radius, n, np.int32) > 0
-        parts = layout.split(sums_host.astype(np.float64))
+        parts = layout.views(sums_host.astype(np.float64))
         ref = project_backward_reference(model.means, model.log_scales, model.quats, model.opacity_logits, model.sh,
                                          cam, sh_degree, parts["mean2d"], parts["conic"], parts["opacity"],
                                          parts["rgb"], visible)
@@ -215,9 +213,6 @@ def test_whole_image_gradients_match_the_float64_chain(rt, rng):
     """Device forward + both backward stages against the float64 references chained from the raw
     parameters (the reference pairs every tile of the 3-sigma box, so the alpha cut is covered too)."""
     from dc4gs_cl.reference.project import project_backward_reference, project_reference
-    from dc4gs_cl.render.backward import project_backward
-    from dc4gs_cl.render.gaussians import group_widths
-    from dc4gs_cl.render.workspace import POISON
     model = random_model(rng, 2500, spread=1.0)
     cam = random_camera(rng, 120, 90)
     bg = rng.uniform(0, 1, 3)
@@ -236,12 +231,12 @@ def test_whole_image_gradients_match_the_float64_chain(rt, rng):
     assert undecided.mean() < 0.05
     dL_dimage = rng.normal(size=(cam.height, cam.width, 3)).astype(np.float32)
     dL_dimage[undecided] = 0.0
-    layout = SumsLayout()
-    sums = rasterize_backward(rt, renderer.ws, renderer.tuning, renderer.defines, layout, res, rt.to_device(dL_dimage), bg)
+    layout = GRADIENTS
+    sums = RasterizeBackward(renderer.context)(res, rt.to_device(dL_dimage), bg, layout)
     widths = group_widths(g.sh_coeffs)
     n = len(model)
     grads = {k: rt.to_device(np.full(n * w, POISON, np.uint32)) for k, w in widths.items()}
-    project_backward(rt, g, cam, 3, res, sums, layout, grads=grads)
+    ProjectBackward(renderer.context).gradients(g, cam, 3, res, sums, layout, grads)
 
     r = rasterize_backward_reference(p["mean2d"], p["conic"], p["opacity"], p["rgb"], gop, ranges, cam.width,
                                      cam.height, tiles_x, bg, dL_dimage)

@@ -5,10 +5,12 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from dc4gs_cl.backward import RasterizeBackward, SplitGeometry, SumsLayout, geometry_record
+from dc4gs_cl.host.densify import AbsGS, DC4GSConfig
+from dc4gs_cl.host.densify.statistics import SPLIT_COSTS
 from dc4gs_cl.reference.dc4gs import split_costs_from_sums, split_geometry_reference
 from dc4gs_cl.reference.rasterize import rasterize_backward_reference
 from dc4gs_cl.render import DeviceGaussians, Renderer
-from dc4gs_cl.render.backward import SumsLayout, rasterize_backward, split_geometry, split_geometry_width
 from helpers import SHAPES, random_camera, random_model
 
 
@@ -33,18 +35,17 @@ def test_split_sums_match_the_papers_algorithm(rt, rng, shape, pair_sums, candid
     renderer = Renderer(rt, replace(SHAPES[shape], pair_sums=pair_sums), poison=True)
     g = DeviceGaussians(rt, model)
     res = renderer.render(g, cam, 3, bg)
-    geometry = split_geometry(rt, renderer.ws, g, cam, res, candidates)
+    geometry = SplitGeometry(renderer.context)(g, cam, res, candidates)
     layout = SumsLayout(stats=True, dc_stats=True, split_candidates=candidates)
     dL_dimage = rng.normal(size=(cam.height, cam.width, 3)).astype(np.float32)
-    sums = rasterize_backward(rt, renderer.ws, renderer.tuning, renderer.defines, layout, res,
-                              rt.to_device(dL_dimage), bg, geometry)
+    sums = RasterizeBackward(renderer.context)(res, rt.to_device(dL_dimage), bg, layout, geometry)
     n = len(model)
-    got = layout.split(rt.to_host(sums, (n, layout.width)).astype(np.float64))
+    got = layout.views(rt.to_host(sums, (n, layout.width)).astype(np.float64))
     radius = rt.to_host(res.proj.radius, n, np.int32)
     cand_px, end_px, valid = split_geometry_reference(model.means, model.log_scales, model.quats, cam, radius > 0,
                                                       candidates)
-    geo = rt.to_host(geometry, (n, split_geometry_width(candidates)))
-    device_valid = (geo[:, 2] != 0) | (geo[:, 3] != 0)
+    geo = geometry_record(candidates).views(rt.to_host(geometry, (n, geometry_record(candidates).width)))
+    device_valid = (geo["dir"] != 0).any(axis=1)
     assert np.array_equal(device_valid, valid)
     assert valid.sum() > 500 and not valid[:10].any()
     co = rt.to_host(res.proj.conic_opacity, (n, 4)).astype(np.float64)
@@ -66,22 +67,20 @@ def test_split_sums_match_the_papers_algorithm(rt, rng, shape, pair_sums, candid
 
 
 def one_view_window(rt, model, cam, target, background, strategy):
-    """The window statistics of one view (the device path training takes) for a hand-built model."""
-    from dc4gs_cl.host.stats import WindowStats
+    """The window statistics of one view for a hand-built model, through the strategy's hooks (the device
+    path training takes)."""
     from dc4gs_cl.loss import Loss
     from dc4gs_cl.render.workspace import POISON
     renderer = Renderer(rt, poison=True)
     g = DeviceGaussians(rt, model)
     res = renderer.render(g, cam, 0, background)
     grad = rt.to_device(np.full(target.size, POISON, np.uint32))
-    Loss(rt)(res.raster.image, rt.to_device(target.astype(np.float32)), cam.width, cam.height, grad)
-    layout = strategy.sums_layout()
-    geometry = split_geometry(rt, renderer.ws, g, cam, res, layout.split_candidates) if layout.split_candidates else None
-    sums = rasterize_backward(rt, renderer.ws, renderer.tuning, renderer.defines, layout, res, grad, background, geometry)
-    window = WindowStats(rt, layout, 1.0, strategy.window_layout())
-    window.reset(len(model))
-    window.accumulate(res, sums, geometry)
-    return window.download(), layout.split(rt.to_host(sums, (len(model), layout.width)))
+    Loss(renderer.context)(res.raster.image, rt.to_device(target.astype(np.float32)), cam.width, cam.height, grad)
+    strategy.attach(renderer.context, 1.0, len(model))
+    gathering = strategy.gather(1, g, cam, res)
+    sums = RasterizeBackward(renderer.context)(res, grad, background, gathering.layout, gathering.geometry)
+    strategy.fold(gathering, res, sums)
+    return strategy.window.download(), gathering.layout.views(rt.to_host(sums, (len(model), gathering.layout.width)))
 
 
 def flat_scene(n):
@@ -115,27 +114,25 @@ def two_objects(cam, sigma, boundary, scale_y):
 
 
 def test_dc_guided_split_cuts_where_two_objects_meet(rt):
-    from dc4gs_cl.host.dc4gs import DC4GSConfig, split_positions
-    from dc4gs_cl.host.strategy import AbsGS
+    from dc4gs_cl.host.densify.dc4gs import split_positions
     cam, model, to_sh = flat_scene(1)
     sigma = 0.5
     model.log_scales[0] = np.log([sigma, 0.05, 0.25])          # long along x: the principal axis
     model.sh[0, 0] = to_sh([0.5, 0.5, 0.5])
     boundary = 0.35                                             # normalised position along the diameter
     target = two_objects(cam, sigma, boundary, cam.fx * 0.25 / 4.0)
-    stats, _ = one_view_window(rt, model, cam, target, np.zeros(3, np.float32), AbsGS(dc4gs_config=DC4GSConfig()))
+    strategy = AbsGS(dc4gs=DC4GSConfig(dcc=True, dcs=True))
+    stats, _ = one_view_window(rt, model, cam, target, np.zeros(3, np.float32), strategy)
     for pick in ("poly", "argmin"):                              # measured: 0.317 and 0.333
-        x = split_positions(stats["j"], pick)[0]
-        assert abs(x - boundary) < 0.08, (pick, x, stats["j"])
-    assert split_positions(stats["j"], "poly")[0] != 0.5      # the costs did decide
+        x = split_positions(stats[SPLIT_COSTS], pick)[0]
+        assert abs(x - boundary) < 0.08, (pick, x, stats[SPLIT_COSTS])
+    assert split_positions(stats[SPLIT_COSTS], "poly")[0] != 0.5      # the costs did decide
 
 
 def test_directional_consistency_tells_a_shift_from_two_objects(rt):
     """Two Gaussians of one view: A's target is A itself shifted (its pixels agree: move), B covers two
     objects (its pixels disagree: split). DCC weights B's gradient by far more than A's."""
-    from dc4gs_cl.host.dc4gs import DC4GSConfig
-    from dc4gs_cl.host.strategy import AbsGS
-    from dc4gs_cl.host.strategy.base import mean_per_view
+    from dc4gs_cl.host.densify.statistics import ABS_PER_VIEW
     from dc4gs_cl.model import GaussianModel
     cam, model, to_sh = flat_scene(2)
     sigma = 0.35
@@ -146,81 +143,64 @@ def test_directional_consistency_tells_a_shift_from_two_objects(rt):
                               model.opacity_logits[:1], model.sh[:1])
     target = Renderer(rt).render(DeviceGaussians(rt, shifted_a), cam, 0, np.zeros(3, np.float32)).image(rt)
     target = target + np.roll(two_objects(cam, sigma, 0.5, cam.fx * 0.2 / 4.0), int(pixel_x(cam, 1.3) - cam.cx), axis=1)
-    strategy = AbsGS(dc4gs_config=DC4GSConfig(dcs=False))
+    strategy = AbsGS(dc4gs=DC4GSConfig(dcc=True))
     stats, sums = one_view_window(rt, model, cam, target, np.zeros(3, np.float32), strategy)
     kappa = np.linalg.norm(sums["dc"][:, :2], axis=1) / sums["dc"][:, 2]
     assert kappa[0] > 0.5 and kappa[1] < 0.3, kappa             # measured: 0.59 and 0.17
-    weight = strategy.split_criterion(stats) / mean_per_view(stats["abs"], stats["views"])
+    weight = strategy.split_criterion(stats) / ABS_PER_VIEW(stats)
     np.testing.assert_allclose(weight, 1 - kappa, rtol=1e-5)    # one view: DCC = (1 - kappa) |ghat|
     assert weight[1] > 1.4 * weight[0]
 
 
-@pytest.mark.parametrize("pooling", ["view", "window"])
-def test_window_statistics_follow_the_spec(rt, rng, pooling):
-    """Random per-view sums through the device's window accumulation against the spec written in NumPy."""
+def fake_view(rt, radius, depth, width, height):
+    """What DensifyStats.fold reads of a render result, for hand-made per-view sums."""
     from types import SimpleNamespace
-    from dc4gs_cl.host.stats import PIXELGS_DEPTH_FRACTION, WindowLayout, WindowStats
-    from dc4gs_cl.reference.dc4gs import side_cost
-    n, views, candidates, extent, width, height = 300, 6, 5, 3.0, 120, 80
-    layout = SumsLayout(stats=True, dc_stats=True, split_candidates=candidates)
-    window = WindowStats(rt, layout, extent, WindowLayout(dc=True, split_candidates=candidates,
-                                                          window_pooling=pooling == "window"))
-    window.reset(n)
-    f = layout.fields
-    acc = {k: np.zeros(n) for k in ("grad", "abs", "views", "pix_grad", "pix", "dcc_abs", "dcc_grad", "dcc_pix")}
-    acc["max_radius"], acc["j"] = np.zeros(n), np.zeros((n, candidates))
-    win_u, win_total, win_left = np.zeros((n, 3)), np.zeros((n, 5)), np.zeros((n, candidates, 5))
+    return SimpleNamespace(width=width, height=height, proj=SimpleNamespace(radius=rt.to_device(radius.astype(np.int32)),
+                                                                            depth=rt.to_device(depth.astype(np.float32))))
+
+
+@pytest.mark.parametrize("pooling", ["view", "window"])
+@pytest.mark.parametrize("track", [0.0, 1.2])   # absolute thresholds: |ghat| per view is about 1.25 here
+def test_densify_stats_kernel_matches_reference(rt, rng, pooling, track):
+    """Random per-view sums folded by the device (kernels/densify_stats.cl) against the float64 reference of the
+    spec (reference/densify_stats.py), view after view, every column of the window."""
+    from dc4gs_cl.host.densify.densify_stats import DensifyStats
+    from dc4gs_cl.host.densify.statistics import ABS_PER_VIEW, PIXELGS_DEPTH_FRACTION, StatisticsSpec
+    from dc4gs_cl.reference.densify_stats import fold_view_reference
+    from dc4gs_cl.render.stage import StageContext
+    n, views, candidates, extent, width, height = 300, 7, 5, 3.0, 120, 80
+    spec = StatisticsSpec(dc=True, split_candidates=candidates, window_pooling=pooling == "window", tracked=ABS_PER_VIEW)
+    layout, geo_record = spec.sums, geometry_record(candidates)
+    stats = DensifyStats(StageContext(rt, poison=True), spec, extent, track_threshold=track)
+    stats.reset(n)
+    want = {k: np.zeros((n, w)).squeeze(1) if w == 1 else np.zeros((n, w)) for k, w in spec.window.widths().items()}
     for _ in range(views):
         sums = rng.normal(size=(n, layout.width)).astype(np.float32)
+        v = layout.views(sums)
         count = rng.integers(0, 40, n).astype(np.float32)
         count[rng.random(n) < 0.1] = 0                                  # some see no pixel
-        sums[:, f["dc"][0] + 2] = count
-        sums[:, f["pixels"][0]] = count + rng.integers(0, 5, n)
-        left = rng.uniform(0, 1, (n, candidates, 5)).astype(np.float32)  # left sums within the totals
-        total = np.concatenate([sums[:, f["dc"][0]:f["dc"][0] + 3], sums[:, f["abs"][0]:f["abs"][0] + 2]], 1)
-        left = left * total[:, None, :]
-        sums[:, f["split"][0]:f["split"][0] + 5 * candidates] = left.reshape(n, -1)
-        radius = rng.integers(0, 3, n).astype(np.int32) * rng.integers(1, 30, n).astype(np.int32)
-        depth = rng.uniform(0.5, 3.0, n).astype(np.float32)
-        geometry = np.zeros((n, split_geometry_width(candidates)), np.float32)
+        v["dc"][:, 2] = count
+        v["pixels"][:] = count + rng.integers(0, 5, n)
+        total = np.concatenate([v["dc"], v["abs"]], 1)                  # left sums within the totals
+        v["split"][:] = (rng.uniform(0, 1, (n, candidates, 5)) * total[:, None, :]).reshape(n, -1)
+        radius = rng.integers(0, 3, n) * rng.integers(1, 30, n)
+        depth = rng.uniform(0.5, 3.0, n)
+        geometry = np.zeros((n, geo_record.width), np.float32)
         line = rng.random(n) < 0.8
-        geometry[line, 2] = 1.0
-        res = SimpleNamespace(width=width, height=height, proj=SimpleNamespace(radius=rt.to_device(radius),
-                                                                                depth=rt.to_device(depth)))
-        window.accumulate(res, rt.to_device(sums), rt.to_device(geometry))
-        # the spec, in NumPy
-        vis = radius > 0
-        s = sums.astype(np.float64)
-        g = np.hypot(s[:, 0] * width / 2, s[:, 1] * height / 2)
-        ghat = np.hypot(s[:, f["abs"][0]], s[:, f["abs"][0] + 1])
-        pix = s[:, f["pixels"][0]]
-        fac = np.minimum(1, (depth / (PIXELGS_DEPTH_FRACTION * extent)) ** 2)
-        u = s[:, f["dc"][0]:f["dc"][0] + 3]
-        if pooling == "window":
-            win_u[vis] += u[vis]
-            u = win_u
-        kappa_weight = np.where(u[:, 2] > 0, 1 - np.hypot(u[:, 0], u[:, 1]) / np.where(u[:, 2] > 0, u[:, 2], 1), 0)
-        for key, value in (("grad", g), ("abs", ghat), ("views", 1.0), ("pix_grad", fac * g * pix), ("pix", pix),
-                           ("dcc_abs", kappa_weight * ghat), ("dcc_grad", kappa_weight * g),
-                           ("dcc_pix", kappa_weight * fac * g * pix)):
-            acc[key] += np.where(vis, value, 0)
-        acc["max_radius"] = np.maximum(acc["max_radius"], radius)
-        if pooling == "window":
-            add = vis & line
-            win_total[add] += total[add]
-            win_left[add] += left[add]
-            cost = side_cost(win_left) + side_cost(win_total[:, None] - win_left)
-            acc["j"] += np.where(vis[:, None], cost, 0)
-        else:
-            cost = side_cost(left) + side_cost(total[:, None] - left)
-            acc["j"] += np.where((vis & line)[:, None], cost, 0)
-    got = window.download()
-    for key, want in acc.items():
-        np.testing.assert_allclose(got[key], want, rtol=2e-4, atol=1e-4, err_msg=key)
+        geometry[line, geo_record.offsets["dir"]] = 1.0
+        stats.fold(fake_view(rt, radius, depth, width, height), rt.to_device(sums), rt.to_device(geometry))
+        want = fold_view_reference(want, v, radius, depth, line, width, height, PIXELGS_DEPTH_FRACTION * extent,
+                                   pooling == "window", track, (ABS_PER_VIEW.total, ABS_PER_VIEW.count))
+    got = stats.download()
+    assert set(got) == set(want)
+    for key in want:
+        np.testing.assert_allclose(got[key], want[key], rtol=2e-4, atol=1e-4, err_msg=key)
+    if track:
+        assert 0 < got["skip_split"].mean() < 1                           # the draw tracks some and skips some
 
 
 def test_poly_split_position_is_the_exact_minimum_of_the_interpolating_quartic(rng):
-    from dc4gs_cl.host.dc4gs import interpolating_polynomials, split_positions
+    from dc4gs_cl.host.densify.dc4gs import interpolating_polynomials, split_positions
     costs = rng.uniform(0, 1, (500, 5)) * 10.0 ** rng.uniform(-6, 2, (500, 1))
     x = split_positions(costs, "poly")
     coeffs = interpolating_polynomials(costs)
@@ -240,7 +220,7 @@ def test_poly_split_position_is_the_exact_minimum_of_the_interpolating_quartic(r
 def test_poly_finds_a_minimum_within_one_grid_cell_of_either_end():
     """A quartic's minimum 1e-4 inside an end of [1/12, 11/12], closer than the search grid's spacing: the
     grid's best point is the end itself, and the exact minimum must still be found."""
-    from dc4gs_cl.host.dc4gs import split_positions
+    from dc4gs_cl.host.densify.dc4gs import split_positions
     candidates = np.arange(1, 6) / 6
     ends = np.array([1 / 12 + 1e-4, 11 / 12 - 1e-4])
     costs = (candidates[None, :] - ends[:, None]) ** 2 + 0.3          # parabolas: the quartic through them
@@ -248,7 +228,7 @@ def test_poly_finds_a_minimum_within_one_grid_cell_of_either_end():
 
 
 def test_argmin_dense_and_constant_costs():
-    from dc4gs_cl.host.dc4gs import split_positions
+    from dc4gs_cl.host.densify.dc4gs import split_positions
     costs = np.array([[3.0, 1.0, 2.0, 5.0, 4.0], [0.0] * 5, [2.0] * 5, [1.0, np.nan, 1.0, 1.0, 1.0]])
     np.testing.assert_allclose(split_positions(costs, "argmin"), [2 / 6, 0.5, 0.5, 0.5])
     dense = np.abs(np.linspace(0, 1, 61)[1:-1] - 0.7)[None]       # 59 candidates, minimum nearest 0.7
@@ -257,9 +237,8 @@ def test_argmin_dense_and_constant_costs():
 
 
 def test_dc_guided_split_children(rng):
-    from dc4gs_cl.host.dc4gs import split_at
-    from dc4gs_cl.host.ops import GaussianSet
-    from dc4gs_cl.reference.project import quat_to_rotmat
+    from dc4gs_cl.geometry import quat_to_rotmat
+    from dc4gs_cl.host.densify.ops import GaussianSet, split_at
     n = 3
     q = rng.normal(size=(n, 4))
     params = {"means": rng.normal(size=(n, 3)), "log_scales": np.log([[0.2, 0.5, 0.1], [0.3, 0.3, 0.3], [0.1, 0.1, 0.4]]),
@@ -291,7 +270,7 @@ def test_dc_guided_split_children(rng):
 
 
 def test_noise_sized_costs_split_in_the_middle(rng):
-    from dc4gs_cl.host.dc4gs import split_positions
+    from dc4gs_cl.host.densify.dc4gs import split_positions
     noise = rng.normal(0, 1e-16, (4, 5))         # vanishing gradients leave only rounding noise
     np.testing.assert_array_equal(split_positions(np.abs(noise), "poly"), 0.5)
 
@@ -299,29 +278,28 @@ def test_noise_sized_costs_split_in_the_middle(rng):
 def test_split_costs_stop_for_gaussians_whose_criterion_stays_low(rt, rng):
     """With tracking, a Gaussian whose running split criterion stays under track x threshold after its
     first views gets no split line (no costs); one above it keeps its line."""
-    from types import SimpleNamespace
-    from dc4gs_cl.host.stats import TRACK_MIN_VIEWS, WindowLayout, WindowStats
+    from dc4gs_cl.host.densify.densify_stats import DensifyStats
+    from dc4gs_cl.host.densify.statistics import ABS_PER_VIEW, SKIP_SPLIT, TRACK_MIN_VIEWS, StatisticsSpec
     n, candidates = 4, 5
-    layout = SumsLayout(stats=True, dc_stats=True, split_candidates=candidates)
-    wl = WindowLayout(dc=True, split_candidates=candidates, criterion=("abs", "views"))
-    window = WindowStats(rt, layout, 1.0, wl, track_threshold=1.0)
+    spec = StatisticsSpec(dc=True, split_candidates=candidates, tracked=ABS_PER_VIEW)
+    renderer = Renderer(rt, poison=True)
+    window = DensifyStats(renderer.context, spec, 1.0, track_threshold=1.0)
     window.reset(n)
-    sums = np.zeros((n, layout.width), np.float32)
-    sums[:, layout.fields["abs"][0]] = [0.1, 5.0, 0.1, 5.0]          # per-view |ghat| below / above 1
-    res = SimpleNamespace(width=10, height=10, proj=SimpleNamespace(radius=rt.to_device(np.full(n, 3, np.int32)),
-                                                                     depth=rt.to_device(np.ones(n, np.float32))))
-    for view in range(TRACK_MIN_VIEWS + 1):
-        assert np.array_equal(window.download()["skip_split"], [0, 0, 0, 0] if view < TRACK_MIN_VIEWS else [1, 0, 1, 0])
-        window.accumulate(res, rt.to_device(sums), rt.to_device(np.zeros((n, split_geometry_width(candidates)), np.float32)))
+    sums = np.zeros((n, spec.sums.width), np.float32)
+    spec.sums.views(sums)["abs"][:, 0] = [0.1, 5.0, 0.1, 5.0]          # per-view |ghat| below / above 1
+    view = fake_view(rt, np.full(n, 3), np.ones(n), 10, 10)
+    no_lines = rt.to_device(np.zeros((n, geometry_record(candidates).width), np.float32))
+    for seen in range(TRACK_MIN_VIEWS + 1):
+        assert np.array_equal(window.download()[SKIP_SPLIT], [0, 0, 0, 0] if seen < TRACK_MIN_VIEWS else [1, 0, 1, 0])
+        window.fold(view, rt.to_device(sums), no_lines)
 
     # split_geometry then gives the skipped Gaussians no line, and the others theirs
     cam, model, _ = flat_scene(n)
     model.means[:, 0] = [-1.5, -0.5, 0.5, 1.5]
     model.log_scales[:] = np.log([0.3, 0.05, 0.1])     # longest along world x = image x
-    renderer = Renderer(rt, poison=True)
     g = DeviceGaussians(rt, model)
     res = renderer.render(g, cam, 0)
     assert (rt.to_host(res.proj.radius, n, np.int32) > 0).all()
-    geometry = split_geometry(rt, renderer.ws, g, cam, res, candidates, window=(window.buffer, wl.defines()))
-    geo = rt.to_host(geometry, (n, split_geometry_width(candidates)))
-    np.testing.assert_array_equal(np.abs(geo[:, 2:4]).sum(1) > 0, [False, True, False, True])
+    geometry = SplitGeometry(renderer.context)(g, cam, res, candidates, window=(window.buffer, window.record))
+    geo = geometry_record(candidates).views(rt.to_host(geometry, (n, geometry_record(candidates).width)))
+    np.testing.assert_array_equal(np.abs(geo["dir"]).sum(1) > 0, [False, True, False, True])

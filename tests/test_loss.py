@@ -5,6 +5,7 @@ import pytest
 
 from dc4gs_cl import metrics
 from dc4gs_cl.loss import LAMBDA_DSSIM, Loss
+from dc4gs_cl.render.stage import StageContext
 from dc4gs_cl.reference import loss as ref
 
 # Work shapes (seg, wg) run on PoCL: the CPU default, the GPUs' and an odd one in between.
@@ -42,7 +43,7 @@ def test_reference_gradient_matches_finite_differences(rng):
 
 @pytest.mark.parametrize("shape", SHAPES)
 def test_kernel_matches_reference(rt, rng, shape):
-    loss = Loss(rt, *SHAPES[shape], poison=True)
+    loss = Loss(StageContext(rt, poison=True), *SHAPES[shape])
     for w, h in [(37, 23), (64, 48), (130, 97)]:
         y = rng.uniform(0, 1, (h, w, 3))
         x = np.clip(y + rng.normal(0, 0.2, y.shape), -0.05, 1.05)   # renders are not clamped
@@ -59,7 +60,7 @@ def test_kernel_matches_reference(rt, rng, shape):
 def test_identical_images(rt, rng):
     x = rng.uniform(0, 1, (41, 29, 3)).astype(np.float32)
     x[10:20, 5:15] = 0.5   # a flat patch: variances ~0, the C2-dominated case
-    grad, stats = run_loss(rt, Loss(rt, poison=True), x, x)
+    grad, stats = run_loss(rt, Loss(StageContext(rt, poison=True)), x, x)
     assert stats["ssim"] == pytest.approx(1.0, abs=1e-6)
     assert abs(stats["loss"]) < 1e-6 and stats["l1"] == 0.0 and stats["mse"] == 0.0
     # SSIM is at its maximum (zero gradient) and sign(0) = 0: no L1 part of size 0.8 / M anywhere
@@ -79,7 +80,7 @@ def test_metrics_match_reference(rt, rng):
 
 
 def test_stats_are_means_over_calls_since_last_read(rt, rng):
-    loss = Loss(rt)
+    loss = Loss(StageContext(rt))
     pairs = [(rng.uniform(0, 1, (h, w, 3)).astype(np.float32), rng.uniform(0, 1, (h, w, 3)).astype(np.float32))
              for w, h in [(30, 20), (90, 61), (17, 9)]]   # growing, then shrinking scratch
     grad = rt.buffer(4 * max(x.size for x, _ in pairs))
@@ -105,7 +106,7 @@ def test_degenerate_images_give_finite_results(rt, rng, case):
     elif case == "outside [0, 1]":
         x, y = rng.uniform(-0.1, 1.1, x.shape), np.clip(y + rng.normal(0, 0.2, y.shape), 0, 1)
     x, y = x.astype(np.float32), y.astype(np.float32)
-    grad, stats = run_loss(rt, Loss(rt, poison=True), x, y)
+    grad, stats = run_loss(rt, Loss(StageContext(rt, poison=True)), x, y)
     assert np.isfinite(grad).all() and all(np.isfinite(v) for v in stats.values())
     want = ref.loss_gradient(x, y)
     # With variances ~0, s = E[x^2] - mu^2 in float32 keeps an error ~1e-7 x^2 against C2 = 9e-4, as in the

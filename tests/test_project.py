@@ -3,10 +3,10 @@ import pytest
 
 from dc4gs_cl.reference import project_reference
 from dc4gs_cl.reference.project import rect_area, tile_rect_reference
-from dc4gs_cl.render import DeviceGaussians, RenderOptions
-from dc4gs_cl.render.project import project
 from dc4gs_cl.constants import tile_grid
-from dc4gs_cl.render.workspace import Workspace
+from dc4gs_cl.render import DeviceGaussians
+from dc4gs_cl.render.project import Project
+from dc4gs_cl.render.stage import StageContext
 from helpers import random_camera, random_model
 
 
@@ -17,7 +17,7 @@ def rel_l2(a, b):
 def run_projection(rt, model, cam, sh_degree):
     tiles_x, tiles_y = tile_grid(cam.width, cam.height)
     g = DeviceGaussians(rt, model)
-    p = project(rt, Workspace(rt, poison=True), g, cam, sh_degree, tiles_x, tiles_y, RenderOptions().defines())
+    p = Project(StageContext(rt, poison=True))(g, cam, sh_degree, tiles_x, tiles_y)
     n = len(model)
     got = {"mean2d": rt.to_host(p.mean2d, (n, 2)), "conic_opacity": rt.to_host(p.conic_opacity, (n, 4)),
            "rgb": rt.to_host(p.rgb, (n, 3)), "depth": rt.to_host(p.depth, n),

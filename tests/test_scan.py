@@ -2,6 +2,7 @@ import numpy as np
 import pytest
 
 from dc4gs_cl.render.scan import ExclusiveScan
+from dc4gs_cl.render.stage import StageContext
 from dc4gs_cl.render.workspace import POISON
 from helpers import SHAPES
 
@@ -9,7 +10,7 @@ from helpers import SHAPES
 @pytest.mark.parametrize("shape", SHAPES)
 @pytest.mark.parametrize("flags", [False, True])
 def test_exclusive_scan_matches_cumsum(rt, rng, shape, flags):
-    scan = ExclusiveScan(rt, SHAPES[shape], flags=flags)
+    scan = ExclusiveScan(StageContext(rt, SHAPES[shape]), flags=flags)
     for n in [1, 2, 7, 255, 256, 257, 1000, int(rng.integers(2_000, 300_000))]:
         values = rng.integers(0, 50, n).astype(np.uint32)
         values[rng.random(n) < 0.3] = 0
@@ -26,7 +27,7 @@ def test_exclusive_scan_matches_cumsum(rt, rng, shape, flags):
 
 
 def test_scan_in_place_and_empty(rt, rng):
-    scan = ExclusiveScan(rt, SHAPES["cpu"])
+    scan = ExclusiveScan(StageContext(rt, SHAPES["cpu"]))
     values = rng.integers(0, 1000, 5000).astype(np.uint32)
     buf = rt.to_device(values)
     total = rt.to_device(np.full(1, POISON, np.uint32))

@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 
 from dc4gs_cl.render.sort import RadixSort, digit_plan
-from dc4gs_cl.render.workspace import Workspace
+from dc4gs_cl.render.stage import StageContext
 from helpers import SHAPES
 
 
@@ -19,7 +19,7 @@ def test_digit_plan_covers_exactly_the_requested_bits():
 def test_radix_sort_is_a_stable_sort_of_the_requested_bits(rt, rng, shape):
     for n, lo, hi in [(1, 0, 32), (2, 0, 32), (1000, 0, 32), (int(rng.integers(10_000, 200_000)), 0, 32),
                       (50_000, 0, 11), (30_000, 4, 20), (777, 0, 1)]:
-        sort = RadixSort(rt, SHAPES[shape], Workspace(rt, poison=True))   # fresh poisoned scratch per case
+        sort = RadixSort(StageContext(rt, SHAPES[shape], poison=True))   # fresh poisoned scratch per case
         keys = rng.integers(0, 2**32, n, dtype=np.uint64).astype(np.uint32)
         if n > 10:   # many duplicates, so that stability matters
             keys[rng.random(n) < 0.5] = keys[0]
@@ -33,7 +33,7 @@ def test_radix_sort_is_a_stable_sort_of_the_requested_bits(rt, rng, shape):
 
 
 def test_radix_sort_with_no_bits_or_one_key_returns_input(rt):
-    sort = RadixSort(rt, SHAPES["cpu"])
+    sort = RadixSort(StageContext(rt, SHAPES["cpu"]))
     keys, vals = rt.to_device(np.array([5, 3], np.uint32)), rt.to_device(np.array([0, 1], np.uint32))
     assert sort(keys, vals, 2, 0, 0) == (keys, vals)
     assert sort(keys, vals, 1, 0, 32) == (keys, vals)

@@ -3,10 +3,9 @@ criteria, and Adam moments staying with their Gaussians through every operation.
 import numpy as np
 import pytest
 
-from dc4gs_cl.host import ops
-from dc4gs_cl.host.ops import GaussianSet
-from dc4gs_cl.host.strategy import AbsGS, DensifyConfig, PixelGS, Strategy
-from dc4gs_cl.reference.project import quat_to_rotmat
+from dc4gs_cl.geometry import quat_to_rotmat
+from dc4gs_cl.host.densify import AbsGS, DensifyConfig, GaussianSet, PixelGS, Strategy, ops
+from dc4gs_cl.host.densify.statistics import BASE_COLUMNS, VIEWS
 
 EXTENT = 2.0
 
@@ -23,8 +22,8 @@ def hand_built(rng, n=6, sh=4):
 
 
 def window(n, **columns):
-    stats = {k: np.zeros(n) for k in ("grad", "abs", "views", "pix_grad", "pix", "max_radius")}
-    stats["views"][:] = 10
+    stats = {k: np.zeros(n) for k in BASE_COLUMNS}
+    stats[VIEWS][:] = 10
     for k, val in columns.items():
         stats[k][:] = val
     return stats

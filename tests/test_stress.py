@@ -3,12 +3,13 @@ parameters; and the emulated float atomic add is exact under contention."""
 import numpy as np
 import pytest
 
+from dc4gs_cl.backward import ProjectBackward, RasterizeBackward, SumsLayout
 from dc4gs_cl.host.adam import Adam
-from dc4gs_cl.render import DeviceGaussians, Renderer
-from dc4gs_cl.render.backward import SumsLayout, project_backward, rasterize_backward
-from dc4gs_cl.render.gaussians import DeviceArrays, group_widths
-from dc4gs_cl.render.workspace import POISON
 from dc4gs_cl.loss import Loss
+from dc4gs_cl.model import group_widths
+from dc4gs_cl.render import DeviceGaussians, Renderer
+from dc4gs_cl.render.gaussians import DeviceArrays
+from dc4gs_cl.render.workspace import POISON
 from dc4gs_cl.scene.camera import Camera
 from dc4gs_cl.testing import random_model
 
@@ -51,7 +52,8 @@ def test_degenerate_gaussians_stay_finite_through_a_training_step(rt, rng, case)
     widths = group_widths(g.sh_coeffs)
     grads = DeviceArrays(rt, widths, g.n)
     adam = Adam(rt, widths, g.n)
-    loss = Loss(rt)
+    loss = Loss(renderer.context)
+    rasterize_backward, project_backward = RasterizeBackward(renderer.context), ProjectBackward(renderer.context)
     grad_image, target_buf = rt.buffer(target.nbytes), rt.to_device(target)
     layout = SumsLayout(stats=True, dc_stats=True)
     lrs = {"means": 1e-3, "log_scales": 5e-3, "quats": 1e-3, "opacity_logits": 0.05, "sh": (2.5e-3, 1.25e-4)}
@@ -62,13 +64,12 @@ def test_degenerate_gaussians_stay_finite_through_a_training_step(rt, rng, case)
         for buf in list(grads.buffers.values()) + [grad_image]:
             rt.fill(buf, POISON, buf.size)    # every value the kernels below should write, poisoned first
         loss(res.raster.image, target_buf, cam.width, cam.height, grad_image)
-        sums = rasterize_backward(rt, renderer.ws, renderer.tuning, renderer.defines, layout, res, grad_image,
-                                  (0.2, 0.3, 0.4))
+        sums = rasterize_backward(res, grad_image, (0.2, 0.3, 0.4), layout)
         assert np.isfinite(rt.to_host(sums, (g.n, layout.width))).all()
-        project_backward(rt, g, cam, 3, res, sums, layout, grads=grads.buffers)
+        project_backward.gradients(g, cam, 3, res, sums, layout, grads.buffers)
         for name, values in grads.download().items():
             assert np.isfinite(values).all(), name
-        project_backward(rt, g, cam, 3, res, sums, layout, adam_step=adam.fused_step(lrs))   # as training does
+        project_backward.step(g, cam, 3, res, sums, layout, adam.step_value(lrs), adam.m, adam.v)   # as training does
         for name, values in g.download().items():
             assert np.isfinite(values).all(), name
     assert np.isfinite(loss.read_stats()["loss"])

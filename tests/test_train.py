@@ -14,7 +14,9 @@ import pytest
 from dc4gs_cl.cli import main
 from dc4gs_cl.metrics import psnr
 from dc4gs_cl.scene import load_scene
-from dc4gs_cl.train import CHECKPOINT, Trainer, TrainConfig
+from dc4gs_cl.config import TrainConfig
+from dc4gs_cl.run_folder import CHECKPOINT
+from dc4gs_cl.train import Trainer
 
 SMALL = ["--scene", "builtin", "-r", "2", "--no-progress"]
 
@@ -43,14 +45,15 @@ def test_opacity_reset_limits_opacities_and_restarts_only_their_moments(rt, tmp_
     trainer = Trainer(TrainConfig(scene="builtin", resolution=4), scene, rt, tmp_path)   # no reset in 3 steps
     for _ in range(3):
         trainer.step()
-    before = {k: trainer.adam.m.download_group(k) for k in trainer.widths}
+    adam = trainer.model.adam
+    before = {k: adam.m.download_group(k) for k in trainer.model.widths}
     assert np.abs(before["opacity_logits"]).max() > 0
-    trainer.limit_opacity(0.01)
+    trainer.model.limit_opacity(0.01)
     o = 1 / (1 + np.exp(-trainer.params.download_group("opacity_logits")))
     assert o.max() <= 0.01 + 1e-6
-    np.testing.assert_array_equal(trainer.adam.m.download_group("opacity_logits"), 0)
-    np.testing.assert_array_equal(trainer.adam.v.download_group("opacity_logits"), 0)
-    np.testing.assert_array_equal(trainer.adam.m.download_group("means"), before["means"])
+    np.testing.assert_array_equal(adam.m.download_group("opacity_logits"), 0)
+    np.testing.assert_array_equal(adam.v.download_group("opacity_logits"), 0)
+    np.testing.assert_array_equal(adam.m.download_group("means"), before["means"])
 
 
 def cli(*args, wait=True):

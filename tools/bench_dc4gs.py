@@ -23,35 +23,37 @@ from pathlib import Path
 
 import numpy as np
 
+from dc4gs_cl.config import TrainConfig
+from dc4gs_cl.host.densify import DC4GSConfig
 from dc4gs_cl.runtime import Runtime, describe
 from dc4gs_cl.scene import load_scene
-from dc4gs_cl.train import Trainer, TrainConfig
+from dc4gs_cl.train import Trainer
+from dc4gs_cl.train.schedule import Schedule
 
 NEVER = 10 ** 9
 
 
-CONFIGURATIONS = {   # name -> TrainConfig settings; "_" keys are the benchmark's own switches
+CONFIGURATIONS = {   # name -> DC4GSConfig settings; "_" keys are the benchmark's own switches
     "base": {}, "+DCC": {"dcc": True}, "+DCS": {"dcs": True}, "+DC4GS": {"dcc": True, "dcs": True},
-    "+DC4GS window": {"dcc": True, "dcs": True, "dc_pooling": "window"},
-    "+DC4GS, tracking 0.5": {"dcc": True, "dcs": True, "dcs_track": 0.5},
-    "+DC4GS, tracking 0.25": {"dcc": True, "dcs": True, "dcs_track": 0.25},
+    "+DC4GS window": {"dcc": True, "dcs": True, "pooling": "window"},
+    "+DC4GS, tracking 0.5": {"dcc": True, "dcs": True, "track": 0.5},
+    "+DC4GS, tracking 0.25": {"dcc": True, "dcs": True, "track": 0.25},
     "+DC4GS, split costs for all": {"dcc": True, "dcs": True, "_all": True},
     "no statistics (window closed)": {"_closed": True},
 }
 
 
-def trainer_at(state: dict, scene, rt, settings: dict, base: str, resolution) -> Trainer:
-    """A trainer holding the given parameters and moments, that gathers statistics but never densifies."""
-    options = {k: v for k, v in settings.items() if not k.startswith("_")}
-    cfg = TrainConfig(scene="bench", iterations=30_000, strategy=base, resolution=resolution, **options)
-    trainer = Trainer(cfg, scene, rt, Path("/nonexistent"))
-    c = trainer.strategy.config
-    trainer.strategy.config = replace(c, densify_every=NEVER, opacity_reset_every=NEVER, opacity_clamp_every=None,
-                                      densify_until=0 if settings.get("_closed") else c.densify_until,
-                                      percent_dense=0.0 if settings.get("_all") else c.percent_dense)
-    trainer.load_set(state["set"])
-    trainer.window.reset(trainer.params.n)
-    trainer.iteration = 1_000
+def trainer_at(state, scene, rt, settings: dict, base: str, resolution) -> Trainer:
+    """A trainer holding the given Gaussians (a GaussianSet), that gathers statistics but never densifies."""
+    dc4gs = DC4GSConfig(**{k: v for k, v in settings.items() if not k.startswith("_")})
+    cfg = TrainConfig(scene="bench", iterations=30_000, strategy=base, resolution=resolution, dc4gs=dc4gs)
+    scaled = Schedule(cfg).strategy()
+    c = scaled.config
+    strategy = type(scaled)(replace(c, densify_every=NEVER, opacity_reset_every=NEVER, opacity_clamp_every=None,
+                                    densify_until=0 if settings.get("_closed") else c.densify_until,
+                                    percent_dense=0.0 if settings.get("_all") else c.percent_dense), dc4gs)
+    trainer = Trainer(cfg, scene, rt, Path("/nonexistent"), strategy=strategy)
+    trainer.start_from(state, 1_000)
     return trainer
 
 
@@ -72,8 +74,7 @@ def main(argv=None) -> int:
                                resolution=args.resolution), scene, rt, Path("/nonexistent"))
     for _ in range(args.warm_iterations):
         warm.step()
-    from dc4gs_cl.host.ops import GaussianSet
-    state = {"set": GaussianSet(warm.params.download(), warm.adam.m.download(), warm.adam.v.download())}
+    state = warm.model.download()
     cam = scene.train[0]
     print(f"device: {describe(rt.device)}\nscene {args.scene} {cam.width}x{cam.height}, {args.base} trained "
           f"{args.warm_iterations} iterations: {warm.params.n:,} Gaussians; {args.iterations} iterations x "

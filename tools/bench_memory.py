@@ -18,45 +18,35 @@ from pathlib import Path
 
 import numpy as np
 
+from dc4gs_cl.config import TrainConfig
+from dc4gs_cl.host.densify import DC4GSConfig, GaussianSet
 from dc4gs_cl.runtime import Runtime, describe
 from dc4gs_cl.scene import load_scene
 from dc4gs_cl.testing import random_model
-from dc4gs_cl.train import Trainer, TrainConfig
+from dc4gs_cl.train import Trainer
 
+DC4GS = DC4GSConfig(dcc=True, dcs=True)
 CONFIGS = {   # name -> TrainConfig settings; low_memory (--low-memory): the backward adds into per-Gaussian
              # sums with float atomics instead of per-pair slots (as fast, not bit-reproducible)
-    "absgs": {}, "absgs+DC4GS": {"dcc": True, "dcs": True},
-    "absgs+DC4GS window": {"dcc": True, "dcs": True, "dc_pooling": "window"},
-    "absgs --low-memory": {"low_memory": True}, "absgs+DC4GS --low-memory": {"dcc": True, "dcs": True, "low_memory": True}}
+    "absgs": {}, "absgs+DC4GS": {"dc4gs": DC4GS},
+    "absgs+DC4GS window": {"dc4gs": DC4GSConfig(dcc=True, dcs=True, pooling="window")},
+    "absgs --low-memory": {"low_memory": True}, "absgs+DC4GS --low-memory": {"dc4gs": DC4GS, "low_memory": True}}
 
 
 def trained_state(rt: Runtime, scene, n: int, iterations: int, settings: dict) -> tuple[Trainer, int]:
     """A trainer on N random Gaussians after a few steps, and the peak bytes it added."""
-    from dc4gs_cl.host.ops import GaussianSet
     gc.collect()
     rt.reset_memory_peak()
     before = rt.memory_in_use
     trainer = Trainer(TrainConfig(scene="bench", strategy="absgs", **settings), scene, rt, Path("/nonexistent"))
     model = random_model(np.random.default_rng(0), n, sh_degree=3, spread=1.5, scale_range=(0.005, 0.03))
-    params = {k: getattr(model, k).reshape(n, -1) for k in trainer.widths}
+    params = model.groups()
     moments = lambda: {k: np.zeros_like(v) for k, v in params.items()}
-    trainer.load_set(GaussianSet(params, moments(), moments()))
-    trainer.window.reset(n)
-    trainer.iteration = 1_000           # inside the densification window, between densification steps
+    trainer.start_from(GaussianSet(params, moments(), moments()), 1_000)   # inside the window, between steps
     for _ in range(iterations):
         trainer.step()
     rt.queue.finish()
     return trainer, rt.memory_peak - before
-
-
-def breakdown(trainer: Trainer) -> dict[str, int]:
-    """Bytes held now by each kind of buffer (the workspace's by name)."""
-    arrays = {"parameters": trainer.params, "Adam m": trainer.adam.m, "Adam v": trainer.adam.v}
-    out = {k: sum(b.size for b in a.buffers.values()) for k, a in arrays.items()}
-    out["window statistics"] = trainer.window.buffer.size
-    for name, buf in trainer.renderer.ws._buffers.items():
-        out[name] = buf.size
-    return out
 
 
 def main(argv=None) -> int:
@@ -76,7 +66,7 @@ def main(argv=None) -> int:
         for name, settings in CONFIGS.items():
             trainer, peak = trained_state(rt, scene, n, args.iterations, settings)
             print(f"| {name} | {n:,} | {peak / 2**20:.1f} | {peak / n:,.0f} |", flush=True)
-            details[(name, n)] = breakdown(trainer)
+            details[(name, n)] = trainer.memory_held()
             del trainer
     for (name, n), parts in details.items():
         if n == max(args.gaussians):

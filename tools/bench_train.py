@@ -39,14 +39,16 @@ import time
 from collections import Counter
 from pathlib import Path
 
+from dc4gs_cl.config import TrainConfig
 from dc4gs_cl.errors import InputError
-from dc4gs_cl.evaluate import evaluate, write_results
+from dc4gs_cl.evaluate import evaluate
 from dc4gs_cl.files import write_json
-from dc4gs_cl.host.strategy import STRATEGIES
+from dc4gs_cl.host.densify import STRATEGIES, DC4GSConfig
+from dc4gs_cl.run_folder import RunFolder
 from dc4gs_cl.runtime import Runtime, describe
 from dc4gs_cl.scene import Scene, load_scene
 from dc4gs_cl.scene.colmap import model_dir
-from dc4gs_cl.train import TrainConfig, Trainer, write_run_files
+from dc4gs_cl.train import Trainer
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 MAX_WIDTH = 400                # default -r: images at most this wide
@@ -89,13 +91,14 @@ def load(name: str, resolution: int | None, cache: Path) -> tuple[Scene, int]:
 
 DC4GS_TABLE = ("3dgs", "3dgs+dc4gs", "absgs", "absgs+dcc", "absgs+dcs", "absgs+dc4gs", "pixelgs", "pixelgs+dc4gs")
 PARTS = {"dc4gs": {"dcc": True, "dcs": True}, "dcc": {"dcc": True}, "dcs": {"dcs": True}}
-OPTIONS = {"view": ("dc_pooling", "view"), "window": ("dc_pooling", "window"), "poly": ("split_pick", "poly"),
+OPTIONS = {"view": ("pooling", "view"), "window": ("pooling", "window"), "poly": ("split_pick", "poly"),
            "argmin": ("split_pick", "argmin"), "dense": ("split_pick", "dense"), "abs": ("dcc_reading", "abs"),
            "base": ("dcc_reading", "base")}
 
 
 def variant(spec: str) -> dict:
-    """"absgs+dc4gs:window:track=0.5" -> TrainConfig settings (raises ValueError on anything unknown)."""
+    """"absgs+dc4gs:window:track=0.5" -> {"strategy": base, **DC4GSConfig settings} (raises ValueError on
+    anything unknown)."""
     head, *options = spec.split(":")
     base, *parts = head.split("+")
     track = [o for o in options if o.startswith("track=")]
@@ -108,12 +111,14 @@ def variant(spec: str) -> dict:
         settings.update(PARTS[p])
     settings.update(dict(OPTIONS[o] for o in options))
     if track:
-        settings["dcs_track"] = float(track[-1].split("=", 1)[1])
+        settings["track"] = float(track[-1].split("=", 1)[1])
     return settings
 
 
 def config(scene: Scene, strategy: str, iterations: int, resolution: int) -> TrainConfig:
-    return TrainConfig(scene=str(scene.root), iterations=iterations, resolution=resolution, **variant(strategy))
+    settings = variant(strategy)
+    return TrainConfig(scene=str(scene.root), iterations=iterations, resolution=resolution,
+                       strategy=settings.pop("strategy"), dc4gs=DC4GSConfig(**settings))
 
 
 def dc4gs_summary(runs: list[dict]) -> list[str]:
@@ -157,8 +162,9 @@ def train_one(rt: Runtime, scene: Scene, cfg: TrainConfig, out: Path) -> dict:
     at_start = rt.memory_in_use
     rt.reset_memory_peak()
     rss_per_run = reset_host_peak()
-    trainer = Trainer(cfg, scene, rt, out)
-    write_run_files(out, cfg, scene)
+    run = RunFolder(out)
+    trainer = Trainer(cfg, scene, rt, run)
+    run.write_settings(cfg, scene)
     initial = peak = trainer.params.n
     stages = Counter()
     rt.stage_times()
@@ -172,8 +178,8 @@ def train_one(rt: Runtime, scene: Scene, cfg: TrainConfig, out: Path) -> dict:
     device_peak, host_peak = rt.memory_peak, host_peak_bytes()
     trainer.save_model()
     result = evaluate(rt, trainer.renderer, trainer.params, scene, scene.test, trainer.sh_degree,
-                      out / "test" / f"ours_{cfg.iterations}")
-    write_results(out, cfg.iterations, result)
+                      run.views_dir("test", cfg.iterations))
+    run.write_results(cfg.iterations, result)
     per_it = 1e3 / cfg.iterations
     return {"psnr": result["mean"]["PSNR"], "ssim": result["mean"]["SSIM"], "test_views": result["views"],
             "gaussians_initial": initial, "gaussians_final": trainer.params.n, "gaussians_peak": peak,

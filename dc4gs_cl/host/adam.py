@@ -10,13 +10,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..render.gaussians import PARAM_GROUPS, DeviceArrays   # PARAM_GROUPS: in the order of ADAM_MEANS .. ADAM_SH
+from ..model import PARAM_GROUPS
+from ..records import ADAM_STEP, SH_REST_RATE
+from ..render.gaussians import DeviceArrays
 from ..runtime import Runtime
-
-# Keep in step with AdamStep in kernels/adam.h: one rate per parameter group, then the SH bands above the DC band.
-ADAM_STEP_DTYPE = np.dtype([("lr", np.float32, len(PARAM_GROUPS) + 1), ("c1", np.float32, len(PARAM_GROUPS)),
-                            ("c2", np.float32, len(PARAM_GROUPS)), ("beta1", np.float32), ("beta2", np.float32),
-                            ("eps", np.float32), ("stepping", np.uint32)])
 
 
 @dataclass(frozen=True)
@@ -24,14 +21,6 @@ class AdamConfig:
     beta1: float = 0.9
     beta2: float = 0.999
     eps: float = 1e-15
-
-
-@dataclass
-class AdamStep:
-    """What the fused kernel needs for one step: the AdamStep struct and the moments' buffers."""
-    struct: np.void
-    m: DeviceArrays
-    v: DeviceArrays
 
 
 def exponential_lr(step: int, lr_init: float, lr_final: float, max_steps: int) -> float:
@@ -53,12 +42,12 @@ class Adam:
         self.v.zero()
         self.steps = {k: 0 for k in widths}
 
-    def fused_step(self, lrs: dict[str, float | tuple[float, float]]) -> AdamStep:
-        """Counts one step of every group named in lrs and returns what project_backward needs to take it.
-        The SH group's rate is a pair (DC band, higher bands)."""
+    def step_value(self, lrs: dict[str, float | tuple[float, float]]) -> np.void:
+        """Counts one step of every group named in lrs and returns the records.ADAM_STEP value that
+        project_backward's fused step takes. The SH group's rate is a pair (DC band, higher bands)."""
         cfg = self.config
-        s = np.zeros(1, ADAM_STEP_DTYPE)[0]
-        s["beta1"], s["beta2"], s["eps"] = cfg.beta1, cfg.beta2, cfg.eps
+        lr = np.zeros(ADAM_STEP.widths()["lr"])
+        c1, c2 = np.zeros(len(PARAM_GROUPS)), np.zeros(len(PARAM_GROUPS))
         stepping = 0
         for g, name in enumerate(PARAM_GROUPS):
             if name not in lrs:
@@ -66,11 +55,9 @@ class Adam:
             self.steps[name] += 1
             t = self.steps[name]
             stepping |= 1 << g
-            s["c1"][g], s["c2"][g] = 1 - cfg.beta1 ** t, 1 - cfg.beta2 ** t
-            lr = lrs[name]
+            c1[g], c2[g] = 1 - cfg.beta1 ** t, 1 - cfg.beta2 ** t
             if name == "sh":
-                s["lr"][g], s["lr"][len(PARAM_GROUPS)] = lr
+                lr[g], lr[SH_REST_RATE] = lrs[name]
             else:
-                s["lr"][g] = lr
-        s["stepping"] = stepping
-        return AdamStep(s, self.m, self.v)
+                lr[g] = lrs[name]
+        return ADAM_STEP.pack(lr=lr, c1=c1, c2=c2, beta1=cfg.beta1, beta2=cfg.beta2, eps=cfg.eps, stepping=stepping)

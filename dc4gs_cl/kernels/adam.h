@@ -2,9 +2,10 @@
 // project_backward.cl so that the parameters' gradients are never stored: each gradient steps its parameter
 // where it is computed.
 //
-// AdamStep, passed by value; keep in step with ADAM_STEP_DTYPE in dc4gs_cl/host/adam.py.
-//   lr[ADAM_RATES]  learning rate of each group (ADAM_* below); the SH group has two: its DC band and the rest
-//   c1[ADAM_GROUPS], c2[ADAM_GROUPS]  bias corrections 1 - beta1^t and 1 - beta2^t of each group's step t
+// AdamStep (records.h, from ADAM_STEP in dc4gs_cl/records.py), passed by value:
+//   lr    learning rate of each group (index PARAM_<GROUP>), then lr[ADAM_SH_REST_RATE] for the SH bands
+//         above the DC band (the SH group's own rate is its DC band's)
+//   c1, c2  bias corrections 1 - beta1^t and 1 - beta2^t of each group's step t
 //   beta1, beta2, eps  as PyTorch's Adam
 //   stepping  bit g set: group g steps this iteration (3DGS skips the opacities on their resets)
 // The host owns the logic (step counts, schedules, which groups step); this is the arithmetic only.
@@ -13,23 +14,6 @@
 #define DC4GS_ADAM_H
 
 #include "common.h"
-
-#define ADAM_MEANS 0
-#define ADAM_SCALES 1
-#define ADAM_QUATS 2
-#define ADAM_OPACITY 3
-#define ADAM_SH 4
-#define ADAM_GROUPS 5
-#define ADAM_SH_REST 5   // the rate of the SH bands above the DC band
-#define ADAM_RATES 6
-
-typedef struct {
-    float lr[ADAM_RATES];
-    float c1[ADAM_GROUPS];
-    float c2[ADAM_GROUPS];
-    float beta1, beta2, eps;
-    uint stepping;
-} AdamStep;
 
 // `count` (1 to 4, a constant after inlining) consecutive floats as the lanes of a float4; lanes beyond
 // count read as 0 and are not written.

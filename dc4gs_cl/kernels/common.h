@@ -1,5 +1,6 @@
 // common.h: device code shared by every kernel file.
-// Constants (TILE_SIZE, NEAR_PLANE, ALPHA_MIN, SH_C*, ...) arrive as -D options from dc4gs_cl/constants.py.
+// Constants (TILE_SIZE, NEAR_PLANE, ALPHA_MIN, SH_C*, ...) arrive as -D options from dc4gs_cl/constants.py,
+// record offsets (<PREFIX>_<FIELD>) from dc4gs_cl/layout.py, switches from the stage that builds the kernel.
 //
 // Hot code avoids builtin calls: in the PoCL builds we run on, builtins such as exp, sqrt, fmin, floor and
 // even vload3 are opaque calls that stop the compiler from vectorising a loop across pixels or across
@@ -8,18 +9,12 @@
 #ifndef DC4GS_COMMON_H
 #define DC4GS_COMMON_H
 
-// The camera, passed by value; keep in step with CAMERA_DTYPE in dc4gs_cl/runtime.py.
-typedef struct {
-    float R[9];        // world-to-camera rotation, row-major
-    float t[3];        // world-to-camera translation
-    float fx, fy, cx, cy;   // pixels; pixel (i, j) has its centre at (i + 0.5, j + 0.5)
-    float campos[3];   // camera centre in world coordinates
-    int width, height;
-} Camera;
+// The structs passed by value (Camera, AdamStep), generated from dc4gs_cl/records.py.
+#include "records.h"
 
-// Floats per Gaussian in split_geometry.cl's output (layout there), for -D SPLIT_CANDIDATES candidates;
-// keep in step with split_geometry_width() in dc4gs_cl/render/backward.py.
-#define SPLIT_GEOMETRY (SPLIT_CANDIDATES + 3)
+// REQUIRE_DEFINED(X): X must come from the host as a -D option (the kernels keep no defaults: a missing
+// one would otherwise read as 0 in #if and silently pick a variant). One line per option, at file scope.
+#define REQUIRE_DEFINED(X) typedef char X##_must_come_from_the_host[(X) * 0 + 1]
 
 // Inlined even where the compiler's cost model would not: constant arguments then specialise the body.
 #define ALWAYS_INLINE inline __attribute__((always_inline))
@@ -28,20 +23,6 @@ typedef struct {
 #define MAXF(a, b) ((a) > (b) ? (a) : (b))
 #define CLAMPF(x, lo, hi) MINF(MAXF((x), (lo)), (hi))
 #define ABSF(x) ((x) < 0.0f ? -(x) : (x))
-
-// Switches (all on by default; the benchmark turns each off to measure what it saves or costs):
-//   FAST_EXP   our exp below instead of the driver's
-//   ALPHA_CUT  pairs and rows limited to where alpha can reach ALPHA_MIN (exact: no pixel changes)
-//   EARLY_STOP a tile stops walking its list once all its pixels are saturated (exact)
-#ifndef FAST_EXP
-#define FAST_EXP 1
-#endif
-#ifndef ALPHA_CUT
-#define ALPHA_CUT 1
-#endif
-#ifndef EARLY_STOP
-#define EARLY_STOP 1
-#endif
 
 // exp(x) by range reduction: x = k ln2 + r with |r| <= ln2/2, exp(r) by a degree-5 minimax polynomial,
 // 2^k through the exponent bits; x is clamped to [-87, 88]. Max relative error 1.8e-7 (float32 exp:
@@ -55,16 +36,6 @@ inline float exp_poly(float x) {
     float p = 1.0f + r * (0.9999997019767761f + r * (0.4999915063381195f + r * (0.1666763573884964f
               + r * (0.04189793020486832f + r * 0.008290314115583897f))));
     return p * as_float((k + 127) << 23);
-}
-
-// exp(x) for x <= 0, the rasterizer's: ours (FAST_EXP) or the driver's; below -87 it is exp(-87) ~ 1.6e-38,
-// far under any alpha threshold.
-inline float exp_nonpositive(float x) {
-#if FAST_EXP
-    return exp_poly(MINF(x, 0.0f));
-#else
-    return exp(MINF(x, 0.0f));
-#endif
 }
 
 // 1/sqrt(x) for x > 0 without a builtin call (so a pixel loop using it still vectorises): the classic
@@ -125,28 +96,7 @@ inline float ceil_nonnegative(float x) {
 DEFINE_ATOMIC_ADD_FLOAT(atomic_add_float, __global)
 DEFINE_ATOMIC_ADD_FLOAT(local_add_float, __local)
 
-// Tile rectangle [x0, x1) x [y0, y1) covered by the box mean +- half_size (px), clamped to the tile grid.
-// Shared by projection (tile counts) and pair emission, so both always agree.
-ALWAYS_INLINE int4 tile_rect(float2 mean, float2 half_size, int tiles_x, int tiles_y) {
-    float inv = 1.0f / (float)TILE_SIZE;
-    float x0 = CLAMPF((mean.x - half_size.x) * inv, 0.0f, (float)tiles_x);
-    float y0 = CLAMPF((mean.y - half_size.y) * inv, 0.0f, (float)tiles_y);
-    float x1 = CLAMPF((mean.x + half_size.x) * inv + 1.0f, 0.0f, (float)tiles_x);
-    float y1 = CLAMPF((mean.y + half_size.y) * inv + 1.0f, 0.0f, (float)tiles_y);
-    return (int4)((int)x0, (int)y0, (int)x1, (int)y1);   // values are >= 0: truncation is floor
-}
-
-inline int rect_area(int4 r) { return (r.z > r.x ? r.z - r.x : 0) * (r.w > r.y ? r.w - r.y : 0); }
-
-// The tiles a Gaussian's pairs go to: its 3-sigma box (the reference rasterizers' rule) cut down to the
-// box where alpha can reach ALPHA_MIN. Tiles outside the second box hold no pixel it could blend, so
-// the image is exactly that of the 3-sigma rule, with fewer pairs to sort and walk.
-ALWAYS_INLINE int4 pair_rect(float2 mean, float radius, float2 alpha_extent, int tiles_x, int tiles_y) {
-#if ALPHA_CUT
-    return tile_rect(mean, (float2)(MINF(radius, alpha_extent.x), MINF(radius, alpha_extent.y)), tiles_x, tiles_y);
-#else
-    return tile_rect(mean, (float2)(radius, radius), tiles_x, tiles_y);
-#endif
-}
+// A split-geometry row (backward/split_geometry.py, GEO_*) whose view gives the Gaussian a split line.
+#define HAS_SPLIT_LINE(geo) ((geo)[GEO_DIR] != 0.f || (geo)[GEO_DIR + 1] != 0.f)
 
 #endif

@@ -2,11 +2,12 @@
 //
 // One work-item per Gaussian; nothing happens for a Gaussian not visible in the view (radius 0).
 //   in  radius [N] int px, depth [N] view z: from project.cl
-//   in  sums   [N*SUMS_PER_GAUSSIAN]: from rasterize_backward.cl (SUM_MEAN2D in px; SUM_ABS in NDC units,
+//   in  sums   [N*SUM_WIDTH]: from rasterize_backward.cl (SUM_MEAN2D in px; SUM_ABS in NDC units,
 //              SUM_PIXELS; with DC4GS SUM_DC and SUM_SPLIT; see that file)
-//   in  split_geometry [N*SPLIT_GEOMETRY]: from split_geometry.cl (with SPLIT_CANDIDATES)
-//   io  window [N*WINDOW_WIDTH] float, accumulated since the last densification step (offsets are -D
-//              options built by dc4gs_cl/host/stats.py):
+//   in  split_geometry [N*GEO_WIDTH]: from split_geometry.cl (with SPLIT_CANDIDATES)
+//   io  window [N*WIN_WIDTH] float, accumulated since the last densification step (the WIN record: offsets
+//              are -D options from dc4gs_cl/host/densify/statistics.py, derived, with the SUM record's,
+//              from one StatisticsSpec):
 //         WIN_GRAD       sum over visible views of |sum_j g_j|, NDC units (3DGS)
 //         WIN_ABS        sum over visible views of |(sum_j |g_x|, sum_j |g_y|)|   (AbsGS)
 //         WIN_VIEWS      visible views (nu)
@@ -21,11 +22,11 @@
 //         with -D DC_WINDOW (the authors' release): kappa from the sums since the last densification step,
 //         WIN_DC_UX, WIN_DC_UY, WIN_DC_N; without (the paper): kappa of this view alone
 //       DC-guided split (-D SPLIT_CANDIDATES = N), only where this view gave the candidates a line
-//       (split_geometry's dir != 0):
-//         WIN_J + k      split cost of candidate k: per view cost(left_k) + cost(total - left_k), with
+//       (HAS_SPLIT_LINE):
+//         WIN_SPLIT_COSTS + k  split cost of candidate k: per view cost(left_k) + cost(total - left_k), with
 //                        cost(side) = (1 - kappa_side) |(sum |g_x|, sum |g_y|)| over the side's pixels;
-//                        with DC_WINDOW the sides' sums accumulate over the window (WIN_LEFT + 5k + v,
-//                        WIN_TOTAL + v for v = u_x, u_y, count, |g_x|, |g_y|) and every visible view adds
+//                        with DC_WINDOW the sides' sums accumulate over the window (WIN_SIDE_LEFT + 5k + v,
+//                        WIN_SIDE_TOTAL + v for v = u_x, u_y, count, |g_x|, |g_y|) and every visible view adds
 //                        the cost of the accumulated sums
 //         WIN_SKIP_SPLIT 1 once the Gaussian has been seen in TRACK_MIN_VIEWS views of the window and its
 //                        running split criterion (WIN total TRACK_TOTAL / count TRACK_COUNT) is below
@@ -34,15 +35,9 @@
 
 #include "common.h"
 
-#ifndef DC_STATS
-#define DC_STATS 0
-#endif
-#ifndef DC_WINDOW
-#define DC_WINDOW 0
-#endif
-#ifndef SPLIT_CANDIDATES
-#define SPLIT_CANDIDATES 0
-#endif
+REQUIRE_DEFINED(DC_STATS);
+REQUIRE_DEFINED(DC_WINDOW);
+REQUIRE_DEFINED(SPLIT_CANDIDATES);
 
 // (1 - |(ux, uy)| / n) |(ax, ay)|: the cost of one side; 0 for an empty side.
 inline float side_cost(float ux, float uy, float n, float ax, float ay) {
@@ -50,15 +45,15 @@ inline float side_cost(float ux, float uy, float n, float ax, float ay) {
     return (1.f - kappa) * sqrt(ax * ax + ay * ay);
 }
 
-__kernel void accumulate_view_stats(const uint n, const float ndc_x, const float ndc_y, const float depth_scale,
-                                    const float track_threshold,
-                                    __global const int *radius, __global const float *depth,
-                                    __global const float *sums, __global const float *split_geometry,
-                                    __global float *window) {
+__kernel void densify_stats(const uint n, const float ndc_x, const float ndc_y, const float depth_scale,
+                            const float track_threshold,
+                            __global const int *radius, __global const float *depth,
+                            __global const float *sums, __global const float *split_geometry,
+                            __global float *window) {
     uint i = get_global_id(0);
     if (i >= n || radius[i] <= 0) return;
-    __global const float *s = sums + (size_t)i * SUMS_PER_GAUSSIAN;
-    __global float *w = window + (size_t)i * WINDOW_WIDTH;
+    __global const float *s = sums + (size_t)i * SUM_WIDTH;
+    __global float *w = window + (size_t)i * WIN_WIDTH;
     float gx = s[SUM_MEAN2D] * ndc_x, gy = s[SUM_MEAN2D + 1] * ndc_y;
     float g = sqrt(gx * gx + gy * gy);
     float a = sqrt(s[SUM_ABS] * s[SUM_ABS] + s[SUM_ABS + 1] * s[SUM_ABS + 1]);
@@ -83,20 +78,20 @@ __kernel void accumulate_view_stats(const uint n, const float ndc_x, const float
     w[WIN_DCC_PIX] += weight * f * g * pixels;
 #endif
 #if SPLIT_CANDIDATES
-    __global const float *geo = split_geometry + (size_t)i * SPLIT_GEOMETRY;
-    int line = geo[2] != 0.f || geo[3] != 0.f;
+    __global const float *geo = split_geometry + (size_t)i * GEO_WIDTH;
+    int line = HAS_SPLIT_LINE(geo);
     float total[5] = {s[SUM_DC], s[SUM_DC + 1], s[SUM_DC + 2], s[SUM_ABS], s[SUM_ABS + 1]};
     __global const float *left = s + SUM_SPLIT;
 #if DC_WINDOW
-    for (int v = 0; v < 5; ++v) total[v] = w[WIN_TOTAL + v] += line ? total[v] : 0.f;
-    for (int k = 0; k < 5 * SPLIT_CANDIDATES; ++k) w[WIN_LEFT + k] += line ? left[k] : 0.f;
-    left = w + WIN_LEFT;
+    for (int v = 0; v < 5; ++v) total[v] = w[WIN_SIDE_TOTAL + v] += line ? total[v] : 0.f;
+    for (int k = 0; k < 5 * SPLIT_CANDIDATES; ++k) w[WIN_SIDE_LEFT + k] += line ? left[k] : 0.f;
+    left = w + WIN_SIDE_LEFT;
     line = 1;                        // the accumulated sums are costed at every visible view
 #endif
     if (line)
         for (int k = 0; k < SPLIT_CANDIDATES; ++k) {
             __global const float *l = left + 5 * k;
-            w[WIN_J + k] += side_cost(l[0], l[1], l[2], l[3], l[4])
+            w[WIN_SPLIT_COSTS + k] += side_cost(l[0], l[1], l[2], l[3], l[4])
                           + side_cost(total[0] - l[0], total[1] - l[1], total[2] - l[2], total[3] - l[3], total[4] - l[4]);
         }
     w[WIN_SKIP_SPLIT] = (w[WIN_VIEWS] >= (float)TRACK_MIN_VIEWS

@@ -18,7 +18,7 @@
 //   tile_ranges:        tile_of_pair [P] (sorted by tile) -> ranges [tiles*2] (first pair, end pair);
 //                       the host zero-fills ranges first, so empty tiles stay (0, 0)
 
-#include "common.h"
+#include "tiles.h"
 
 __kernel __attribute__((reqd_work_group_size(ISECT_WG, 1, 1)))
 void compact_visible(const uint n, __global const uint *tiles_touched, __global const uint *visible_offset,

@@ -15,10 +15,11 @@
 //                             then the Gaussian is not visible in this view
 //   out alpha_extent   [N*2]  px, half-width and half-height of the box outside which alpha < ALPHA_MIN
 //                             (opacity * exp(-q/2) < ALPHA_MIN for the Mahalanobis q), plus ALPHA_EXTENT_MARGIN px
-//   out tiles_touched  [N]    uint, tiles of pair_rect() (common.h): 0 when radius == 0, or (ALPHA_CUT) opacity < ALPHA_MIN
+//   out tiles_touched  [N]    uint, tiles of pair_rect() (tiles.h): 0 when radius == 0, or (ALPHA_CUT) opacity < ALPHA_MIN
 // -D SH_COEFFS: coefficients stored per channel (1, 4, 9 or 16); the active degree is an argument.
 
 #include "project.h"
+#include "tiles.h"
 
 __kernel void project(const int n, const Camera cam, const int sh_degree, const int tiles_x, const int tiles_y,
                       __global const float *means, __global const float *log_scales,

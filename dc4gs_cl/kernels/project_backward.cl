@@ -6,7 +6,7 @@
 //   in  means, log_scales, quats, opacity_logits, sh: the parameters, as in project.cl; stepped in place
 //       with FUSED_ADAM (a work-item reads its Gaussian's parameters before it steps any)
 //   in  radius [N]  int, from the forward: 0 = not visible in this view (all its gradients are 0)
-//   in  sums   [N*SUMS_PER_GAUSSIAN]  from rasterize_backward.cl: dL/dmean2d (px) at SUM_MEAN2D,
+//   in  sums   [N*SUM_WIDTH]  from rasterize_backward.cl (the SUM record): dL/dmean2d (px) at SUM_MEAN2D,
 //              dL/dconic (a, b, c as stored) at SUM_CONIC, dL/dopacity (after the sigmoid) at
 //              SUM_OPACITY, dL/drgb at SUM_RGB
 //   FUSED_ADAM=0:  out d_means [N*3], d_log_scales [N*3], d_quats [N*4], d_opacity_logits [N], d_sh [N*SH_COEFFS*3]
@@ -16,12 +16,9 @@
 // No gradient flows through a clamped x/z or y/z, nor through a colour channel clamped at 0.
 
 #include "project.h"
-
-#ifndef FUSED_ADAM
-#define FUSED_ADAM 0
-#endif
-
 #include "adam.h"
+
+REQUIRE_DEFINED(FUSED_ADAM);
 
 #if FUSED_ADAM
 #define PARAM __global float
@@ -31,9 +28,9 @@
     adam_update(&step, grp, lr, count, buf + (idx), m_##buf + (idx), v_##buf + (idx), g)
 #define RATE(grp) ((float4)(step.lr[grp]))
 // The SH rates of floats j..j+3 of a row: the first 3 floats are the DC band, with their own rate.
-#define SH_RATES(j) ((float4)((j) < 3 ? step.lr[ADAM_SH] : step.lr[ADAM_SH_REST], \
-                              (j) + 1 < 3 ? step.lr[ADAM_SH] : step.lr[ADAM_SH_REST], \
-                              (j) + 2 < 3 ? step.lr[ADAM_SH] : step.lr[ADAM_SH_REST], step.lr[ADAM_SH_REST]))
+#define SH_RATES(j) ((float4)((j) < 3 ? step.lr[PARAM_SH] : step.lr[ADAM_SH_REST_RATE], \
+                              (j) + 1 < 3 ? step.lr[PARAM_SH] : step.lr[ADAM_SH_REST_RATE], \
+                              (j) + 2 < 3 ? step.lr[PARAM_SH] : step.lr[ADAM_SH_REST_RATE], step.lr[ADAM_SH_REST_RATE]))
 #else
 #define PARAM __global const float
 // EMIT(group, rates, buffer, index, count, gradients): the gradients are stored from d_<buffer>[index].
@@ -47,7 +44,7 @@ ALWAYS_INLINE void visible_gradients(int i, const Camera cam, int sh_degree, PAR
                                      PARAM *quats, PARAM *opacity_logits, PARAM *sh, __global const float *sums,
                                      float3 *g_means, float3 *g_scales, float4 *g_quat, float *g_opacity,
                                      float3 *v_colour, float *basis) {
-    __global const float *g = sums + (size_t)i * SUMS_PER_GAUSSIAN;
+    __global const float *g = sums + (size_t)i * SUM_WIDTH;
     float2 v_mean = (float2)(g[SUM_MEAN2D], g[SUM_MEAN2D + 1]);
     float3 v_conic = (float3)(g[SUM_CONIC], g[SUM_CONIC + 1], g[SUM_CONIC + 2]);
     float3 v_rgb = (float3)(g[SUM_RGB], g[SUM_RGB + 1], g[SUM_RGB + 2]);
@@ -179,16 +176,16 @@ __kernel void project_backward(const int n, const Camera cam, const int sh_degre
     if (visible)   // reads Gaussian i's parameters, before any of them is stepped below
         visible_gradients(i, cam, sh_degree, means, log_scales, quats, opacity_logits, sh, sums, &g_means,
                           &g_scales, &g_quat, &g_opacity, &v_colour, basis);
-    EMIT(ADAM_MEANS, RATE(ADAM_MEANS), means, 3 * i, 3, (float4)(g_means, 0.f));
-    EMIT(ADAM_SCALES, RATE(ADAM_SCALES), log_scales, 3 * i, 3, (float4)(g_scales, 0.f));
-    EMIT(ADAM_QUATS, RATE(ADAM_QUATS), quats, 4 * i, 4, g_quat);
-    EMIT(ADAM_OPACITY, RATE(ADAM_OPACITY), opacity_logits, i, 1, (float4)(g_opacity, 0.f, 0.f, 0.f));
+    EMIT(PARAM_MEANS, RATE(PARAM_MEANS), means, 3 * i, 3, (float4)(g_means, 0.f));
+    EMIT(PARAM_LOG_SCALES, RATE(PARAM_LOG_SCALES), log_scales, 3 * i, 3, (float4)(g_scales, 0.f));
+    EMIT(PARAM_QUATS, RATE(PARAM_QUATS), quats, 4 * i, 4, g_quat);
+    EMIT(PARAM_OPACITY_LOGITS, RATE(PARAM_OPACITY_LOGITS), opacity_logits, i, 1, (float4)(g_opacity, 0.f, 0.f, 0.f));
     int k_active = visible ? (sh_degree + 1) * (sh_degree + 1) : 0;
     float g_sh[(SH_FLOATS + 3) / 4 * 4];   // whole float4 chunks, the padding zero
     for (int k = 0; k < SH_COEFFS; ++k) STORE3(k < k_active ? basis[k] * v_colour : (float3)(0.f), g_sh, k);
     for (int f = SH_FLOATS; f < (SH_FLOATS + 3) / 4 * 4; ++f) g_sh[f] = 0.f;
     const size_t sh_row = (size_t)i * SH_FLOATS;
     for (int j = 0; j < SH_FLOATS; j += 4)
-        EMIT(ADAM_SH, SH_RATES(j), sh, sh_row + j, SH_FLOATS - j < 4 ? SH_FLOATS - j : 4,
+        EMIT(PARAM_SH, SH_RATES(j), sh, sh_row + j, SH_FLOATS - j < 4 ? SH_FLOATS - j : 4,
              (float4)(g_sh[j], g_sh[j + 1], g_sh[j + 2], g_sh[j + 3]));
 }

@@ -1,12 +1,15 @@
-// raster.h: the tile shape shared by the rasterizer's forward and backward kernels.
+// raster.h: what the rasterizer's forward and backward kernels share: the tile shape, the Gaussian's
+// value at a pixel, and the walk over the pixels within a Gaussian's reach.
 // -D PIXELS_PER_ITEM: pixels one work-item owns: 1, 2, 4, 8, or whole rows (a multiple of TILE_SIZE
 // dividing TILE_SIZE^2); the work-group has TILE_SIZE^2 / PIXELS_PER_ITEM items. -D BATCH: Gaussians
-// loaded into local memory at a time.
+// loaded into local memory at a time (both from render/tuning.py). -D FAST_EXP, ALPHA_CUT (RenderOptions).
 
 #ifndef DC4GS_RASTER_H
 #define DC4GS_RASTER_H
 
-#include "common.h"
+#include "tiles.h"
+
+REQUIRE_DEFINED(FAST_EXP);
 
 #define TILE_PIXELS (TILE_SIZE * TILE_SIZE)
 #define ITEMS_PER_TILE (TILE_PIXELS / PIXELS_PER_ITEM)
@@ -14,6 +17,21 @@
 #define COLS_PER_ITEM (PIXELS_PER_ITEM >= TILE_SIZE ? TILE_SIZE : PIXELS_PER_ITEM)
 // Columns go in blocks of COL_BLOCK (one CPU vector), each skipped when out of a Gaussian's reach.
 #define COL_BLOCK (COLS_PER_ITEM < 8 ? COLS_PER_ITEM : 8)
+
+// exp(x) for x <= 0: ours (FAST_EXP) or the driver's; below -87 it is exp(-87) ~ 1.6e-38, far under any
+// alpha threshold.
+inline float exp_nonpositive(float x) {
+#if FAST_EXP
+    return exp_poly(MINF(x, 0.0f));
+#else
+    return exp(MINF(x, 0.0f));
+#endif
+}
+
+// The exponent of a Gaussian with conic (a, b, c) = co.xyz at offset (dx, dy) px from its mean.
+ALWAYS_INLINE float gaussian_power(const float4 co, const float dx, const float dy) {
+    return -0.5f * (co.x * dx * dx + co.z * dy * dy) - co.y * dx * dy;
+}
 
 // Within the tile at (x0, y0): columns [x, y] and rows [z, w] whose pixel centres lie within
 // mean +- extent (once per pair, not per pixel, so the builtin ceil and floor cost nothing that matters).
@@ -24,5 +42,21 @@ inline int4 reach(float2 mean, float2 extent, int x0, int y0) {
     return (int4)((int)CLAMPF(lo.x, 0.0f, (float)TILE_SIZE), (int)CLAMPF(hi.x, -1.0f, (float)(TILE_SIZE - 1)),
                   (int)CLAMPF(lo.y, 0.0f, (float)TILE_SIZE), (int)CLAMPF(hi.y, -1.0f, (float)(TILE_SIZE - 1)));
 }
+
+// The walk over this work-item's pixels within a Gaussian's reach `span` (from reach()), written once for
+// the forward and the backward: rows, and blocks of COL_BLOCK columns, outside the span are skipped.
+// Between FOR_PIXELS_IN_REACH and END_PIXELS_IN_REACH: p is the pixel's index in the item's arrays, cc its
+// column lane, dx, dy its offset from the mean m (px[p], py[p]: the pixel's centre), power the Gaussian's
+// exponent there (conic co). The body may hold #if lines, which a macro argument could not.
+#define FOR_PIXELS_IN_REACH(m, co, span, row0, col0, px, py)                                   \
+    for (int rr = 0; rr < ROWS_PER_ITEM; ++rr) {                                                \
+        if ((row0) + rr < (span).z || (row0) + rr > (span).w) continue;                         \
+        for (int c0 = 0; c0 < COLS_PER_ITEM; c0 += COL_BLOCK) {                                 \
+            if ((col0) + c0 + COL_BLOCK - 1 < (span).x || (col0) + c0 > (span).y) continue;    \
+            for (int cc = c0; cc < c0 + COL_BLOCK; ++cc) {                                      \
+                const int p = rr * COLS_PER_ITEM + cc;                                          \
+                const float dx = (px)[p] - (m).x, dy = (py)[p] - (m).y;                         \
+                const float power = gaussian_power((co), dx, dy);
+#define END_PIXELS_IN_REACH } } }
 
 #endif

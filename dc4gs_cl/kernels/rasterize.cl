@@ -9,6 +9,7 @@
 //   out final_T          [H*W]   transmittance left after the last blended Gaussian
 //   out last_pair        [H*W]   int, index of the last pair blended into the pixel (first pair - 1 if none)
 //
+// -D EARLY_STOP (RenderOptions): a tile stops walking its list once all its pixels are saturated (exact).
 // Shape: -D PIXELS_PER_ITEM = pixels one work-item owns: 1, 2, 4, 8, or whole rows (a multiple of
 // TILE_SIZE dividing TILE_SIZE^2); the work-group has TILE_SIZE^2 / PIXELS_PER_ITEM items. GPUs use 1
 // pixel per item, as the CUDA rasterizers do; CPUs use 256, so the inner loop over a row's pixels is
@@ -18,6 +19,8 @@
 // reach ALPHA_MIN.
 
 #include "raster.h"
+
+REQUIRE_DEFINED(EARLY_STOP);
 
 __kernel __attribute__((reqd_work_group_size(ITEMS_PER_TILE, 1, 1)))
 void rasterize(const int width, const int height, const int tiles_x, const float4 background,
@@ -82,14 +85,7 @@ void rasterize(const int width, const int height, const int tiles_x, const float
             const float r = l_rgb[3 * j], gr = l_rgb[3 * j + 1], bl = l_rgb[3 * j + 2];
             const int idx = base + j;
             const int4 span = l_reach[j];
-            for (int rr = 0; rr < ROWS_PER_ITEM; ++rr) {
-              if (row0 + rr < span.z || row0 + rr > span.w) continue;
-              for (int c0 = 0; c0 < COLS_PER_ITEM; c0 += COL_BLOCK) {
-               if (col0 + c0 + COL_BLOCK - 1 < span.x || col0 + c0 > span.y) continue;
-               for (int cc = c0; cc < c0 + COL_BLOCK; ++cc) {
-                const int p = rr * COLS_PER_ITEM + cc;
-                float dx = px[p] - m.x, dy = py[p] - m.y;
-                float power = -0.5f * (co.x * dx * dx + co.z * dy * dy) - co.y * dx * dy;
+            FOR_PIXELS_IN_REACH(m, co, span, row0, col0, px, py)
                 float alpha = MINF(ALPHA_MAX, co.w * exp_nonpositive(power));
                 int blend = alive[p] & (power <= 0.f) & (alpha >= ALPHA_MIN);
                 float t = T[p], next_t = t * (1.f - alpha);
@@ -100,9 +96,7 @@ void rasterize(const int width, const int height, const int tiles_x, const float
                 cr[p] += w * r; cg[p] += w * gr; cb[p] += w * bl;
                 T[p] = blend ? next_t : t;
                 last[p] = blend ? idx : last[p];
-               }
-              }
-            }
+            END_PIXELS_IN_REACH
         }
     }
 

@@ -1,10 +1,11 @@
 // rasterize_backward.cl: tile rasterizer, backward. One work-group per tile (the forward's shape, see
 // raster.h), back to front from the last pair any of its pixels blended.
 //   in  dL_dimage [H*W*3]; final_T [H*W], last_pair [H*W]: from the forward; the rest as in rasterize.cl
-//   out sums: per Gaussian, its terms summed over this view's pixels where it was blended (offsets are -D
-//       options built by dc4gs_cl/render/backward.py). Two designs (-D PAIR_SUMS):
-//         0: sums [N*SUMS_PER_GAUSSIAN], added to with float atomics (the host zeroes it first);
-//         1: sums [P*SUMS_PER_GAUSSIAN], one slot per pair, written in full (zeros for pairs past the walk)
+//   out sums: per Gaussian, its terms summed over this view's pixels where it was blended (the SUM record:
+//       offsets SUM_<FIELD> and SUM_WIDTH are -D options from dc4gs_cl/backward/rasterize_backward.py,
+//       SumsLayout). Two designs (-D PAIR_SUMS):
+//         0: sums [N*SUM_WIDTH], added to with float atomics (the host zeroes it first);
+//         1: sums [P*SUM_WIDTH], one slot per pair, written in full (zeros for pairs past the walk)
 //            except the split sums of a Gaussian with no split line, which sum_pairs skips; no atomics; sum_pairs then adds each Gaussian's slots in a fixed order: deterministic.
 //       The terms:
 //         SUM_MEAN2D +0,1   dL/dmean2d, px
@@ -16,25 +17,17 @@
 //         SUM_PIXELS        pixels where blended (Pixel-GS)         (-D STATS)
 //         SUM_DC     +0,1,2 sum of g/|g| and the count, |g| > 0     (-D DC_STATS)
 //         SUM_SPLIT  +5k+0..4 for split candidate k: the same five sums (u_x, u_y, count, |g_x|, |g_y|)
-//                    over the pixels left of it (-D SPLIT_CANDIDATES = N > 0; split_geometry [N*SPLIT_GEOMETRY]
-//                    from split_geometry.cl says where the candidates fall)
+//                    over the pixels left of it (-D SPLIT_CANDIDATES = N > 0; split_geometry [N*GEO_WIDTH]
+//                    from split_geometry.cl, the GEO record, says where the candidates fall)
 // Per pair, each work-item sums its pixels' terms privately; the sums reach `sums` once per (tile,
 // Gaussian) pair (-D ITEMS_PER_TILE > 1 first combines the items' partial sums in local memory).
 
 #include "raster.h"
 
-#ifndef STATS
-#define STATS 0
-#endif
-#ifndef PAIR_SUMS
-#define PAIR_SUMS 0
-#endif
-#ifndef SPLIT_CANDIDATES
-#define SPLIT_CANDIDATES 0
-#endif
-#ifndef DC_STATS
-#define DC_STATS 0
-#endif
+REQUIRE_DEFINED(STATS);
+REQUIRE_DEFINED(DC_STATS);
+REQUIRE_DEFINED(SPLIT_CANDIDATES);
+REQUIRE_DEFINED(PAIR_SUMS);
 
 // One pair: this work-item's pixels within the Gaussian's reach, walked back past the Gaussian; its terms
 // summed per column lane into lanes. with_split, a constant at each call, adds the split terms: each call
@@ -45,14 +38,7 @@ ALWAYS_INLINE void backward_pair(const float2 m, const float4 co, const float3 c
                                  const float *px, const float *py, const float *dr, const float *dg, const float *db,
                                  const float *bg_term, const int *last, float *T, float *behind,
                                  float lanes[][COLS_PER_ITEM]) {
-    for (int rr = 0; rr < ROWS_PER_ITEM; ++rr) {
-      if (row0 + rr < span.z || row0 + rr > span.w) continue;
-      for (int c0 = 0; c0 < COLS_PER_ITEM; c0 += COL_BLOCK) {
-       if (col0 + c0 + COL_BLOCK - 1 < span.x || col0 + c0 > span.y) continue;
-       for (int cc = c0; cc < c0 + COL_BLOCK; ++cc) {
-        const int p = rr * COLS_PER_ITEM + cc;
-        float dx = px[p] - m.x, dy = py[p] - m.y;
-        float power = -0.5f * (co.x * dx * dx + co.z * dy * dy) - co.y * dx * dy;
+    FOR_PIXELS_IN_REACH(m, co, span, row0, col0, px, py)
         float G = exp_nonpositive(power);
         float oG = co.w * G;
         float alpha = MINF(ALPHA_MAX, oG);
@@ -110,9 +96,7 @@ ALWAYS_INLINE void backward_pair(const float2 m, const float4 co, const float3 c
 #endif
         T[p] = t;
         behind[p] += blend ? w * c_dot : 0.f;
-       }
-      }
-    }
+    END_PIXELS_IN_REACH
 }
 
 __kernel __attribute__((reqd_work_group_size(ITEMS_PER_TILE, 1, 1)))
@@ -133,10 +117,10 @@ void rasterize_backward(const int width, const int height, const int tiles_x, co
     __local int4 l_reach[BATCH];
     __local uint l_gaussian[BATCH];
 #if SPLIT_CANDIDATES
-    __local float l_split[BATCH * SPLIT_GEOMETRY];
+    __local float l_split[BATCH * GEO_WIDTH];
 #endif
 #if ITEMS_PER_TILE > 1
-    __local float l_sums[BATCH * SUMS_PER_GAUSSIAN];
+    __local float l_sums[BATCH * SUM_WIDTH];
     __local int l_end;
 #endif
 
@@ -177,8 +161,8 @@ void rasterize_backward(const int width, const int height, const int tiles_x, co
 #if PAIR_SUMS
     // Pairs no pixel reached still own a slot: zero it.
     const int range_end = ranges[2 * tile + 1];
-    for (int k = lid; k < (range_end - end) * SUMS_PER_GAUSSIAN; k += ITEMS_PER_TILE)
-        sums[(size_t)end * SUMS_PER_GAUSSIAN + k] = 0.f;
+    for (int k = lid; k < (range_end - end) * SUM_WIDTH; k += ITEMS_PER_TILE)
+        sums[(size_t)end * SUM_WIDTH + k] = 0.f;
 #endif
 
     for (int top = end; top > first; top -= BATCH) {
@@ -192,11 +176,11 @@ void rasterize_backward(const int width, const int height, const int tiles_x, co
             l_rgb[3 * j] = rgb[3 * g]; l_rgb[3 * j + 1] = rgb[3 * g + 1]; l_rgb[3 * j + 2] = rgb[3 * g + 2];
             l_reach[j] = reach(l_mean[j], vload2(g, alpha_extent), x0, y0);
 #if SPLIT_CANDIDATES
-            for (int k = 0; k < SPLIT_GEOMETRY; ++k) l_split[j * SPLIT_GEOMETRY + k] = split_geometry[(size_t)g * SPLIT_GEOMETRY + k];
+            for (int k = 0; k < GEO_WIDTH; ++k) l_split[j * GEO_WIDTH + k] = split_geometry[(size_t)g * GEO_WIDTH + k];
 #endif
         }
 #if ITEMS_PER_TILE > 1
-        for (int k = lid; k < count * SUMS_PER_GAUSSIAN; k += ITEMS_PER_TILE) l_sums[k] = 0.f;
+        for (int k = lid; k < count * SUM_WIDTH; k += ITEMS_PER_TILE) l_sums[k] = 0.f;
 #endif
         barrier(CLK_LOCAL_MEM_FENCE);
 
@@ -208,23 +192,23 @@ void rasterize_backward(const int width, const int height, const int tiles_x, co
             const int4 span = l_reach[j];
             // Per column lane, so the pixel loop carries no dependency and vectorises; lanes are summed
             // once per pair below.
-            float lanes[SUMS_PER_GAUSSIAN][COLS_PER_ITEM];
+            float lanes[SUM_WIDTH][COLS_PER_ITEM];
             // This pair's candidate line (c0.x, c0.y, dir.x, dir.y): pixel q is left of candidate k when
             // t(q) = (q - c0) . dir < t_k (t_0 = 0); no split terms where the view gave no line (dir = 0).
             float tk[SPLIT_CANDIDATES > 0 ? SPLIT_CANDIDATES : 1];
             float4 line = (float4)(0.f);
 #if SPLIT_CANDIDATES
-            __local const float *sg = l_split + j * SPLIT_GEOMETRY;
-            line = (float4)(sg[0], sg[1], sg[2], sg[3]);
-            const int split_ok = line.z != 0.f || line.w != 0.f;
+            __local const float *sg = l_split + j * GEO_WIDTH;
+            line = (float4)(sg[GEO_ORIGIN], sg[GEO_ORIGIN + 1], sg[GEO_DIR], sg[GEO_DIR + 1]);
+            const int split_ok = HAS_SPLIT_LINE(sg);
             tk[0] = 0.f;
-            for (int k = 1; k < SPLIT_CANDIDATES; ++k) tk[k] = sg[3 + k];
+            for (int k = 1; k < SPLIT_CANDIDATES; ++k) tk[k] = sg[GEO_T + k - 1];
 #endif
             // Sums this pair fills: the split ones only where the view gave the Gaussian a line.
 #if SPLIT_CANDIDATES
-            const int used = split_ok ? SUMS_PER_GAUSSIAN : SUM_SPLIT;
+            const int used = split_ok ? SUM_WIDTH : SUM_SPLIT;
 #else
-            const int used = SUMS_PER_GAUSSIAN;
+            const int used = SUM_WIDTH;
 #endif
             for (int k = 0; k < used; ++k)
                 for (int cc = 0; cc < COLS_PER_ITEM; ++cc) lanes[k][cc] = 0.f;
@@ -236,31 +220,31 @@ void rasterize_backward(const int width, const int height, const int tiles_x, co
 #endif
                 backward_pair(m, co, c, idx, span, row0, col0, ndc_x, ndc_y, line, tk, 0, px, py, dr, dg, db,
                               bg_term, last, T, behind, lanes);
-            float acc[SUMS_PER_GAUSSIAN];
+            float acc[SUM_WIDTH];
             for (int k = 0; k < used; ++k) {
                 acc[k] = 0.f;
                 for (int cc = 0; cc < COLS_PER_ITEM; ++cc) acc[k] += lanes[k][cc];
             }
 #if ITEMS_PER_TILE > 1
             for (int k = 0; k < used; ++k)
-                if (acc[k] != 0.f) local_add_float(&l_sums[j * SUMS_PER_GAUSSIAN + k], acc[k]);
+                if (acc[k] != 0.f) local_add_float(&l_sums[j * SUM_WIDTH + k], acc[k]);
 #elif PAIR_SUMS
-            for (int k = 0; k < used; ++k) sums[(size_t)(base + j) * SUMS_PER_GAUSSIAN + k] = acc[k];
+            for (int k = 0; k < used; ++k) sums[(size_t)(base + j) * SUM_WIDTH + k] = acc[k];
 #else
-            __global float *dst = sums + (size_t)l_gaussian[j] * SUMS_PER_GAUSSIAN;
+            __global float *dst = sums + (size_t)l_gaussian[j] * SUM_WIDTH;
             for (int k = 0; k < used; ++k)
                 if (acc[k] != 0.f) atomic_add_float(dst + k, acc[k]);
 #endif
         }
 #if ITEMS_PER_TILE > 1
         barrier(CLK_LOCAL_MEM_FENCE);
-        for (int k = lid; k < count * SUMS_PER_GAUSSIAN; k += ITEMS_PER_TILE) {
+        for (int k = lid; k < count * SUM_WIDTH; k += ITEMS_PER_TILE) {
             float v = l_sums[k];
 #if PAIR_SUMS
-            sums[(size_t)base * SUMS_PER_GAUSSIAN + k] = v;
+            sums[(size_t)base * SUM_WIDTH + k] = v;
 #else
-            if (v != 0.f) atomic_add_float(sums + (size_t)l_gaussian[k / SUMS_PER_GAUSSIAN] * SUMS_PER_GAUSSIAN
-                                           + k % SUMS_PER_GAUSSIAN, v);
+            if (v != 0.f) atomic_add_float(sums + (size_t)l_gaussian[k / SUM_WIDTH] * SUM_WIDTH
+                                           + k % SUM_WIDTH, v);
 #endif
         }
 #endif
@@ -269,26 +253,26 @@ void rasterize_backward(const int width, const int height, const int tiles_x, co
 
 // PAIR_SUMS: each Gaussian's slots added in emission order (the split sums only where it had a line:
 // elsewhere the backward left them unwritten).
-//   in  tiles_touched [N], pair_first [N], pair_of_emission [P]: from isect.cl; pair_sums [P*SUMS_PER_GAUSSIAN];
-//       split_geometry [N*SPLIT_GEOMETRY] with SPLIT_CANDIDATES
-//   out sums [N*SUMS_PER_GAUSSIAN]
+//   in  tiles_touched [N], pair_first [N], pair_of_emission [P]: from isect.cl; pair_sums [P*SUM_WIDTH];
+//       split_geometry [N*GEO_WIDTH] with SPLIT_CANDIDATES
+//   out sums [N*SUM_WIDTH]
 __kernel void sum_pairs(const uint n, __global const uint *tiles_touched, __global const uint *pair_first,
                         __global const uint *pair_of_emission, __global const float *pair_sums,
                         __global const float *split_geometry, __global float *sums) {
     uint g = get_global_id(0);
     if (g >= n) return;
 #if SPLIT_CANDIDATES
-    __global const float *geo = split_geometry + (size_t)g * SPLIT_GEOMETRY;
-    const int used = (geo[2] != 0.f || geo[3] != 0.f) ? SUMS_PER_GAUSSIAN : SUM_SPLIT;
+    __global const float *geo = split_geometry + (size_t)g * GEO_WIDTH;
+    const int used = HAS_SPLIT_LINE(geo) ? SUM_WIDTH : SUM_SPLIT;
 #else
-    const int used = SUMS_PER_GAUSSIAN;
+    const int used = SUM_WIDTH;
 #endif
-    float acc[SUMS_PER_GAUSSIAN];
-    for (int k = 0; k < SUMS_PER_GAUSSIAN; ++k) acc[k] = 0.f;
+    float acc[SUM_WIDTH];
+    for (int k = 0; k < SUM_WIDTH; ++k) acc[k] = 0.f;
     uint count = tiles_touched[g], first = count ? pair_first[g] : 0;
     for (uint e = first; e < first + count; ++e) {
-        __global const float *slot = pair_sums + (size_t)pair_of_emission[e] * SUMS_PER_GAUSSIAN;
+        __global const float *slot = pair_sums + (size_t)pair_of_emission[e] * SUM_WIDTH;
         for (int k = 0; k < used; ++k) acc[k] += slot[k];
     }
-    for (int k = 0; k < SUMS_PER_GAUSSIAN; ++k) sums[(size_t)g * SUMS_PER_GAUSSIAN + k] = acc[k];
+    for (int k = 0; k < SUM_WIDTH; ++k) sums[(size_t)g * SUM_WIDTH + k] = acc[k];
 }

@@ -9,6 +9,8 @@
 
 #include "common.h"
 
+REQUIRE_DEFINED(SCAN_FLAGS);
+
 #if SCAN_FLAGS
 #define SCAN_VALUE(x) ((x) != 0u ? 1u : 0u)
 #else

@@ -10,8 +10,9 @@
 //   in  means, log_scales, quats: the parameters; radius [N] int: 0 = not visible (no geometry)
 //   in  min_scale: only a Gaussian whose largest scale exceeds this can be split (smaller ones are cloned),
 //       so only those get a line and cost the rasterizer backward split terms
-//   in  window [N*WINDOW_WIDTH]: from densify_stats.cl; no line where its WIN_SKIP_SPLIT flag is set
-//   out geometry [N*SPLIT_GEOMETRY] float: c0.x, c0.y, dir.x, dir.y, t_1 .. t_{N-1} (t_0 = 0), px;
+//   in  window [N*WIN_WIDTH]: from densify_stats.cl; no line where its WIN_SKIP_SPLIT flag is set
+//   out geometry [N*GEO_WIDTH] float, px, the GEO record (dc4gs_cl/backward/split_geometry.py):
+//       GEO_ORIGIN c0 (2), GEO_DIR dir (2), GEO_T t_1 .. t_{N-1} (t_0 = 0);
 //       dir = (0, 0) where there is no usable line: too small to split, not visible, a candidate or the end at or behind
 //       the near plane, or the projected axis shorter than MIN_SPLIT_LINE_PX. The rasterizer backward then adds no
 //       split terms for the Gaussian in this view.
@@ -23,9 +24,9 @@ __kernel void split_geometry(const int n, const Camera cam, const float min_scal
                              __global const int *radius, __global const float *window, __global float *geometry) {
     int i = get_global_id(0);
     if (i >= n) return;
-    __global float *out = geometry + (size_t)i * SPLIT_GEOMETRY;
-    out[2] = out[3] = 0.f;
-    if (radius[i] <= 0 || window[(size_t)i * WINDOW_WIDTH + WIN_SKIP_SPLIT] != 0.f) return;
+    __global float *out = geometry + (size_t)i * GEO_WIDTH;
+    out[GEO_DIR] = out[GEO_DIR + 1] = 0.f;
+    if (radius[i] <= 0 || window[(size_t)i * WIN_WIDTH + WIN_SKIP_SPLIT] != 0.f) return;
     float3 s = load_scales(log_scales, i);
     int a = s.y > s.x ? (s.z > s.y ? 2 : 1) : (s.z > s.x ? 2 : 0);   // ties: the first axis
     float sigma = a == 0 ? s.x : (a == 1 ? s.y : s.z);
@@ -46,7 +47,7 @@ __kernel void split_geometry(const int n, const Camera cam, const float min_scal
     for (int k = 1; k < SPLIT_CANDIDATES; ++k) {
         float3 ck = world_to_camera(&cam, mu + step * (float)(k - SPLIT_CANDIDATES / 2) * axis);
         float2 q = project_point(&cam, ck) - c0;
-        out[3 + k] = q.x * dir.x + q.y * dir.y;
+        out[GEO_T + k - 1] = q.x * dir.x + q.y * dir.y;
     }
-    out[0] = c0.x; out[1] = c0.y; out[2] = dir.x; out[3] = dir.y;
+    out[GEO_ORIGIN] = c0.x; out[GEO_ORIGIN + 1] = c0.y; out[GEO_DIR] = dir.x; out[GEO_DIR + 1] = dir.y;
 }

@@ -5,16 +5,8 @@ from __future__ import annotations
 import numpy as np
 
 from .. import constants as K
+from ..geometry import principal_axis
 from ..scene.camera import Camera
-from .project import quat_to_rotmat
-
-
-def principal_axis(log_scales, quats) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(axis index a, sigma = scale along it, world direction p = R e_a); ties take the first axis."""
-    s = np.exp(np.asarray(log_scales, np.float64))
-    a = np.argmax(s, axis=1)
-    rows = np.arange(len(s))
-    return a, s[rows, a], quat_to_rotmat(quats)[rows, :, a]
 
 
 def candidate_points(means, log_scales, quats, n_candidates: int) -> tuple[np.ndarray, np.ndarray]:

@@ -4,19 +4,8 @@ from __future__ import annotations
 import numpy as np
 
 from .. import constants as K
+from ..geometry import quat_to_rotmat
 from ..scene.camera import Camera
-
-
-def quat_to_rotmat(q: np.ndarray) -> np.ndarray:
-    """(N, 4) quaternions (w, x, y, z), any norm (zero -> identity) -> (N, 3, 3) rotations."""
-    q = np.asarray(q, np.float64)
-    n = np.linalg.norm(q, axis=1, keepdims=True)
-    q = np.where(n > 0, q / np.where(n > 0, n, 1), np.array([1.0, 0, 0, 0]))
-    w, x, y, z = q.T
-    return np.stack([
-        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
-        np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
-        np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1)], 1)
 
 
 def sh_basis(degree: int, d: np.ndarray) -> np.ndarray:

@@ -7,13 +7,10 @@ from dataclasses import dataclass
 import numpy as np
 import pyopencl as cl
 
-from ..runtime import Runtime
-from .options import RenderOptions
 from .project import Projected
 from .scan import ExclusiveScan
 from .sort import RadixSort
-from .tuning import Tuning
-from .workspace import Workspace
+from .stage import Stage, StageContext
 
 
 @dataclass
@@ -29,22 +26,26 @@ class Intersections:
     tile_bits: int               # key bits the tile sort used
 
 
-class Intersect:
-    def __init__(self, rt: Runtime, tuning: Tuning, ws: Workspace, options: RenderOptions):
-        """options.depth_sort_bits: sort only the top this-many of the depth bits that differ (an
+class Intersect(Stage):
+    FILE = "isect.cl"
+    KERNELS = ("compact_visible", "gather_tile_counts", "emit_pairs", "gather_pairs", "tile_ranges")
+
+    def __init__(self, ctx: StageContext):
+        """ctx.options.depth_sort_bits: sort only the top this-many of the depth bits that differ (an
         approximation that trades ordering accuracy for sort passes); None sorts them all (exact)."""
-        self.rt, self.tuning, self.ws = rt, tuning, ws
-        self.depth_sort_bits = options.depth_sort_bits
-        self.flag_scan = ExclusiveScan(rt, tuning, flags=True)
-        self.count_scan = ExclusiveScan(rt, tuning)
-        self.sort = RadixSort(rt, tuning, ws)
-        wg = {**options.defines(), "ISECT_WG": tuning.isect_wg}
-        self.k_compact = rt.kernel("isect.cl", "compact_visible", wg)
-        self.k_gather = rt.kernel("isect.cl", "gather_tile_counts", wg)
-        self.k_emit = rt.kernel("isect.cl", "emit_pairs", wg)
-        self.k_gather_pairs = rt.kernel("isect.cl", "gather_pairs", wg)
-        self.k_ranges = rt.kernel("isect.cl", "tile_ranges", wg)
-        self.counters = rt.buffer(16)   # visible count, depth key min, depth key max, pair count
+        super().__init__(ctx)
+        self.tuning = ctx.tuning
+        self.depth_sort_bits = ctx.options.depth_sort_bits
+        self.flag_scan = ExclusiveScan(ctx, flags=True)
+        self.count_scan = ExclusiveScan(ctx)
+        self.sort = RadixSort(ctx)
+        k = self.kernels()
+        self.k_compact, self.k_gather, self.k_emit = k["compact_visible"], k["gather_tile_counts"], k["emit_pairs"]
+        self.k_gather_pairs, self.k_ranges = k["gather_pairs"], k["tile_ranges"]
+        self.counters = self.rt.buffer(16)   # visible count, depth key min, depth key max, pair count
+
+    def defines(self) -> dict:
+        return {**self.ctx.options.defines(), "ISECT_WG": self.ctx.tuning.isect_wg}
 
     def __call__(self, proj: Projected, tiles_x: int, tiles_y: int) -> Intersections:
         rt, ws, n = self.rt, self.ws, proj.n

@@ -8,11 +8,9 @@ import numpy as np
 import pyopencl as cl
 
 from ..constants import TILE_SIZE
-from ..runtime import Runtime
 from .isect import Intersections
 from .project import Projected
-from .tuning import Tuning
-from .workspace import Workspace
+from .stage import Stage, StageContext
 
 
 @dataclass
@@ -22,19 +20,35 @@ class Raster:
     last_pair: cl.Buffer  # [H*W] int32
 
 
-def rasterize_defines(tuning: Tuning, defines: dict) -> dict:
-    return {**defines, "PIXELS_PER_ITEM": tuning.pixels_per_item, "BATCH": tuning.batch}
+def raster_defines(ctx: StageContext) -> dict:
+    """What the rasterizer's forward and backward kernels share: the switches and the tile work shape."""
+    return {**ctx.options.defines(), "PIXELS_PER_ITEM": ctx.tuning.pixels_per_item, "BATCH": ctx.tuning.batch}
 
 
-def rasterize(rt: Runtime, ws: Workspace, tuning: Tuning, defines: dict, proj: Projected, isect: Intersections,
-              width: int, height: int, tiles_x: int, tiles_y: int, background) -> Raster:
-    out = Raster(image=ws.get("raster.image", 12 * width * height), final_T=ws.get("raster.final_T", 4 * width * height),
-                 last_pair=ws.get("raster.last_pair", 4 * width * height))
-    k = rt.kernel("rasterize.cl", "rasterize", rasterize_defines(tuning, defines))
-    items = TILE_SIZE * TILE_SIZE // tuning.pixels_per_item
+def background_value(background) -> np.ndarray:
+    """An RGB background as the kernels' float4 argument."""
     bg = np.zeros(4, np.float32)
     bg[:3] = background
-    rt.launch("rasterize", k, tiles_x * tiles_y * items, items, np.int32(width), np.int32(height), np.int32(tiles_x),
-              bg.view(cl.cltypes.float4)[0], isect.ranges, isect.gaussian_of_pair, proj.mean2d,
-              proj.conic_opacity, proj.rgb, proj.alpha_extent, out.image, out.final_T, out.last_pair)
-    return out
+    return bg.view(cl.cltypes.float4)[0]
+
+
+class Rasterize(Stage):
+    FILE, KERNELS = "rasterize.cl", ("rasterize",)
+
+    def defines(self) -> dict:
+        return raster_defines(self.ctx)
+
+    def __call__(self, proj: Projected, isect: Intersections, width: int, height: int, tiles_x: int, tiles_y: int,
+                 background) -> Raster:
+        ws = self.ws
+        out = Raster(image=ws.get("raster.image", 12 * width * height),
+                     final_T=ws.get("raster.final_T", 4 * width * height),
+                     last_pair=ws.get("raster.last_pair", 4 * width * height))
+        items = TILE_SIZE * TILE_SIZE // self.ctx.tuning.pixels_per_item
+        self.rt.launch("rasterize", self.kernels()["rasterize"], tiles_x * tiles_y * items, items, np.int32(width),
+                       np.int32(height), np.int32(tiles_x), background_value(background), isect.ranges,
+                       isect.gaussian_of_pair, proj.mean2d, proj.conic_opacity, proj.rgb, proj.alpha_extent,
+                       out.image, out.final_T, out.last_pair)
+        self.check(lambda: {"image": self.rt.to_host(out.image, (height, width, 3)),
+                            "final_T": self.rt.to_host(out.final_T, (height, width))})
+        return out

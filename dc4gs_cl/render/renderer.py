@@ -1,5 +1,6 @@
 """The forward pipeline for one camera: project -> intersect (compact, depth sort, emit pairs, tile sort,
-ranges) -> rasterize. Buffers live in a workspace reused from frame to frame."""
+ranges) -> rasterize. Scratch buffers live in the stages' shared workspace, reused from frame to frame;
+the backward stages of a trainer share the same StageContext (`Renderer.context`)."""
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -12,10 +13,10 @@ from ..scene.camera import Camera
 from .gaussians import DeviceGaussians
 from .isect import Intersect, Intersections
 from .options import RenderOptions
-from .project import Projected, project
-from .rasterize import Raster, rasterize
+from .project import Project, Projected
+from .rasterize import Raster, Rasterize
+from .stage import StageContext
 from .tuning import Tuning
-from .workspace import Workspace
 
 
 @dataclass
@@ -35,20 +36,23 @@ class RenderResult:
 
 class Renderer:
     def __init__(self, rt: Runtime, tuning: Tuning | None = None, options: RenderOptions | None = None,
-                 poison: bool = False):
+                 poison: bool = False, check_finite: bool = False):
+        """poison: new scratch buffers start as NaN (tests); check_finite: every stage checks its outputs."""
         self.rt = rt
-        self.tuning = tuning or Tuning.for_device(rt.caps)
-        self.options = options or RenderOptions()
-        self.defines = self.options.defines()
-        self.ws = Workspace(rt, poison)
-        self.intersect = Intersect(rt, self.tuning, self.ws, self.options)
+        self.context = StageContext(rt, tuning, options, poison, check_finite)
+        self.project = Project(self.context)
+        self.intersect = Intersect(self.context)
+        self.rasterize = Rasterize(self.context)
+
+    @property
+    def tuning(self) -> Tuning:
+        return self.context.tuning
 
     def render(self, gaussians: DeviceGaussians, cam: Camera, sh_degree: int | None = None,
                background=(0.0, 0.0, 0.0)) -> RenderResult:
         tiles_x, tiles_y = tile_grid(cam.width, cam.height)
         degree = gaussians.sh_degree if sh_degree is None else sh_degree
-        proj = project(self.rt, self.ws, gaussians, cam, degree, tiles_x, tiles_y, self.defines)
+        proj = self.project(gaussians, cam, degree, tiles_x, tiles_y)
         isect = self.intersect(proj, tiles_x, tiles_y)
-        raster = rasterize(self.rt, self.ws, self.tuning, self.defines, proj, isect, cam.width, cam.height,
-                           tiles_x, tiles_y, np.asarray(background, np.float32))
+        raster = self.rasterize(proj, isect, cam.width, cam.height, tiles_x, tiles_y, np.asarray(background, np.float32))
         return RenderResult(cam.width, cam.height, tiles_x, tiles_y, proj, isect, raster)

@@ -1,23 +1,26 @@
-"""Exclusive prefix sum of uint32 on the device (kernels/scan.cl)."""
+"""Exclusive prefix sum of uint32 on the device (kernels/scan.cl), a reusable primitive."""
 from __future__ import annotations
 
 import numpy as np
 import pyopencl as cl
 
-from ..runtime import Runtime
-from .tuning import Tuning
+from .stage import Stage, StageContext
 
 
-class ExclusiveScan:
+class ExclusiveScan(Stage):
     """out[i] = sum(in[:i]); the grand total goes to total[total_at]. flags=True scans (in != 0)."""
+    FILE, KERNELS = "scan.cl", ("scan_reduce", "scan_sums", "scan_apply")
 
-    def __init__(self, rt: Runtime, tuning: Tuning, flags: bool = False):
-        self.rt, self.wg, self.max_groups = rt, tuning.scan_wg, tuning.scan_groups
-        defines = {"SCAN_WG": self.wg, "SCAN_FLAGS": int(flags)}
-        self.k_reduce = rt.kernel("scan.cl", "scan_reduce", defines)
-        self.k_sums = rt.kernel("scan.cl", "scan_sums", defines)
-        self.k_apply = rt.kernel("scan.cl", "scan_apply", defines)
-        self.block_sums = rt.buffer(4 * self.max_groups)
+    def __init__(self, ctx: StageContext, flags: bool = False):
+        super().__init__(ctx)
+        self.flags = flags
+        self.wg, self.max_groups = ctx.tuning.scan_wg, ctx.tuning.scan_groups
+        self.block_sums = self.rt.buffer(4 * self.max_groups)
+        k = self.kernels()
+        self.k_reduce, self.k_sums, self.k_apply = k["scan_reduce"], k["scan_sums"], k["scan_apply"]
+
+    def defines(self) -> dict:
+        return {"SCAN_WG": self.wg, "SCAN_FLAGS": int(self.flags)}
 
     def __call__(self, src: cl.Buffer, dst: cl.Buffer, n: int, total: cl.Buffer, total_at: int = 0,
                  stage: str = "scan") -> None:

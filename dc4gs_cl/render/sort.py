@@ -8,10 +8,8 @@ from __future__ import annotations
 import numpy as np
 import pyopencl as cl
 
-from ..runtime import Runtime
 from .scan import ExclusiveScan
-from .tuning import Tuning
-from .workspace import Workspace
+from .stage import Stage, StageContext
 
 
 def digit_plan(bit_lo: int, bit_hi: int, radix_bits: int) -> list[tuple[int, int]]:
@@ -29,15 +27,19 @@ def digit_plan(bit_lo: int, bit_hi: int, radix_bits: int) -> list[tuple[int, int
     return plan
 
 
-class RadixSort:
-    def __init__(self, rt: Runtime, tuning: Tuning, workspace: Workspace | None = None):
-        self.rt, self.tuning = rt, tuning
-        self.ws = workspace or Workspace(rt)
-        defines = {"RADIX_BITS": tuning.radix_bits}
-        self.k_hist = rt.kernel("sort.cl", "radix_histogram", defines)
-        self.k_scatter = rt.kernel("sort.cl", "radix_scatter", defines)
-        self.scan = ExclusiveScan(rt, tuning)
-        self.scratch_total = rt.buffer(4)
+class RadixSort(Stage):
+    FILE, KERNELS = "sort.cl", ("radix_histogram", "radix_scatter")
+
+    def __init__(self, ctx: StageContext):
+        super().__init__(ctx)
+        self.tuning = ctx.tuning
+        k = self.kernels()
+        self.k_hist, self.k_scatter = k["radix_histogram"], k["radix_scatter"]
+        self.scan = ExclusiveScan(ctx)
+        self.scratch_total = self.rt.buffer(4)
+
+    def defines(self) -> dict:
+        return {"RADIX_BITS": self.ctx.tuning.radix_bits}
 
     def __call__(self, keys: cl.Buffer, vals: cl.Buffer, n: int, bit_lo: int = 0, bit_hi: int = 32,
                  stage: str = "sort") -> tuple[cl.Buffer, cl.Buffer]:

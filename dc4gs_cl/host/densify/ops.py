@@ -1,16 +1,17 @@
-"""Growing and shrinking the Gaussians: parameters and Adam moments together, in one place.
+"""Growing, shrinking and limiting the Gaussians: parameters and Adam moments together, in one place.
 
 Host copies are enough here: densification runs every few hundred iterations, and the trainer uploads
 the result in one go. New Gaussians start with zero Adam moments (as the 3DGS code does).
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..model import sigmoid
-from ..reference.project import quat_to_rotmat
+from ...geometry import principal_axis, quat_to_rotmat
+from ...model import logit, sigmoid
 
 SPLIT_CHILDREN = 2
 SPLIT_SCALE_DIVISOR = 1.6   # = 0.8 * SPLIT_CHILDREN in the 3DGS code
@@ -18,8 +19,8 @@ SPLIT_SCALE_DIVISOR = 1.6   # = 0.8 * SPLIT_CHILDREN in the 3DGS code
 
 @dataclass
 class GaussianSet:
-    """Everything per Gaussian that must stay aligned: parameters (name -> (n, width) float32 arrays,
-    see render.gaussians.group_widths) and their Adam moments m and v (same names and shapes)."""
+    """Everything per Gaussian that must stay aligned: parameters (name -> (n, width) float32 arrays in
+    model.PARAM_GROUPS order) and their Adam moments m and v (same names and shapes)."""
     params: dict[str, np.ndarray]
     m: dict[str, np.ndarray]
     v: dict[str, np.ndarray]
@@ -74,6 +75,34 @@ def split_random(gs: GaussianSet, mask: np.ndarray, rng: np.random.Generator) ->
     return len(idx)
 
 
+def split_at(gs: GaussianSet, idx: np.ndarray, x: np.ndarray) -> int:
+    """The DC-guided split: each Gaussian idx[i] becomes two children on its principal axis, cut at
+    normalised position x[i] (spec section 5): centres mu - 3 sigma (1 - x) p and mu + 3 sigma x p, scales
+    along the axis sigma x and sigma (1 - x), opacities o x and o (1 - x), rotation and colour copied; the
+    children's Adam moments start at zero."""
+    if len(idx) == 0:
+        return 0
+    p = {k: v[idx].astype(np.float64) for k, v in gs.params.items()}
+    axis, sigma, direction = principal_axis(p["log_scales"], p["quats"])
+    x = np.asarray(x, np.float64)
+    offsets = [-3 * sigma * (1 - x), 3 * sigma * x]
+    fractions = [x, 1 - x]
+    opacity = sigmoid(p["opacity_logits"][:, 0])
+    children = {k: [] for k in p}
+    for offset, fraction in zip(offsets, fractions):
+        log_scales = p["log_scales"].copy()
+        log_scales[np.arange(len(idx)), axis] = np.log(sigma * fraction)
+        children["means"].append(p["means"] + offset[:, None] * direction)
+        children["log_scales"].append(log_scales)
+        children["opacity_logits"].append(logit(opacity * fraction)[:, None])
+        for k in ("quats", "sh"):
+            children[k].append(p[k])
+    # Children of one parent in a row, as replace_with_children expects.
+    stacked = {k: np.stack(v, axis=1).reshape(len(offsets) * len(idx), -1) for k, v in children.items()}
+    replace_with_children(gs, idx, stacked)
+    return len(idx)
+
+
 def replace_with_children(gs: GaussianSet, idx: np.ndarray, children: dict[str, np.ndarray]) -> None:
     """Remove the Gaussians idx and append their children (len(children) is a multiple of len(idx), the
     children of each parent in a row)."""
@@ -87,3 +116,9 @@ def replace_with_children(gs: GaussianSet, idx: np.ndarray, children: dict[str, 
 def prune(gs: GaussianSet, mask: np.ndarray) -> int:
     gs.keep(~mask)
     return int(mask.sum())
+
+
+def limit_opacity(logits: np.ndarray, ceiling: float) -> np.ndarray:
+    """Opacity logits with every opacity above `ceiling` lowered to it (the 3DGS reset to 0.01, AbsGS' clamp
+    to 0.8). The opacities' Adam moments restart with it; the caller zeroes them."""
+    return np.minimum(logits, math.log(ceiling / (1 - ceiling)))

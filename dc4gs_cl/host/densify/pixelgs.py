@@ -2,16 +2,11 @@
 near the camera), averaged over those pixels rather than over views, for both clone and split."""
 from __future__ import annotations
 
-import numpy as np
-
-from .base import Strategy, mean_per_view
+from .statistics import GRAD_PER_PIXEL
+from .strategy import Strategy
 
 
 class PixelGS(Strategy):
     name = "pixelgs"
-
-    split_columns = ("pix_grad", "pix")
-    dcc_base_columns = ("dcc_pix", "pix")
-
-    def clone_values(self, stats: dict[str, np.ndarray]) -> np.ndarray:
-        return mean_per_view(stats["pix_grad"], stats["pix"])
+    clone_criterion = GRAD_PER_PIXEL
+    base_split_criterion = GRAD_PER_PIXEL

@@ -1,8 +1,8 @@
-"""DC4GS on the host (../shared/docs/dc4gs-spec.md sections 3 to 5): the DC-weighted split criterion's
-value, the split position from the candidates' costs, and the DC-guided split itself.
+"""DC4GS on the host (../shared/docs/dc4gs-spec.md sections 3 to 5): its settings, the DC-weighted split
+criterion (DCC), and the split position from the candidates' costs (DCS; the split itself is ops.split_at).
 
-The statistics are gathered on the device (kernels/rasterize_backward.cl, kernels/densify_stats.cl); this
-module reads the window at a densification step.
+The statistics are gathered on the device (kernels/rasterize_backward.cl, kernels/densify_stats.cl, what
+statistics.StatisticsSpec asks for); a strategy reads the window at a densification step.
 """
 from __future__ import annotations
 
@@ -10,13 +10,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..model import logit, sigmoid
-from ..reference.dc4gs import principal_axis
-from .ops import GaussianSet, replace_with_children
+from .statistics import DC_WEIGHTED, DCC_ABS, VIEWS, Criterion
 
 POOLINGS = ("view", "window")       # per view (the paper) or over the window (the authors' release)
 SPLIT_PICKS = ("poly", "argmin", "dense")
 DCC_READINGS = ("abs", "base")
+FIVE_CANDIDATES = 5                 # the paper's candidate count
 DENSE_CANDIDATES = 59               # --split-pick dense without --split-candidates
 CONSTANT_COSTS = 1e-7               # relative spread below which the costs carry no preference: split in the middle
 NEGLIGIBLE_COSTS = 1e-12            # ... and costs this small are float noise of vanishing gradients
@@ -24,17 +23,34 @@ NEGLIGIBLE_COSTS = 1e-12            # ... and costs this small are float noise o
 
 @dataclass(frozen=True)
 class DC4GSConfig:
-    dcc: bool = True                # DC-weighted split criterion
-    dcs: bool = True                # DC-guided split placement
+    """DC4GS' settings; off unless dcc or dcs (every setting is still checked, so that a mistyped flag never
+    passes silently)."""
+    dcc: bool = False               # DC-weighted split criterion
+    dcs: bool = False               # DC-guided split placement
     pooling: str = "view"
     split_pick: str = "poly"
-    candidates: int = 5             # odd
+    candidates: int | None = None   # odd; None: FIVE_CANDIDATES, or DENSE_CANDIDATES with split_pick "dense"
     dcc_reading: str = "base"       # base: (1 - kappa) x the base's own per-view term; abs: (1 - kappa) |ghat|
     track: float = 0.0              # split costs only while the running split criterion >= track x threshold (0: exact)
 
     def __post_init__(self):
         if problems := self.problems():
             raise ValueError("; ".join(problems))
+
+    @property
+    def enabled(self) -> bool:
+        return self.dcc or self.dcs
+
+    @property
+    def candidate_count(self) -> int:
+        if self.candidates is not None:
+            return self.candidates
+        return DENSE_CANDIDATES if self.split_pick == "dense" else FIVE_CANDIDATES
+
+    @property
+    def label(self) -> str:
+        """DC4GS, DCC or DCS: what a strategy's name gets appended."""
+        return "DC4GS" if self.dcc and self.dcs else ("DCC" if self.dcc else "DCS")
 
     def problems(self) -> list[str]:
         """What is wrong with these settings, named by their command-line flags (empty: nothing)."""
@@ -43,11 +59,17 @@ class DC4GSConfig:
                                             ("--split-pick", self.split_pick, SPLIT_PICKS),
                                             ("--dcc-reading", self.dcc_reading, DCC_READINGS))
                if value not in allowed]
-        if self.candidates < 3 or self.candidates % 2 == 0:
-            out.append(f"--split-candidates {self.candidates} must be odd and at least 3")
+        if self.candidate_count < 3 or self.candidate_count % 2 == 0:
+            out.append(f"--split-candidates {self.candidate_count} must be odd and at least 3")
         if not 0 <= self.track <= 1:
             out.append(f"--dcs-track {self.track} must lie in [0, 1]")
         return out
+
+
+def dcc_criterion(base: Criterion, reading: str) -> Criterion:
+    """DCC's split criterion on a base: (1 - kappa) times the base's own per-view term (reading "base", the
+    paper's), or times the homodirectional gradient (reading "abs"), over the base's count."""
+    return Criterion(DC_WEIGHTED[base.total], base.count) if reading == "base" else Criterion(DCC_ABS, VIEWS)
 
 
 def candidate_positions(n: int) -> np.ndarray:
@@ -111,31 +133,3 @@ def split_positions(costs: np.ndarray, pick: str) -> np.ndarray:
     largest = np.abs(costs).max(axis=1)
     flat = ~np.isfinite(costs).all(axis=1) | (spread <= CONSTANT_COSTS * largest) | (largest <= NEGLIGIBLE_COSTS)
     return np.where(flat, 0.5, out)
-
-
-def split_at(gs: GaussianSet, idx: np.ndarray, x: np.ndarray) -> int:
-    """The DC-guided split: each Gaussian idx[i] becomes two children on its principal axis, cut at
-    normalised position x[i] (spec section 5): centres mu - 3 sigma (1 - x) p and mu + 3 sigma x p, scales
-    along the axis sigma x and sigma (1 - x), opacities o x and o (1 - x), rotation and colour copied; the
-    children's Adam moments start at zero."""
-    if len(idx) == 0:
-        return 0
-    p = {k: v[idx].astype(np.float64) for k, v in gs.params.items()}
-    axis, sigma, direction = principal_axis(p["log_scales"], p["quats"])
-    x = np.asarray(x, np.float64)
-    offsets = [-3 * sigma * (1 - x), 3 * sigma * x]
-    fractions = [x, 1 - x]
-    opacity = sigmoid(p["opacity_logits"][:, 0])
-    children = {k: [] for k in p}
-    for offset, fraction in zip(offsets, fractions):
-        log_scales = p["log_scales"].copy()
-        log_scales[np.arange(len(idx)), axis] = np.log(sigma * fraction)
-        children["means"].append(p["means"] + offset[:, None] * direction)
-        children["log_scales"].append(log_scales)
-        children["opacity_logits"].append(logit(opacity * fraction)[:, None])
-        for k in ("quats", "sh"):
-            children[k].append(p[k])
-    # Children of one parent in a row, as replace_with_children expects.
-    stacked = {k: np.stack(v, axis=1).reshape(len(offsets) * len(idx), -1) for k, v in children.items()}
-    replace_with_children(gs, idx, stacked)
-    return len(idx)

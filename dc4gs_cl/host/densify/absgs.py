@@ -3,15 +3,14 @@ gradients do not cancel) with its own threshold, clone on the 3DGS one; a smalle
 opacity clamp at 0.8 every 500 iterations."""
 from __future__ import annotations
 
-from .base import DensifyConfig, Strategy
+from .statistics import ABS_PER_VIEW
+from .strategy import DensifyConfig, Strategy
 
 
 class AbsGS(Strategy):
     name = "absgs"
+    base_split_criterion = ABS_PER_VIEW
 
     @staticmethod
     def default_config() -> DensifyConfig:
         return DensifyConfig(split_threshold=4e-4, percent_dense=0.001, opacity_clamp_every=500)
-
-    split_columns = ("abs", "views")
-    dcc_base_columns = ("dcc_abs", "views")

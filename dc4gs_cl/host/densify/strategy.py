@@ -1,0 +1,227 @@
+"""The densification strategy: when to densify, clone, split, prune and limit opacities, on which criterion,
+and what the device must gather for it.
+
+A strategy owns its hyperparameters and its statistics (the window on the device, and DCS' split geometry
+stage), as gsplat's strategies do; the trainer calls only its hooks, once per iteration, in this order:
+
+    actions = strategy.actions(it)                        what this iteration does after its backward
+    gathering = strategy.gather(it, params, cam, result)  what the rasterizer backward must gather this view
+    ... rasterizer backward -> sums ...
+    strategy.fold(gathering, result, sums)                this view's statistics into the window
+    ... optimiser step where actions say so ...
+    report = strategy.apply(actions, it, model, rng)      densify and limit opacities; report
+
+The 3DGS recipe is this base class; AbsGS and Pixel-GS change the criteria and a few numbers
+(../shared/docs/dc4gs-spec.md sections 3, 5 and 6). DC4GS, on any base, makes the split criterion the
+DC-weighted one (DCC) and / or places the split by the candidates' costs (DCS). A new base strategy is a
+subclass that sets its name, criteria and default_config (tests/test_strategy.py adds one that way).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import cached_property
+
+import numpy as np
+import pyopencl as cl
+
+from ...backward import GRADIENTS, SplitGeometry, SumsLayout
+from ...render.gaussians import DeviceGaussians
+from ...render.renderer import RenderResult
+from ...render.stage import StageContext
+from ...scene.camera import Camera
+from . import ops
+from .dc4gs import DC4GSConfig, dcc_criterion, split_positions
+from .densify_stats import DensifyStats
+from .ops import GaussianSet
+from .statistics import GRAD_PER_VIEW, MAX_RADIUS, SPLIT_COSTS, Criterion, StatisticsSpec
+
+
+@dataclass(frozen=True)
+class DensifyConfig:
+    densify_from: int = 500            # densify at iterations densify_from < it < densify_until ...
+    densify_until: int = 15_000        # ... that are multiples of densify_every; statistics gather while it < this
+    densify_every: int = 100
+    clone_threshold: float = 2e-4      # on the mean per-view criterion, NDC units
+    split_threshold: float = 2e-4
+    percent_dense: float = 0.01        # "small" = largest scale <= percent_dense * extent: clone, else split
+    prune_opacity: float = 0.005
+    big_world_after: int = 3_000       # after this iteration also prune largest scale > big_world_fraction * extent
+    big_world_fraction: float = 0.1
+    screen_size_px: float | None = None  # the 3DGS screen-size rule (radius > 20 px); off: it never fires in the releases
+    opacity_reset_every: int = 3_000
+    opacity_reset_to: float = 0.01
+    opacity_clamp_every: int | None = None   # AbsGS: clamp opacities to <= opacity_clamp this often
+    opacity_clamp: float = 0.8
+
+
+@dataclass
+class DensifyReport:
+    cloned: int = 0
+    split: int = 0
+    pruned: int = 0
+
+
+@dataclass(frozen=True)
+class Actions:
+    """What an iteration does after its backward. 3DGS takes no optimiser step on a densification iteration
+    (the Inria code densifies before its step, and new tensors have no gradient), and no opacity step where
+    the opacities are limited (the reset replaces them)."""
+    densify: bool = False
+    opacity_ceiling: float | None = None   # opacities above this drop to it (reset and / or clamp)
+
+    @property
+    def optimiser_step(self) -> bool:
+        return not self.densify
+
+    @property
+    def opacity_steps(self) -> bool:
+        return self.opacity_ceiling is None
+
+
+@dataclass
+class Gathering:
+    """What the rasterizer backward gathers this view: the sums' layout and, for DCS, the view's split geometry."""
+    layout: SumsLayout
+    geometry: cl.Buffer | None = None
+
+
+class Strategy:
+    """3DGS: clone small and split large Gaussians whose mean per-view |sum of NDC gradients| reaches the
+    threshold; random split into two."""
+    name = "3dgs"
+    clone_criterion: Criterion = GRAD_PER_VIEW
+    base_split_criterion: Criterion = GRAD_PER_VIEW   # the split criterion without DCC
+
+    def __init__(self, config: DensifyConfig | None = None, dc4gs: DC4GSConfig | None = None):
+        self.config = config or self.default_config()
+        self.dc4gs = dc4gs if dc4gs is not None and dc4gs.enabled else None
+        self.window: DensifyStats | None = None        # attach() makes the device state
+        self.split_geometry: SplitGeometry | None = None
+        self.extent = 1.0
+        self.white_background = False
+
+    @staticmethod
+    def default_config() -> DensifyConfig:
+        return DensifyConfig()
+
+    @property
+    def label(self) -> str:
+        return self.name if self.dc4gs is None else f"{self.name}+{self.dc4gs.label}"
+
+    # criteria ------------------------------------------------------------------------------------------
+    @property
+    def split_criterion(self) -> Criterion:
+        if self.dc4gs is None or not self.dc4gs.dcc:
+            return self.base_split_criterion
+        return dcc_criterion(self.base_split_criterion, self.dc4gs.dcc_reading)
+
+    @property
+    def split_candidates(self) -> int:
+        return self.dc4gs.candidate_count if self.dc4gs is not None and self.dc4gs.dcs else 0
+
+    @cached_property
+    def statistics(self) -> StatisticsSpec:
+        """What the device gathers while the window is open."""
+        return StatisticsSpec(dc=self.dc4gs is not None, split_candidates=self.split_candidates,
+                              window_pooling=self.dc4gs is not None and self.dc4gs.pooling == "window",
+                              tracked=self.split_criterion)
+
+    @property
+    def track_threshold(self) -> float:
+        """Split costs are gathered for a Gaussian while its running split criterion is at least this (and
+        in its first views of a window): DC4GSConfig.track x the split threshold."""
+        return self.dc4gs.track * self.config.split_threshold if self.dc4gs is not None else 0.0
+
+    # schedule ----------------------------------------------------------------------------------------
+    def collecting(self, it: int) -> bool:
+        """Whether iteration it gathers densification statistics."""
+        return it < self.config.densify_until
+
+    def densify_now(self, it: int) -> bool:
+        c = self.config
+        return c.densify_from < it < c.densify_until and it % c.densify_every == 0
+
+    def reset_opacity_now(self, it: int, white_background: bool) -> bool:
+        c = self.config
+        return it < c.densify_until and (it % c.opacity_reset_every == 0
+                                         or (white_background and it == c.densify_from))
+
+    def clamp_opacity_now(self, it: int) -> bool:
+        c = self.config
+        return c.opacity_clamp_every is not None and it < c.densify_until and it % c.opacity_clamp_every == 0
+
+    def actions(self, it: int) -> Actions:
+        c = self.config
+        ceilings = [ceiling for ceiling, now in ((c.opacity_clamp, self.clamp_opacity_now(it)),
+                                                 (c.opacity_reset_to, self.reset_opacity_now(it, self.white_background)))
+                    if now]
+        return Actions(densify=self.densify_now(it), opacity_ceiling=min(ceilings) if ceilings else None)
+
+    # device hooks ----------------------------------------------------------------------------------------
+    def attach(self, ctx: StageContext, extent: float, n: int, white_background: bool = False) -> None:
+        """Make the device state for a scene of this extent and n Gaussians: the window and, for DCS, the
+        split geometry stage (sharing the trainer's stage context)."""
+        self.extent, self.white_background = extent, white_background
+        self.window = DensifyStats(ctx, self.statistics, extent, self.track_threshold)
+        self.window.reset(n)
+        self.split_geometry = SplitGeometry(ctx) if self.split_candidates else None
+
+    def gather(self, it: int, params: DeviceGaussians, cam: Camera, res: RenderResult) -> Gathering:
+        """What the backward gathers this view: the gradients alone once the window has closed; otherwise the
+        window's statistics and, for DCS, the split geometry of the Gaussians that can be split (largest scale
+        above percent_dense x extent) and that the window still tracks."""
+        if not self.collecting(it):
+            return Gathering(GRADIENTS)
+        spec = self.statistics
+        geometry = None
+        if self.split_geometry is not None:
+            geometry = self.split_geometry(params, cam, res, self.split_candidates,
+                                           self.config.percent_dense * self.extent,
+                                           (self.window.buffer, self.window.record))
+        return Gathering(spec.sums, geometry)
+
+    def fold(self, gathering: Gathering, res: RenderResult, sums: cl.Buffer) -> None:
+        if gathering.layout.stats:   # the window is open
+            self.window.fold(res, sums, gathering.geometry)
+
+    def apply(self, actions: Actions, it: int, model, rng: np.random.Generator) -> DensifyReport | None:
+        """Densify (on the device model: host.trainable.TrainableGaussians) and limit the opacities as the
+        actions say; the report of a densification step, else None."""
+        report = None
+        if actions.densify:
+            gs = model.download()
+            report = self.densify(gs, self.window.download(), it, self.extent, rng)
+            model.upload(gs)
+            self.window.reset(gs.n)
+        if actions.opacity_ceiling is not None:
+            model.limit_opacity(actions.opacity_ceiling)
+        return report
+
+    # the step --------------------------------------------------------------------------------------------
+    def split(self, gs: GaussianSet, mask: np.ndarray, rng: np.random.Generator, window: dict[str, np.ndarray]) -> int:
+        if not self.split_candidates:
+            return ops.split_random(gs, mask, rng)
+        idx = np.flatnonzero(mask)
+        return ops.split_at(gs, idx, split_positions(window[SPLIT_COSTS][idx], self.dc4gs.split_pick))
+
+    def densify(self, gs: GaussianSet, window: dict[str, np.ndarray], it: int, extent: float,
+                rng: np.random.Generator) -> DensifyReport:
+        """Clone, then split (clones are never split), then prune, as the 3DGS code orders them."""
+        c = self.config
+        n = gs.n
+        clone_v, split_v = self.clone_criterion(window), self.split_criterion(window)
+        gs.aux[MAX_RADIUS] = window[MAX_RADIUS].astype(np.float32)
+        large = gs.scales().max(axis=1) > c.percent_dense * extent
+        report = DensifyReport()
+        report.cloned = ops.clone(gs, (clone_v >= c.clone_threshold) & ~large)
+        split_mask = np.zeros(gs.n, bool)
+        split_mask[:n] = (split_v >= c.split_threshold) & large
+        report.split = self.split(gs, split_mask, rng, window)
+        prune = gs.opacities() < c.prune_opacity
+        if it > c.big_world_after:
+            prune |= gs.scales().max(axis=1) > c.big_world_fraction * extent
+        if c.screen_size_px is not None:
+            prune |= gs.aux[MAX_RADIUS] > c.screen_size_px
+        report.pruned = ops.prune(gs, prune)
+        del gs.aux[MAX_RADIUS]
+        return report

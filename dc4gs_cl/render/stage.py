@@ -1,0 +1,66 @@
+"""The one shape of every stage host, and what the stages of one pipeline share.
+
+A stage host is a class named after its kernel file (project.cl -> Project): made once, called once per
+frame. It builds its kernels once per variant it meets (a variant: the -D options that change between
+calls, such as the SH coefficient count or the backward's sums layout) and keeps the Kernel objects, so
+nothing is looked up or rebuilt on the hot path. The forward stages (render/) and the backward stages
+(backward/) of one trainer share a StageContext: the runtime, the work shapes, the algorithm switches,
+the workspace of scratch buffers and the --check-finite switch.
+"""
+from __future__ import annotations
+
+import numpy as np
+import pyopencl as cl
+
+from ..finite import FiniteCheck
+from ..runtime import Runtime
+from .options import RenderOptions
+from .tuning import Tuning
+from .workspace import Workspace
+
+PER_GAUSSIAN_WG = 64   # work-group size of the kernels with one work-item per Gaussian
+
+
+class StageContext:
+    def __init__(self, rt: Runtime, tuning: Tuning | None = None, options: RenderOptions | None = None,
+                 poison: bool = False, check_finite: bool = False):
+        """poison: fill every new scratch buffer with NaN (tests: a value a kernel failed to write shows up).
+        check_finite: every stage checks its outputs (finite.FiniteCheck)."""
+        self.rt = rt
+        self.tuning = tuning or Tuning.for_device(rt.caps)
+        self.options = options or RenderOptions()
+        self.ws = Workspace(rt, poison)
+        self.check = FiniteCheck(check_finite)
+
+
+class Stage:
+    FILE: str                      # kernels/<FILE>
+    KERNELS: tuple[str, ...]       # the kernels of that file this stage launches
+
+    def __init__(self, ctx: StageContext):
+        self.ctx, self.rt, self.ws = ctx, ctx.rt, ctx.ws
+        self._built: dict[tuple, dict[str, cl.Kernel]] = {}
+
+    def defines(self) -> dict:
+        """The -D options fixed for this stage's life (work shapes, switches); variants add to them."""
+        return {}
+
+    def kernels(self, variant: dict | None = None) -> dict[str, cl.Kernel]:
+        """This stage's kernels for a variant, built the first time it is asked for."""
+        key = tuple(sorted((variant or {}).items()))
+        built = self._built.get(key)
+        if built is None:
+            program = self.rt.program(self.FILE, {**self.defines(), **(variant or {})})
+            built = self._built[key] = {name: cl.Kernel(program, name) for name in self.KERNELS}
+        return built
+
+    def check(self, arrays) -> None:
+        """--check-finite: `arrays()` gives the host copies of this call's outputs; read only when on."""
+        if self.ctx.check.enabled:
+            self.ctx.check(self.FILE.removesuffix(".cl"), arrays())
+
+
+def visible_rows(rt: Runtime, buf: cl.Buffer, radius: np.ndarray, width: int) -> np.ndarray:
+    """The rows of a per-Gaussian (N, width) float32 buffer that belong to Gaussians visible in the view
+    (radius > 0): the only rows a view's stage defines."""
+    return rt.to_host(buf, (len(radius), width))[radius > 0]

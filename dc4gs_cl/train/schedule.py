@@ -1,0 +1,53 @@
+"""The 3DGS recipe's schedules (written for RECIPE_ITERATIONS iterations), scaled to a run's length: the
+densification strategy's window and opacity steps, the SH degree steps and the learning rates."""
+from __future__ import annotations
+
+from dataclasses import replace
+
+from ..host.adam import exponential_lr
+from ..host.densify import STRATEGIES, Strategy
+from ..config import RECIPE_ITERATIONS, TrainConfig
+
+MIN_DENSIFY_STEPS = 10   # a short run still densifies about this often
+SH_DEGREE_EVERY = 1_000  # one more SH degree every this many (scaled) iterations
+
+
+class Schedule:
+    def __init__(self, cfg: TrainConfig):
+        self.cfg = cfg
+
+    def scaled(self, steps: int) -> int:
+        """An iteration count of the recipe, scaled to this run's length."""
+        return max(1, round(steps * self.cfg.iterations / RECIPE_ITERATIONS))
+
+    def strategy(self) -> Strategy:
+        """The run's strategy with its schedule scaled to the run's length. The interval between densification
+        steps is not scaled, as the statistics need that many views and new Gaussians that many steps to settle
+        (scaling it grows the model explosively); it shrinks only where fewer than MIN_DENSIFY_STEPS would fit
+        in the window."""
+        cls = STRATEGIES[self.cfg.strategy]
+        base = cls.default_config()
+        start, stop = self.scaled(base.densify_from), self.scaled(base.densify_until)
+        every = min(base.densify_every, max(1, (stop - start) // MIN_DENSIFY_STEPS))
+        c = replace(base, densify_from=start, densify_until=stop, densify_every=every,
+                    big_world_after=self.scaled(base.big_world_after),
+                    opacity_reset_every=self.scaled(base.opacity_reset_every),
+                    opacity_clamp_every=None if base.opacity_clamp_every is None else self.scaled(base.opacity_clamp_every))
+        if self.cfg.densify_until is not None:
+            c = replace(c, densify_until=self.cfg.densify_until)
+        return cls(c, self.cfg.dc4gs)
+
+    def sh_degree(self, it: int) -> int:
+        """Active SH degree at iteration it: one more every SH_DEGREE_EVERY (scaled), up to the model's."""
+        return min(self.cfg.sh_degree, it // self.scaled(SH_DEGREE_EVERY))
+
+    def learning_rates(self, it: int, extent: float, opacity_steps: bool) -> dict:
+        """Each parameter group's rate at iteration it (the SH group: DC band, higher bands); the opacities are
+        left out where they take no step."""
+        c = self.cfg
+        lrs = {"means": exponential_lr(it, c.lr_means * extent, c.lr_means_final * extent, c.iterations),
+               "log_scales": c.lr_scales, "quats": c.lr_quats, "opacity_logits": c.lr_opacity,
+               "sh": (c.lr_sh_dc, c.lr_sh_rest)}
+        if not opacity_steps:
+            del lrs["opacity_logits"]
+        return lrs

@@ -1,0 +1,201 @@
+"""The training loop: the 3DGS recipe on the device, the host owning the schedules, Adam's logic and the
+density control (a strategy, host/densify); checkpoints through the run folder, so that an interrupted
+run resumes to the same model.
+
+One iteration (docs/architecture.md draws it module by module):
+    render (render/) -> loss and dL/dimage (loss.py) -> what the strategy gathers this view (its split
+    geometry, for DCS) -> rasterizer backward into per-Gaussian sums (backward/) -> the strategy folds the
+    view's statistics into its window -> projection backward with Adam's step fused in, where the recipe
+    steps -> the strategy densifies and limits opacities where its schedule says.
+Per iteration the host uploads the target image and reads back two counts (visible Gaussians, pairs); the
+loss is read every few iterations for the progress bar.
+"""
+from __future__ import annotations
+
+import math
+import signal
+import threading
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+
+from ..backward import ProjectBackward, RasterizeBackward
+from ..errors import InputError
+from ..host.densify import GaussianSet, Strategy
+from ..host.trainable import TrainableGaussians
+from ..loss import Loss
+from ..model import initial_model
+from ..render import DeviceGaussians, Renderer, Tuning
+from ..run_folder import RunFolder
+from ..runtime import Runtime
+from ..scene.camera import Camera, Scene
+from ..config import TrainConfig
+from .schedule import Schedule
+
+
+@dataclass
+class Progress:
+    """What the progress bar shows; refreshed every few iterations."""
+    loss: float = math.nan
+    psnr: float = math.nan
+    gaussians: int = 0
+
+
+class Trainer:
+    def __init__(self, cfg: TrainConfig, scene: Scene, rt: Runtime, out: str | Path | RunFolder,
+                 strategy: Strategy | None = None, check_finite: bool = False):
+        """strategy: the density control (default: the configuration's, its schedule scaled to the run);
+        check_finite: every stage checks its outputs and the first NaN or Inf stops the run (finite.py)."""
+        if not scene.train:
+            raise InputError(scene.root, "the scene has no training cameras")
+        self.cfg, self.scene, self.rt = cfg, scene, rt
+        self.run_folder = out if isinstance(out, RunFolder) else RunFolder(out)
+        self.schedule = Schedule(cfg)
+        tuning = Tuning.for_device(rt.caps)
+        if cfg.low_memory:   # float-atomic sums instead of per-pair slots
+            tuning = replace(tuning, pair_sums=False)
+        self.renderer = Renderer(rt, tuning, check_finite=check_finite)
+        self.context = self.renderer.context
+        self.loss = Loss(self.context)
+        self.rasterize_backward = RasterizeBackward(self.context)
+        self.project_backward = ProjectBackward(self.context)
+        self.rng = np.random.default_rng(cfg.seed)
+        self.iteration = 0
+        self.camera_stack: list[int] = []
+        self.model = TrainableGaussians(rt, initial_model(scene.points, scene.colors, self.rng, cfg.sh_degree))
+        self.strategy = strategy or self.schedule.strategy()
+        self.strategy.attach(self.context, scene.extent, self.model.n, cfg.white_background)
+        self.progress = Progress(gaussians=self.model.n)
+
+    @property
+    def params(self) -> DeviceGaussians:
+        return self.model.params
+
+    @property
+    def sh_degree(self) -> int:
+        return self.schedule.sh_degree(self.iteration)
+
+    def next_camera(self) -> Camera:
+        """A random training camera, each once per pass (the 3DGS camera stack)."""
+        if not self.camera_stack:
+            self.camera_stack = list(range(len(self.scene.train)))
+        return self.scene.train[self.camera_stack.pop(int(self.rng.integers(len(self.camera_stack))))]
+
+    # one iteration ------------------------------------------------------------------------------------
+    def step(self) -> None:
+        self.iteration += 1
+        it, rt, s, ws = self.iteration, self.rt, self.strategy, self.context.ws
+        self.context.check.at = f"iteration {it}"
+        cam = self.next_camera()
+        target = self.scene.image(cam)
+        target_buf, dL_dimage = ws.get("train.target", target.nbytes), ws.get("train.dL_dimage", target.nbytes)
+        rt.write(target_buf, target)
+        background = self.scene.background
+
+        res = self.renderer.render(self.params, cam, self.sh_degree, background)
+        self.loss(res.raster.image, target_buf, cam.width, cam.height, dL_dimage)
+        actions = s.actions(it)
+        gathering = s.gather(it, self.params, cam, res)
+        sums = self.rasterize_backward(res, dL_dimage, background, gathering.layout, gathering.geometry)
+        s.fold(gathering, res, sums)
+        if actions.optimiser_step:
+            lrs = self.schedule.learning_rates(it, self.scene.extent, actions.opacity_steps)
+            self.project_backward.step(self.params, cam, self.sh_degree, res, sums, gathering.layout,
+                                       self.model.adam.step_value(lrs), self.model.adam.m, self.model.adam.v)
+        if it in self.cfg.save_at:   # before this iteration's densification and opacity limits, as Inria saves
+            self.save_model()
+        if s.apply(actions, it, self.model, self.rng) is not None:
+            self.progress.gaussians = self.model.n
+            if self.context.check.enabled:
+                self.context.check("densify", self.model.download().params)
+
+    def start_from(self, gs: GaussianSet, iteration: int) -> None:
+        """Continue from these Gaussians (parameters and moments) at this iteration, the window restarted
+        (benchmarks start their configurations from one trained state this way)."""
+        self.model.upload(gs)
+        self.strategy.window.reset(gs.n)
+        self.iteration = iteration
+        self.progress.gaussians = gs.n
+
+    def memory_held(self) -> dict[str, int]:
+        """Device bytes held now, by what holds them (capacity included)."""
+        m = self.model
+        return {"parameters": m.params.nbytes, "Adam m": m.adam.m.nbytes, "Adam v": m.adam.v.nbytes,
+                "window statistics": self.strategy.window.rows.nbytes, **self.context.ws.held()}
+
+    # checkpoints --------------------------------------------------------------------------------------
+    def save_checkpoint(self) -> None:
+        gs = self.model.download()
+        arrays = {f"{part}/{k}": v for part, group in (("param", gs.params), ("m", gs.m), ("v", gs.v))
+                  for k, v in group.items()}
+        arrays |= {f"window/{k}": v for k, v in self.strategy.window.download().items()}
+        meta = {"iteration": self.iteration, "config": self.cfg.to_json(), "adam_steps": self.model.adam.steps,
+                "rng": self.rng.bit_generator.state, "camera_stack": self.camera_stack,
+                "train_cameras": [c.name for c in self.scene.train], "gaussians": self.model.n}
+        self.run_folder.write_checkpoint(arrays, meta)
+
+    def resume(self) -> None:
+        """Continue from the run folder's checkpoint, which must come from these settings and images."""
+        arrays, meta = self.run_folder.read_checkpoint()
+        path = self.run_folder.checkpoint_path
+        try:
+            saved = TrainConfig.from_json(meta["config"])
+            group = lambda prefix: {k.split("/", 1)[1]: v for k, v in arrays.items() if k.startswith(prefix + "/")}
+            gs = GaussianSet(group("param"), group("m"), group("v"))
+            window = group("window")
+            steps, state, stack, iteration = meta["adam_steps"], meta["rng"], meta["camera_stack"], meta["iteration"]
+            cameras, n = meta["train_cameras"], meta["gaussians"]
+        except (KeyError, TypeError, ValueError, InputError) as e:
+            raise InputError(path, f"corrupt checkpoint ({e.__class__.__name__}: {e})") from None
+        if diffs := saved.differences(self.cfg):
+            raise InputError(path, "checkpoint is from other settings (" + ", ".join(
+                f"{k}: checkpoint {a!r} vs now {b!r}" for k, (a, b) in diffs.items()) + ")")
+        if cameras != [c.name for c in self.scene.train]:
+            raise InputError(path, "checkpoint was made with other training images")
+        try:
+            if gs.n != n:
+                raise ValueError
+            self.model.upload(gs)
+        except (ValueError, KeyError):
+            raise InputError(path, "checkpoint arrays do not match the model layout") from None
+        self.strategy.window.upload(window)
+        self.model.adam.steps = steps
+        self.rng.bit_generator.state = state
+        self.camera_stack = stack
+        self.iteration = iteration
+        self.progress.gaussians = n
+
+    # outputs ------------------------------------------------------------------------------------------
+    def save_model(self) -> Path:
+        return self.run_folder.save_model(self.iteration, self.params.download_model())
+
+    def run(self, progress: bool = True, log_every: int = 10) -> None:
+        """Train to cfg.iterations; Ctrl-C (SIGINT) stops at the next iteration boundary after a checkpoint."""
+        from tqdm import tqdm
+        stop = {"now": False}
+        main_thread = threading.current_thread() is threading.main_thread()
+        previous = signal.signal(signal.SIGINT, lambda *_: stop.update(now=True)) if main_thread else None
+        bar = tqdm(total=self.cfg.iterations, initial=self.iteration, disable=not progress, dynamic_ncols=True,
+                   unit="it")
+        try:
+            while self.iteration < self.cfg.iterations:
+                if stop["now"]:
+                    self.save_checkpoint()
+                    raise KeyboardInterrupt
+                self.step()
+                bar.update(1)
+                if self.iteration % self.cfg.checkpoint_every == 0:
+                    self.save_checkpoint()
+                if self.iteration % log_every == 0 or self.iteration == self.cfg.iterations:
+                    stats = self.loss.read_stats()
+                    self.progress.loss = stats["loss"]
+                    self.progress.psnr = 10 * math.log10(1 / max(stats["mse"], 1e-12))
+                    bar.set_postfix(loss=f"{self.progress.loss:.4f}", psnr=f"{self.progress.psnr:.2f}",
+                                    gaussians=f"{self.progress.gaussians:,}", refresh=False)
+            self.save_model()
+            self.save_checkpoint()
+        finally:
+            bar.close()
+            if previous is not None:
+                signal.signal(signal.SIGINT, previous)
