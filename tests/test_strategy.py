@@ -5,7 +5,7 @@ import pytest
 
 from dc4gs_cl.geometry import quat_to_rotmat
 from dc4gs_cl.host.densify import AbsGS, DensifyConfig, GaussianSet, PixelGS, Strategy, ops
-from dc4gs_cl.host.densify.statistics import BASE_COLUMNS, VIEWS
+from dc4gs_cl.host.densify.statistics import ABS_PER_VIEW, BASE_COLUMNS, GRAD_PER_PIXEL, VIEWS
 
 EXTENT = 2.0
 
@@ -122,3 +122,49 @@ def test_schedule_follows_the_recipe():
     clamps = [it for it in range(1, 30_001) if a.clamp_opacity_now(it)]
     assert clamps[0] == 500 and clamps[-1] == 14_500 and not s.clamp_opacity_now(500)
     assert s.collecting(14_999) and not s.collecting(15_000)
+
+
+class ToyBase(Strategy):
+    """A new base strategy, added by subclassing alone: clone on Pixel-GS' per-pixel criterion, split on AbsGS'
+    homodirectional one at twice 3DGS' threshold. DC4GS applies to it as to any base."""
+    name = "toy"
+    clone_criterion = GRAD_PER_PIXEL
+    base_split_criterion = ABS_PER_VIEW
+
+    @staticmethod
+    def default_config() -> DensifyConfig:
+        return DensifyConfig(split_threshold=4e-4, densify_from=10, densify_until=60, densify_every=10,
+                             opacity_reset_every=1000)
+
+
+def test_a_new_base_strategy_is_a_subclass(rng):
+    s = ToyBase()
+    gs = hand_built(rng, n=4)
+    gs.params["log_scales"][2:] = np.log(0.5)                       # 0, 1 small; 2, 3 large
+    gs.params["opacity_logits"][:] = 2.0
+    stats = window(4, pix=50.0)
+    stats["pix_grad"][:] = 50 * np.array([3e-4, 1e-4, 3e-4, 3e-4])  # per pixel: clones 0 (2 is large)
+    stats["abs"][:] = 10 * np.array([9e-4, 9e-4, 5e-4, 3e-4])       # per view: splits 2 (0, 1 are small)
+    report = s.densify(gs, stats, it=1000, extent=EXTENT, rng=rng)
+    assert (report.cloned, report.split) == (1, 1)
+    from dc4gs_cl.host.densify import DC4GSConfig
+    from dc4gs_cl.host.densify.statistics import DCC_ABS
+    assert ToyBase(dc4gs=DC4GSConfig(dcc=True)).split_criterion.total == DCC_ABS   # DCC weights its own term
+
+
+@pytest.mark.parametrize("dc4gs", [False, True], ids=["toy", "toy+DC4GS"])
+def test_a_new_base_strategy_trains(rt, tmp_path, dc4gs):
+    """The trainer takes the subclass as it is: its window on the device, its hooks, its densification."""
+    from dc4gs_cl.config import TrainConfig
+    from dc4gs_cl.host.densify import DC4GSConfig
+    from dc4gs_cl.scene import load_scene
+    from dc4gs_cl.train import Trainer
+    scene = load_scene("builtin", resolution=4)
+    settings = DC4GSConfig(dcc=dc4gs, dcs=dc4gs)
+    strategy = ToyBase(dc4gs=settings)
+    trainer = Trainer(TrainConfig(scene="builtin", iterations=80, resolution=4, dc4gs=settings), scene, rt, tmp_path,
+                      strategy=strategy)
+    assert trainer.strategy is strategy and strategy.label == ("toy+DC4GS" if dc4gs else "toy")
+    start = trainer.model.n
+    trainer.run(progress=False)
+    assert trainer.model.n != start and np.isfinite(trainer.params.download()["means"]).all()

@@ -160,3 +160,40 @@ def test_a_saved_iteration_precedes_its_opacity_reset(rt, tmp_path):
     saved = sigmoid(read_ply(tmp_path / "point_cloud" / "iteration_60" / "point_cloud.ply").opacity_logits)
     now = sigmoid(trainer.params.download_group("opacity_logits"))
     assert now.max() < 0.0101 and saved.max() > 0.05, (now.max(), saved.max())
+
+
+def test_check_finite_names_stage_iteration_and_buffer(rt, tmp_path):
+    """--check-finite: a NaN injected into the parameters stops the next iteration at the first stage that writes
+    it (the forward's clamps keep it out of the image; the optimiser step writes the parameter back), one
+    injected into the target image at the loss's gradient; each error names stage, iteration and buffer."""
+    from dataclasses import replace
+    from dc4gs_cl.finite import NonFiniteError
+    scene = load_scene("builtin", resolution=4)
+    cfg = TrainConfig(scene="builtin", iterations=50, resolution=4, densify_until=0)
+    trainer = Trainer(cfg, scene, rt, tmp_path, check_finite=True)
+    for _ in range(3):
+        trainer.step()                                    # finite: nothing stops
+    logits = trainer.params.download_group("opacity_logits")
+    trainer.params.upload_group("opacity_logits", np.where(np.arange(len(logits))[:, None] % 7 == 0, np.nan, logits))
+    with pytest.raises(NonFiniteError, match=r"iteration 4: stage project_backward wrote .* in opacity_logits") as e:
+        trainer.step()
+    assert (e.value.stage, e.value.buffer, e.value.at) == ("project_backward", "opacity_logits", "iteration 4")
+
+    def nan_image(cam):                                    # every fifth column of the target NaN
+        image = np.full((cam.height, cam.width, 3), 0.5, np.float32)
+        image[:, ::5] = np.nan
+        return image
+    nan_scene = replace(scene, read_image=nan_image)
+    trainer = Trainer(cfg, nan_scene, rt, tmp_path, check_finite=True)
+    with pytest.raises(NonFiniteError, match="iteration 1: stage loss") as e:
+        trainer.step()
+    assert e.value.buffer == "dL_dimage"
+    off = Trainer(cfg, nan_scene, rt, tmp_path)
+    off.step()                                             # off: the same NaN passes unnoticed
+
+
+def test_check_finite_on_the_command_line(tmp_path):
+    out = tmp_path / "run"
+    assert main(["train", *SMALL, "-r", "4", "--iterations", "12", "--check-finite", "--out", str(out)]) == 0
+    assert main(["render", "--model", str(out), "--check-finite"]) == 0
+    assert sorted(p.name for p in (out / "test" / "ours_12").iterdir()) == ["gt", "renders"]

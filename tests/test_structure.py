@@ -1,0 +1,54 @@
+"""The package's layering, read from the import statements of every module: render knows nothing of the
+backward or of training, the backward nothing of training, and production code never uses the float64
+test references."""
+import ast
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1] / "dc4gs_cl"
+
+
+def imported_modules(path: Path) -> set[str]:
+    """Absolute dc4gs_cl module names a file imports (relative imports resolved)."""
+    package = ["dc4gs_cl", *path.relative_to(ROOT).parent.parts]
+    out = set()
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.Import):
+            out |= {a.name for a in node.names if a.name.startswith("dc4gs_cl")}
+        elif isinstance(node, ast.ImportFrom):
+            base = package[:len(package) - node.level + 1] if node.level else []
+            name = ".".join(base + ([node.module] if node.module else []))
+            if name.startswith("dc4gs_cl"):
+                out.add(name)
+                out |= {f"{name}.{a.name}" for a in node.names}   # "from . import ops" imports a module too
+    return out
+
+
+def modules(folder: str = "") -> dict[str, set[str]]:
+    return {str(p.relative_to(ROOT)): imported_modules(p) for p in sorted((ROOT / folder).rglob("*.py"))}
+
+
+FORBIDDEN = {   # folder -> packages its modules must not import
+    "render": ("dc4gs_cl.backward", "dc4gs_cl.host", "dc4gs_cl.train", "dc4gs_cl.config", "dc4gs_cl.run_folder"),
+    "backward": ("dc4gs_cl.host", "dc4gs_cl.train", "dc4gs_cl.config", "dc4gs_cl.run_folder"),
+}
+
+
+@pytest.mark.parametrize("folder", FORBIDDEN)
+def test_lower_layers_do_not_import_higher_ones(folder):
+    bad = {m: sorted(i for i in imports if i.startswith(FORBIDDEN[folder])) for m, imports in modules(folder).items()}
+    assert not {m: i for m, i in bad.items() if i}
+
+
+def test_production_code_does_not_import_the_references():
+    users = {m for m, imports in modules().items()
+             if not m.startswith("reference/") and any(i.startswith("dc4gs_cl.reference") for i in imports)}
+    assert not users
+
+
+def test_the_import_reader_sees_imports():
+    """The checks above are only as good as this reader: it finds relative imports of each form."""
+    trainer = imported_modules(ROOT / "train" / "trainer.py")
+    assert {"dc4gs_cl.backward", "dc4gs_cl.host.trainable", "dc4gs_cl.run_folder"} <= trainer
+    assert "dc4gs_cl.host.densify.ops" in imported_modules(ROOT / "host" / "densify" / "strategy.py")
