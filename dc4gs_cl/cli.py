@@ -1,7 +1,9 @@
 """Command line: `dc4gs-cl devices | render | ...`.
 
-Bad input (InputError) and device problems (DeviceError) end in one line on stderr and exit code 2;
-anything else is a bug and keeps its traceback.
+Exit codes: 0 done; 2 bad input (InputError) or a device problem (DeviceError); 1 an output that cannot be
+written (OutputError: disk full, read-only folder; earlier outputs stay intact); 3 a NaN or Inf found by
+--check-finite; 130 interrupted (Ctrl-C), 143 terminated (SIGTERM), both after a checkpoint when training.
+Each of these ends in one line on stderr; anything else is a bug and keeps its traceback.
 """
 from __future__ import annotations
 
@@ -13,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from .config import RECIPE_ITERATIONS
-from .errors import DeviceError, InputError
+from .errors import DeviceError, InputError, OutputError
 from .files import replace_folder, staging_folder
 from .finite import NonFiniteError
 from .host.densify import STRATEGIES as STRATEGY_NAMES
@@ -254,7 +256,7 @@ def cmd_train(args) -> int:
     from .run_folder import RunFolder
     from .runtime import Runtime, describe
     from .scene import load_scene
-    from .train import Trainer
+    from .train import Stopped, Trainer
 
     if args.out is None:
         if args.resume:
@@ -264,17 +266,20 @@ def cmd_train(args) -> int:
     run = RunFolder(args.out)
     if args.resume and args.force:
         raise InputError(None, "--resume and --force exclude each other")
-    if args.resume and not run.checkpoint_path.is_file():
+    if args.resume and not run.has_checkpoint():
         raise InputError(run.path, "nothing to resume: no checkpoint.npz")
     if not args.resume and run.holds_run() and not args.force:
         raise InputError(run.path, "holds another run: continue it with --resume, or replace it with --force")
     cfg = train_config(args, run)
     scene = load_scene(cfg.scene, resolution=cfg.resolution, cache_dir=run.path / "undistorted",
                        test_every=cfg.test_every, white_background=cfg.white_background)
+    scene.read_all_images()
     rt = Runtime(args.device, profiling=args.profile)
     trainer = Trainer(cfg, scene, rt, run, check_finite=args.check_finite)
     if args.resume:
-        trainer.resume()
+        checkpoint = trainer.resume()
+        for corrupt in checkpoint.passed_over:
+            print(f"{corrupt}; resuming from {checkpoint.path.name} (iteration {trainer.iteration})", file=sys.stderr)
     else:
         if args.force:
             run.clear()
@@ -285,10 +290,10 @@ def cmd_train(args) -> int:
     start, first = time.perf_counter(), trainer.iteration
     try:
         trainer.run(progress=not args.no_progress)
-    except KeyboardInterrupt:
-        print(f"stopped at iteration {trainer.iteration}; a checkpoint is in {run}. Continue with: "
+    except Stopped as e:
+        print(f"{e} at iteration {trainer.iteration}; a checkpoint is in {run}. Continue with: "
               f"dc4gs-cl train --out {run} --resume", file=sys.stderr)
-        return 130
+        return 128 + e.signum
     seconds = time.perf_counter() - start
     if args.profile:
         times = rt.stage_times()
@@ -337,6 +342,9 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv if argv is not None else (sys.argv[1:] or ["train"]))
     try:
         return COMMANDS[args.command](args)
+    except OutputError as e:
+        print(f"dc4gs-cl {args.command}: error: {e}", file=sys.stderr)
+        return 1
     except (InputError, DeviceError) as e:
         print(f"dc4gs-cl {args.command}: error: {e}", file=sys.stderr)
         return 2

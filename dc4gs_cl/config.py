@@ -2,6 +2,8 @@
 read back by --resume and eval (run_folder.py)."""
 from __future__ import annotations
 
+import json
+import math
 from dataclasses import asdict, dataclass, fields
 
 from .constants import SH_MAX_DEGREE
@@ -71,10 +73,44 @@ class TrainConfig:
 
     @staticmethod
     def from_json(d: dict) -> "TrainConfig":
-        """The inverse of to_json (unknown keys ignored); ValueError or TypeError for bad values."""
+        """The inverse of to_json (unknown keys ignored); ValueError naming the setting for a value of the
+        wrong JSON type, InputError or ValueError for a value out of range."""
+        if not isinstance(d, dict):
+            raise ValueError(f"expected a JSON object, got {type(d).__name__}")
         known = {f.name for f in fields(TrainConfig)}
         out = {k: v for k, v in d.items() if k in known}
-        out["save_at"] = tuple(out.get("save_at", ()))
         flat = {field: d[key] for key, field in FLAT_DC4GS_KEYS.items() if key in d}
-        out["dc4gs"] = DC4GSConfig(**{**flat, **out.get("dc4gs", {})})
+        nested = out.get("dc4gs", {})
+        if not isinstance(nested, dict):
+            raise ValueError(f"dc4gs: expected a JSON object, got {nested!r}")
+        dc4gs = {**flat, **nested}
+        check_json_types(TrainConfig, out, skip=("dc4gs",))
+        check_json_types(DC4GSConfig, dc4gs, prefix="dc4gs.")
+        out["save_at"] = tuple(out.get("save_at", ()))
+        out["dc4gs"] = DC4GSConfig(**dc4gs)
         return TrainConfig(**out)
+
+
+def _json_type_ok(annotation: str, value) -> bool:
+    """Whether a value read from JSON fits a field's annotation (the few kinds the settings use)."""
+    if annotation.endswith(" | None"):
+        return value is None or _json_type_ok(annotation[: -len(" | None")], value)
+    if annotation == "bool":
+        return isinstance(value, bool)
+    if annotation == "int":
+        return isinstance(value, int) and not isinstance(value, bool)
+    if annotation == "float":
+        return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+    if annotation == "str":
+        return isinstance(value, str)
+    if annotation == "tuple[int, ...]":
+        return isinstance(value, list) and all(_json_type_ok("int", v) for v in value)
+    raise AssertionError(f"no JSON check for the annotation {annotation!r}")
+
+
+def check_json_types(cls, values: dict, prefix: str = "", skip: tuple[str, ...] = ()) -> None:
+    """Raise ValueError naming the first setting whose JSON value does not fit the dataclass field's type."""
+    annotations = {f.name: f.type for f in fields(cls)}
+    for name, value in values.items():
+        if name in annotations and name not in skip and not _json_type_ok(annotations[name], value):
+            raise ValueError(f"{prefix}{name}: expected {annotations[name]}, got {json.dumps(value)[:40]}")

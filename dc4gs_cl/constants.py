@@ -19,6 +19,10 @@ ALPHA_MIN = 1.0 / 255.0        # a pair with smaller alpha is skipped
 TRANSMITTANCE_MIN = 1e-4       # stop before blending a Gaussian that would push T below this
 ALPHA_EXTENT_MARGIN = 0.01     # px added to the reach where alpha can reach ALPHA_MIN (float32 rounding)
 MIN_SPLIT_LINE_PX = 0.01       # DCS: a principal axis projecting shorter than this separates no pixels
+QUAT_NORM_MIN = 1e-15          # a quaternion shorter than this is the identity rotation (and gets no gradient):
+                               # its squared norm stays a normal float32, where the inverse square root is exact
+COLOR_MAX = 1e4                # a Gaussian's colour is clamped to [0, COLOR_MAX]: far above any trained colour,
+                               # low enough that the loss's fourth powers of pixel values stay finite in float32
 
 SH_C0 = 0.28209479177387814
 SH_C1 = 0.4886025119029199
@@ -50,7 +54,9 @@ def kernel_defines() -> dict[str, int | float]:
         "TILE_SIZE": TILE_SIZE, "NEAR_PLANE": NEAR_PLANE, "EWA_DILATION": EWA_DILATION, "FOV_CLAMP": FOV_CLAMP,
         "RADIUS_SIGMAS": RADIUS_SIGMAS, "MIN_EIGEN_GAP": MIN_EIGEN_GAP, "ALPHA_MAX": ALPHA_MAX,
         "ALPHA_MIN": ALPHA_MIN, "TRANSMITTANCE_MIN": TRANSMITTANCE_MIN,
-        "ALPHA_EXTENT_MARGIN": ALPHA_EXTENT_MARGIN, "MIN_SPLIT_LINE_PX": MIN_SPLIT_LINE_PX, "SH_C0": SH_C0, "SH_C1": SH_C1,
+        "ALPHA_EXTENT_MARGIN": ALPHA_EXTENT_MARGIN, "MIN_SPLIT_LINE_PX": MIN_SPLIT_LINE_PX,
+        "COLOR_MAX": COLOR_MAX,
+        "QUAT_NORM2_MIN": QUAT_NORM_MIN ** 2, "SH_C0": SH_C0, "SH_C1": SH_C1,
     }
     d.update({f"SH_C2_{i}": c for i, c in enumerate(SH_C2)})
     d.update({f"SH_C3_{i}": c for i, c in enumerate(SH_C3)})

@@ -17,5 +17,10 @@ class InputError(Exception):
         super().__init__(f"{self.path}: {problem}" if self.path is not None else problem)
 
 
+class OutputError(InputError):
+    """An output that cannot be written (disk full, read-only folder, ...): named like bad input, but the
+    CLI exits 1, as the fault is the machine's, not the user's input. Earlier outputs are left intact."""
+
+
 class DeviceError(Exception):
     """No usable OpenCL platform or device, or a kernel failed to build (the message holds the build log)."""

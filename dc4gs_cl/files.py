@@ -13,6 +13,8 @@ import tempfile
 from pathlib import Path
 from typing import Callable
 
+from .errors import OutputError
+
 
 def temporary_sibling(path: Path, kind: str = "tmp") -> Path:
     """A fresh hidden name beside `path` (same folder, so that a rename onto `path` is atomic), keeping its
@@ -20,15 +22,22 @@ def temporary_sibling(path: Path, kind: str = "tmp") -> Path:
     return path.with_name(f".{path.stem}.{secrets.token_hex(4)}.{kind}{path.suffix}")
 
 
-def write_atomic(path: str | os.PathLike, write: Callable[[Path], None]) -> None:
+def write_atomic(path: str | os.PathLike, write: Callable[[Path], None], keep_previous: Path | None = None) -> None:
     """Call write(temporary_path), which creates that file, then move it onto `path`: readers see the old
-    file or the new one, and a failed or interrupted write leaves no temporary file behind."""
+    file or the new one, and a failed or interrupted write leaves no temporary file behind.
+    keep_previous: once the new file is complete, the old `path` is moved there instead of being replaced.
+    A failing write (disk full, read-only folder, ...) raises OutputError naming `path`."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
     tmp = temporary_sibling(path)
     try:
+        path.parent.mkdir(parents=True, exist_ok=True)
         write(tmp)
+        if keep_previous is not None and path.exists():
+            os.replace(path, keep_previous)
         os.replace(tmp, path)
+    except OSError as e:
+        tmp.unlink(missing_ok=True)
+        raise OutputError(path, f"cannot write: {e.strerror or e}") from e
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
@@ -40,17 +49,23 @@ def write_json(path: str | os.PathLike, data) -> None:
 
 def staging_folder(final: Path) -> Path:
     """An empty hidden folder beside `final`, to be filled and then passed to replace_folder."""
-    final.parent.mkdir(parents=True, exist_ok=True)
-    return Path(tempfile.mkdtemp(prefix=f".{final.name}.", suffix=".staging", dir=final.parent))
+    try:
+        final.parent.mkdir(parents=True, exist_ok=True)
+        return Path(tempfile.mkdtemp(prefix=f".{final.name}.", suffix=".staging", dir=final.parent))
+    except OSError as e:
+        raise OutputError(final, f"cannot write: {e.strerror or e}") from e
 
 
 def replace_folder(staging: Path, final: Path) -> None:
     """Swap a finished staging folder in as `final`. An existing `final` is renamed aside first and removed
     last, so it is never lost before the new one is in place."""
     old = None
-    if final.exists():
-        old = temporary_sibling(final, "old")
-        os.replace(final, old)
-    os.replace(staging, final)
+    try:
+        if final.exists():
+            old = temporary_sibling(final, "old")
+            os.replace(final, old)
+        os.replace(staging, final)
+    except OSError as e:
+        raise OutputError(final, f"cannot write: {e.strerror or e}") from e
     if old is not None:
         shutil.rmtree(old, ignore_errors=True)

@@ -4,12 +4,15 @@ from __future__ import annotations
 
 import numpy as np
 
+from .constants import QUAT_NORM_MIN
+
 
 def quat_to_rotmat(q: np.ndarray) -> np.ndarray:
-    """(N, 4) quaternions (w, x, y, z), any norm (zero -> identity) -> (N, 3, 3) rotations."""
+    """(N, 4) quaternions (w, x, y, z), any norm (below QUAT_NORM_MIN -> identity) -> (N, 3, 3) rotations."""
     q = np.asarray(q, np.float64)
     n = np.linalg.norm(q, axis=1, keepdims=True)
-    q = np.where(n > 0, q / np.where(n > 0, n, 1), np.array([1.0, 0, 0, 0]))
+    rotates = n > QUAT_NORM_MIN
+    q = np.where(rotates, q / np.where(rotates, n, 1), np.array([1.0, 0, 0, 0]))
     w, x, y, z = q.T
     return np.stack([
         np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),

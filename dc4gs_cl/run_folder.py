@@ -4,16 +4,22 @@ go through this module; every file is written atomically (files.py).
 
     config.json                           the run's settings (TrainConfig), read back by --resume and eval
     cfg_args, cameras.json                the settings and cameras as the Inria tools read them
-    checkpoint.npz                        the whole training state (arrays and a JSON "meta" entry)
+    checkpoint.npz                        the whole training state (arrays and a JSON "meta" entry holding
+                                          the arrays' SHA-256)
+    checkpoint.prev.npz                   the checkpoint before it, kept until the new one is complete, and
+                                          resumed from when checkpoint.npz is corrupt
     point_cloud/iteration_N/point_cloud.ply   the model saved at iteration N (standard 3DGS PLY)
     results.json, per_view.json           test-view metrics keyed by "ours_N"
     <split>/ours_N/{renders,gt}/          rendered views beside their ground truth
 """
 from __future__ import annotations
 
+import hashlib
 import json
+import os
 import re
 import shutil
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -25,11 +31,48 @@ from .ply import read_ply, write_ply
 from .config import TrainConfig
 
 CONFIG = "config.json"
-CHECKPOINT = "checkpoint.npz"
+CHECKPOINT, PREVIOUS_CHECKPOINT = "checkpoint.npz", "checkpoint.prev.npz"
 RESULTS, PER_VIEW = "results.json", "per_view.json"
-RUN_FILES = (CONFIG, "cfg_args", "cameras.json", CHECKPOINT, RESULTS, PER_VIEW)
+RUN_FILES = (CONFIG, "cfg_args", "cameras.json", CHECKPOINT, PREVIOUS_CHECKPOINT, RESULTS, PER_VIEW)
 RUN_DIRS = ("point_cloud", "test", "train")
-META = "meta"   # the checkpoint entry holding the JSON metadata
+META = "meta"           # the checkpoint entry holding the JSON metadata
+CHECKSUM = "sha256"     # the metadata key holding checkpoint_checksum(arrays, meta)
+
+
+def checkpoint_checksum(arrays: dict[str, np.ndarray], meta: dict) -> str:
+    """SHA-256 over the metadata (but its checksum) and every array's name, dtype, shape and bytes."""
+    h = hashlib.sha256(json.dumps({k: v for k, v in meta.items() if k != CHECKSUM}, sort_keys=True).encode())
+    for name in sorted(arrays):
+        a = np.ascontiguousarray(arrays[name])
+        h.update(f"{name}|{a.dtype.str}|{a.shape}|".encode())
+        h.update(a.tobytes())
+    return h.hexdigest()
+
+
+def _read_checkpoint_file(path: Path) -> tuple[dict[str, np.ndarray], dict]:
+    try:
+        with np.load(path, allow_pickle=False) as f:
+            arrays = {k: f[k] for k in f.files}
+        meta = json.loads(bytes(arrays.pop(META)).decode())
+        if not isinstance(meta, dict):
+            raise ValueError("metadata is not a JSON object")
+    except Exception as e:   # zipfile, zlib and numpy raise a dozen kinds on a damaged archive; all mean "corrupt"
+        raise InputError(path, f"corrupt checkpoint ({e.__class__.__name__}: {_one_line(e)})") from None
+    if CHECKSUM in meta and meta[CHECKSUM] != checkpoint_checksum(arrays, meta):   # checkpoints before checksums have none
+        raise InputError(path, "corrupt checkpoint (checksum mismatch)")
+    return arrays, meta
+
+
+def _one_line(e: Exception) -> str:
+    return " ".join(str(e).split())
+
+
+@dataclass
+class Checkpoint:
+    path: Path                      # the file read
+    arrays: dict[str, np.ndarray]
+    meta: dict
+    passed_over: list[InputError]   # newer checkpoints found corrupt
 
 
 class RunFolder:
@@ -47,6 +90,14 @@ class RunFolder:
     @property
     def checkpoint_path(self) -> Path:
         return self.path / CHECKPOINT
+
+    @property
+    def checkpoint_paths(self) -> tuple[Path, Path]:
+        """The newest checkpoint and the one before it, in the order --resume tries them."""
+        return self.path / CHECKPOINT, self.path / PREVIOUS_CHECKPOINT
+
+    def has_checkpoint(self) -> bool:
+        return any(p.is_file() for p in self.checkpoint_paths)
 
     def model_path(self, iteration: int) -> Path:
         return self.path / "point_cloud" / f"iteration_{iteration}" / "point_cloud.ply"
@@ -83,9 +134,10 @@ class RunFolder:
         if not self.config_path.is_file():
             raise InputError(self.path, "not a training output folder (no config.json)")
         try:
-            return TrainConfig.from_json(json.loads(self.config_path.read_text()))
-        except (ValueError, TypeError, AttributeError) as e:
-            raise InputError(self.config_path, f"unreadable run settings ({e})") from None
+            return TrainConfig.from_json(json.loads(self.config_path.read_text(encoding="utf-8")))
+        except (OSError, ValueError, TypeError, InputError) as e:   # ValueError covers bad JSON and bad UTF-8
+            problem = e.problem if isinstance(e, InputError) else _one_line(e)
+            raise InputError(self.config_path, f"unreadable run settings ({problem})") from None
 
     # models ----------------------------------------------------------------------------------------------
     def save_model(self, iteration: int, model: GaussianModel) -> Path:
@@ -109,25 +161,37 @@ class RunFolder:
 
     # checkpoints -----------------------------------------------------------------------------------------
     def write_checkpoint(self, arrays: dict[str, np.ndarray], meta: dict) -> None:
-        """The training state: named arrays and JSON metadata, replacing the previous checkpoint whole."""
+        """The training state: named arrays and JSON metadata (with the arrays' checksum). The new file is
+        written whole under a temporary name first; only then does the current checkpoint become
+        checkpoint.prev.npz and the new one take its place, so a complete checkpoint exists at every moment
+        (a failed write, e.g. a full disk, leaves both earlier ones untouched)."""
+        meta = {**meta, CHECKSUM: checkpoint_checksum(arrays, meta)}
         entries = {**arrays, META: np.frombuffer(json.dumps(meta).encode(), np.uint8)}
 
         def write(tmp):
             with open(tmp, "wb") as f:
                 np.savez(f, **entries)
-        write_atomic(self.checkpoint_path, write)
+                f.flush()
+                os.fsync(f.fileno())
+        current, previous = self.checkpoint_paths
+        write_atomic(current, write, keep_previous=previous)
 
-    def read_checkpoint(self) -> tuple[dict[str, np.ndarray], dict]:
-        path = self.checkpoint_path
-        if not path.is_file():
+    def read_checkpoint(self) -> Checkpoint:
+        """The newest intact checkpoint; a corrupt one is passed over (and named in `passed_over`) for the one
+        before it. Raises InputError when there is none, or none intact."""
+        existing = [p for p in self.checkpoint_paths if p.is_file()]
+        if not existing:
             raise InputError(self.path, f"nothing to resume: no {CHECKPOINT}")
-        try:
-            with np.load(path) as f:
-                arrays = {k: f[k] for k in f.files}
-            meta = json.loads(bytes(arrays.pop(META)).decode())
-        except (OSError, ValueError, KeyError, json.JSONDecodeError, UnicodeDecodeError) as e:
-            raise InputError(path, f"corrupt checkpoint ({e.__class__.__name__}: {e})") from None
-        return arrays, meta
+        passed_over = []
+        for path in existing:
+            try:
+                arrays, meta = _read_checkpoint_file(path)
+            except InputError as e:
+                passed_over.append(e)
+                continue
+            return Checkpoint(path, arrays, meta, passed_over)
+        raise InputError(existing[0], "; ".join(e.problem if e.path == str(existing[0]) else str(e)
+                                                for e in passed_over) + "; no intact checkpoint left to resume from")
 
     # results ---------------------------------------------------------------------------------------------
     def write_results(self, iteration: int, result: dict) -> None:

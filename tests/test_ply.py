@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from dc4gs_cl import ply
-from dc4gs_cl.errors import InputError
+from dc4gs_cl.errors import InputError, OutputError
 from dc4gs_cl.model import GaussianModel
 from dc4gs_cl.ply import read_ply, write_ply
 
@@ -275,7 +275,7 @@ def test_failed_write_leaves_nothing_behind(tmp_path, rng, monkeypatch, existing
 
     monkeypatch.setattr(ply, "_WRITE_ROWS", 4)
     monkeypatch.setattr(ply, "_vertex_rows", failing_rows)
-    with pytest.raises(OSError, match="No space left"):
+    with pytest.raises(OutputError, match="point_cloud.ply: cannot write: No space left on device"):
         write_ply(target, random_model(rng, 20, 3))
     assert len(calls) == 3  # it did fail midway
     assert os.listdir(tmp_path) == (["point_cloud.ply"] if existing else [])

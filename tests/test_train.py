@@ -68,26 +68,39 @@ def final_ply(out: Path, iterations: int) -> bytes:
     return (out / "point_cloud" / f"iteration_{iterations}" / "point_cloud.ply").read_bytes()
 
 
-@pytest.mark.parametrize("how", ["sigint", "kill"])
-def test_interrupted_run_resumes_to_the_same_model(tmp_path, how):
-    iterations = ["--iterations", "240", "--checkpoint-every", "40"]
-    straight = tmp_path / "straight"
-    assert cli(*SMALL, *iterations, "--out", str(straight)).returncode == 0
+@pytest.fixture(scope="module")
+def straight_run(tmp_path_factory):
+    straight = tmp_path_factory.mktemp("straight")
+    assert cli(*SMALL, *INTERRUPTED_RUN, "--out", str(straight)).returncode == 0
+    return straight
+
+
+INTERRUPTED_RUN = ["--iterations", "240", "--checkpoint-every", "40"]
+STOPS = {"sigint": (signal.SIGINT, 130), "sigterm": (signal.SIGTERM, 143), "kill": (signal.SIGKILL, -signal.SIGKILL)}
+
+
+@pytest.mark.parametrize("how", list(STOPS))
+def test_interrupted_run_resumes_to_the_same_model(straight_run, tmp_path, how):
+    """Ctrl-C and SIGTERM (what job schedulers send) write a checkpoint and exit cleanly; a killed run resumes
+    from its last periodic checkpoint."""
     stopped = tmp_path / "stopped"
-    proc = cli(*SMALL, *iterations, "--out", str(stopped), wait=False)
+    proc = cli(*SMALL, *INTERRUPTED_RUN, "--out", str(stopped), wait=False)
     deadline = time.time() + 120
     while not (stopped / CHECKPOINT).exists() and proc.poll() is None and time.time() < deadline:
         time.sleep(0.05)
-    proc.send_signal(signal.SIGINT if how == "sigint" else signal.SIGKILL)
-    proc.communicate(timeout=120)
-    assert proc.returncode == (130 if how == "sigint" else -signal.SIGKILL)
+    signum, returncode = STOPS[how]
+    proc.send_signal(signum)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == returncode, err
+    if how != "kill":
+        assert f"{signal.Signals(signum).name} at iteration" in err and "--resume" in err
     with np.load(stopped / CHECKPOINT) as f:
         at = json.loads(bytes(f["meta"]).decode())["iteration"]
     assert 0 < at < 240
     resumed = cli("--out", str(stopped), "--resume", "--no-progress")
     assert resumed.returncode == 0
     # Training is deterministic (no float atomics), so the resumed run ends bit for bit where the straight one does.
-    assert final_ply(stopped, 240) == final_ply(straight, 240)
+    assert final_ply(stopped, 240) == final_ply(straight_run, 240)
 
 
 def snapshot(folder: Path) -> dict:

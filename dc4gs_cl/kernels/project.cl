@@ -9,7 +9,7 @@
 //   out mean2d         [N*2]  projected centre, px (pixel centres at +0.5)
 //   out conic_opacity  [N*4]  (a, b, c) of the inverse 2D covariance (1/px^2; power = -0.5(a dx^2 + c dy^2) - b dx dy),
 //                             and the opacity after the sigmoid
-//   out rgb            [N*3]  colour from SH along camera -> mean, clamped at 0
+//   out rgb            [N*3]  colour from SH along camera -> mean, clamped to [0, COLOR_MAX]
 //   out depth          [N]    view-space z (world units)
 //   out radius         [N]    int, px, ceil(3 sigma_max); 0 = culled, or its 3-sigma box misses the image:
 //                             then the Gaussian is not visible in this view
@@ -74,7 +74,7 @@ __kernel void project(const int n, const Camera cam, const int sh_degree, const 
     mean2d[2 * i] = m2.x; mean2d[2 * i + 1] = m2.y;
     conic_opacity[4 * i] = c * inv_det; conic_opacity[4 * i + 1] = -b * inv_det;
     conic_opacity[4 * i + 2] = a * inv_det; conic_opacity[4 * i + 3] = op;
-    STORE3((float3)(MAXF(col.x, 0.f), MAXF(col.y, 0.f), MAXF(col.z, 0.f)), rgb, i);
+    STORE3((float3)(CLAMPF(col.x, 0.f, COLOR_MAX), CLAMPF(col.y, 0.f, COLOR_MAX), CLAMPF(col.z, 0.f, COLOR_MAX)), rgb, i);
     alpha_extent[2 * i] = ext.x; alpha_extent[2 * i + 1] = ext.y;
     radius[i] = (int)r_px;
     tiles_touched[i] = tiles;

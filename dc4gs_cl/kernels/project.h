@@ -29,7 +29,7 @@ ALWAYS_INLINE void quat_to_rotmat(float4 q, float *R) {
 // Unit quaternion; a zero quaternion stands for the identity rotation (and gets no gradient).
 inline float4 normalized_quat(float4 q) {
     float n2 = q.x * q.x + q.y * q.y + q.z * q.z + q.w * q.w;
-    return n2 > 0.f ? q * rsqrt_nocall(n2) : (float4)(1.f, 0.f, 0.f, 0.f);
+    return n2 > QUAT_NORM2_MIN ? q * rsqrt_nocall(n2) : (float4)(1.f, 0.f, 0.f, 0.f);
 }
 
 inline float4 load_quat(__global const float *quats, int i) {

@@ -13,7 +13,7 @@
 //   FUSED_ADAM=1:  in step (AdamStep); in/out m_<group>, v_<group>: Adam's moments, shaped like the parameters
 // The chain: conic -> 2D covariance -> (EWA Jacobian, 3D covariance) -> camera-space position, rotation,
 // scales; projected mean -> position; colour -> SH coefficients and the view direction -> position.
-// No gradient flows through a clamped x/z or y/z, nor through a colour channel clamped at 0.
+// No gradient flows through a clamped x/z or y/z, nor through a colour channel clamped at 0 or COLOR_MAX.
 
 #include "project.h"
 #include "adam.h"
@@ -62,12 +62,16 @@ ALWAYS_INLINE void visible_gradients(int i, const Camera cam, int sh_degree, PAR
     ewa_jacobian(&cam, pc, T, &t_clamped, &free);
     float3 cov = covariance_2d(T, M, TM);
     float a = cov.x, b = cov.y, c = cov.z;
-    float inv_det2 = 1.f / ((a * c - b * b) * (a * c - b * b));
+    float inv_det = 1.f / (a * c - b * b);
+    float k0 = c * inv_det, k1 = -b * inv_det, k2 = a * inv_det;   // the conic, as the forward wrote it
 
-    // conic = (c, -b, a) / det  ->  2D covariance entries; G = [[da, db/2], [db/2, dc]].
-    float da = (-v_conic.x * c * c + v_conic.y * b * c - v_conic.z * b * b) * inv_det2;
-    float db = (2.f * v_conic.x * b * c - v_conic.y * (a * c + b * b) + 2.f * v_conic.z * a * b) * inv_det2;
-    float dc = (-v_conic.x * b * b + v_conic.y * a * b - v_conic.z * a * a) * inv_det2;
+    // conic K = Sigma^-1 = (c, -b, a) / det  ->  dL/dSigma = -K (dL/dK) K; G = [[da, db/2], [db/2, dc]].
+    // Written with the conic's entries (bounded: the dilated covariance's eigenvalues are >= EWA_DILATION)
+    // rather than Sigma's over det^2, whose squares overflow float32 for a Gaussian hundreds of thousands of
+    // pixels wide (a huge scale or focal length), turning 0 x Inf into NaN.
+    float da = -(v_conic.x * k0 * k0 + v_conic.y * k0 * k1 + v_conic.z * k1 * k1);
+    float db = -(2.f * v_conic.x * k0 * k1 + v_conic.y * (k0 * k2 + k1 * k1) + 2.f * v_conic.z * k1 * k2);
+    float dc = -(v_conic.x * k1 * k1 + v_conic.y * k1 * k2 + v_conic.z * k2 * k2);
     float G00 = da, G01 = 0.5f * db, G11 = dc;
 
     // dL/dSigma = T^T G T (symmetric 3x3); dL/dT = 2 G T Sigma = 2 G (TM) M^T.
@@ -127,16 +131,17 @@ ALWAYS_INLINE void visible_gradients(int i, const Camera cam, int sh_degree, PAR
         -2.f * z * dR[0] - w * dR[1] + x * dR[2] + w * dR[3] - 2.f * z * dR[4] + y * dR[5] + x * dR[6] + y * dR[7]);
     float qn2 = q_raw.x * q_raw.x + q_raw.y * q_raw.y + q_raw.z * q_raw.z + q_raw.w * q_raw.w;
     // Through the normalisation q / |q| (no gradient for a zero quaternion).
-    *g_quat = qn2 > 0.f ? (dq - q * (q.x * dq.x + q.y * dq.y + q.z * dq.z + q.w * dq.w)) * rsqrt_nocall(qn2)
+    *g_quat = qn2 > QUAT_NORM2_MIN ? (dq - q * (q.x * dq.x + q.y * dq.y + q.z * dq.z + q.w * dq.w)) * rsqrt_nocall(qn2)
                         : (float4)(0.f);
 
-    // SH colour along the view direction; no gradient through a channel clamped at 0.
+    // SH colour along the view direction; no gradient through a channel clamped at 0 or COLOR_MAX.
     float3 v = mu - (float3)(cam.campos[0], cam.campos[1], cam.campos[2]);
     float inv_len = rsqrt_nocall(DOT3(v, v));
     float3 dir = v * inv_len;
     __global const float *coef = sh + (size_t)i * SH_COEFFS * 3;
     float3 raw = sh_colour(sh_degree, coef, dir);
-    float3 vr = (float3)(raw.x > 0.f ? v_rgb.x : 0.f, raw.y > 0.f ? v_rgb.y : 0.f, raw.z > 0.f ? v_rgb.z : 0.f);
+#define UNCLAMPED(c) ((c) > 0.f && (c) < COLOR_MAX)
+    float3 vr = (float3)(UNCLAMPED(raw.x) ? v_rgb.x : 0.f, UNCLAMPED(raw.y) ? v_rgb.y : 0.f, UNCLAMPED(raw.z) ? v_rgb.z : 0.f);
     *v_colour = vr;
     float gx[16], gy[16], gz[16];
     sh_basis(sh_degree, dir, basis);

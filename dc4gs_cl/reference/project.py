@@ -87,7 +87,7 @@ def project_reference(means, log_scales, quats, opacity_logits, sh, cam: Camera,
     k = K.sh_coeffs(sh_degree)
     rgb = np.einsum("nk,nkc->nc", sh_basis(sh_degree, d), np.asarray(sh, np.float64)[:, :k]) + 0.5
     return {
-        "mean2d": mean2d, "conic": conic, "opacity": opacity, "rgb": np.maximum(rgb, 0.0), "depth": z,
+        "mean2d": mean2d, "conic": conic, "opacity": opacity, "rgb": np.clip(rgb, 0.0, K.COLOR_MAX), "depth": z,
         "radius": np.where(visible, radius, 0).astype(np.int64), "alpha_extent": alpha_extent,
         "tiles_touched": tiles.astype(np.int64),
     }
@@ -124,7 +124,7 @@ def project_backward_reference(means, log_scales, quats, opacity_logits, sh, cam
     """Gradients of the parameters from the gradients of the projection's outputs (mean2d px, conic (a, b, c)
     as stored, opacity after the sigmoid, rgb), in float64; zero where not visible. Through the EWA
     Jacobian (no gradient through a clamped x/z or y/z), the covariance, the rotation and scales, the SH
-    colour (none where the colour clamps at 0) and its view direction."""
+    colour (none where the colour clamps at 0 or COLOR_MAX) and its view direction."""
     means, sh = np.asarray(means, np.float64), np.asarray(sh, np.float64)
     n = len(means)
     R, t = np.asarray(cam.R, np.float64), np.asarray(cam.t, np.float64)
@@ -133,7 +133,8 @@ def project_backward_reference(means, log_scales, quats, opacity_logits, sh, cam
     z = np.where(visible, z, 1.0)
     q = np.asarray(quats, np.float64)
     qnorm = np.linalg.norm(q, axis=1)
-    qn = np.where((qnorm > 0)[:, None], q / np.where(qnorm > 0, qnorm, 1)[:, None], [1.0, 0, 0, 0])
+    rotates = qnorm > K.QUAT_NORM_MIN
+    qn = np.where(rotates[:, None], q / np.where(rotates, qnorm, 1)[:, None], [1.0, 0, 0, 0])
     Rq = quat_to_rotmat(qn)
     s = np.exp(np.asarray(log_scales, np.float64))
     M = Rq * s[:, None, :]
@@ -184,8 +185,8 @@ def project_backward_reference(means, log_scales, quats, opacity_logits, sh, cam
         - w * dR[:, 2, 0] + qz * dR[:, 2, 1] - 2 * qy * dR[:, 2, 2],
         -2 * qz * dR[:, 0, 0] - w * dR[:, 0, 1] + qx * dR[:, 0, 2] + w * dR[:, 1, 0] - 2 * qz * dR[:, 1, 1]
         + qy * dR[:, 1, 2] + qx * dR[:, 2, 0] + qy * dR[:, 2, 1]], 1)
-    d_quats = np.where((qnorm > 0)[:, None],
-                       (dq - qn * np.sum(qn * dq, 1, keepdims=True)) / np.where(qnorm > 0, qnorm, 1)[:, None], 0.0)
+    d_quats = np.where(rotates[:, None],
+                       (dq - qn * np.sum(qn * dq, 1, keepdims=True)) / np.where(rotates, qnorm, 1)[:, None], 0.0)
 
     # SH colour along the view direction; no gradient where the colour clamps at 0
     v = means - cam.center
@@ -194,7 +195,7 @@ def project_backward_reference(means, log_scales, quats, opacity_logits, sh, cam
     k = K.sh_coeffs(sh_degree)
     basis = sh_basis(sh_degree, d)
     raw = np.einsum("nk,nkc->nc", basis, sh[:, :k]) + 0.5
-    vr = np.where(raw > 0, np.asarray(v_rgb, np.float64), 0.0)
+    vr = np.where((raw > 0) & (raw < K.COLOR_MAX), np.asarray(v_rgb, np.float64), 0.0)
     d_sh = np.zeros_like(sh)
     d_sh[:, :k] = basis[:, :, None] * vr[:, None, :]
     d_dir = np.einsum("nkc,nc,nki->ni", sh[:, :k], vr, sh_basis_gradient(sh_degree, d))

@@ -98,6 +98,12 @@ class Scene:
     def image(self, cam: Camera) -> np.ndarray:
         return self.read_image(cam)
 
+    def read_all_images(self) -> None:
+        """Decode every view's image now (they are kept once decoded), so that a damaged file stops a
+        command before it writes anything rather than midway."""
+        for cam in self.train + self.test:
+            self.read_image(cam)
+
 
 def scene_extent(cameras: list[Camera]) -> float:
     """1.1 x the largest distance of a camera centre from the mean of the centres (the Inria rule).

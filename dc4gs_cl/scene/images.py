@@ -1,7 +1,9 @@
 """Image files through OpenImageIO: read as float RGB in [0, 1], resize, write PNG atomically."""
 from __future__ import annotations
 
+import contextlib
 import os
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -13,6 +15,8 @@ from ..files import write_atomic
 # The resize filter for -r downscaling. The Inria code resizes with PIL's bicubic (antialiased on
 # downscaling); OIIO's "cubic" scales its support with the factor in the same way.
 RESIZE_FILTER = "cubic"
+MAX_IMAGE_SIDE = 1 << 16      # pixels: a larger side in an image or a camera is a damaged file, not a photo
+MAX_IMAGE_PIXELS = 1 << 28    # 268 Mpixel (16k x 16k): more is a damaged header, refused before decoding
 
 
 def read_image(path: str | os.PathLike) -> np.ndarray:
@@ -20,29 +24,79 @@ def read_image(path: str | os.PathLike) -> np.ndarray:
     path = Path(path)
     if not path.is_file():
         raise InputError(path, "image file not found")
-    inp = oiio.ImageInput.open(str(path))
-    if inp is None:
-        raise InputError(path, f"cannot read image ({oiio.geterror().strip() or 'unknown format'})")
-    try:
-        spec = inp.spec()
-        pixels = inp.read_image(0, 0, 0, spec.nchannels, oiio.FLOAT)
-    finally:
-        inp.close()
-    if pixels is None or getattr(pixels, "size", 0) == 0:
-        raise InputError(path, f"cannot decode image ({oiio.geterror().strip() or 'no pixels'})")
+    with _decoder_messages_silenced(), _decoder_failures(path):
+        inp = _open(path)
+        try:
+            spec = inp.spec()
+            _check_header(path, spec)
+            pixels = inp.read_image(0, 0, 0, spec.nchannels, oiio.FLOAT)
+            # A damaged file may still hand out pixels (a truncated JPEG's missing rows come back grey): the
+            # decoder's error, not the pixels, says whether the read is whole.
+            problem = inp.geterror().strip() if inp.has_error else ""
+        finally:
+            inp.close()
+    if pixels is None or getattr(pixels, "size", 0) == 0 or problem:
+        problem = problem or oiio.geterror().strip() or "no pixels"
+        raise InputError(path, f"cannot decode image ({_one_line(problem)})")
     pixels = np.asarray(pixels, dtype=np.float32).reshape(spec.height, spec.width, spec.nchannels)
     if not np.isfinite(pixels).all():
         raise InputError(path, "image holds NaN or infinite values")
     return pixels
 
 
-def image_size(path: str | os.PathLike) -> tuple[int, int]:
-    """(width, height) from the file header, without decoding pixels."""
+def _check_header(path: Path, spec) -> None:
+    """Sizes no photo has come from a damaged header: refuse them before decoding allocates for them."""
+    if not (1 <= spec.width <= MAX_IMAGE_SIDE and 1 <= spec.height <= MAX_IMAGE_SIDE
+            and spec.width * spec.height <= MAX_IMAGE_PIXELS and 1 <= spec.nchannels <= 4):
+        raise InputError(path, f"image header says {spec.width}x{spec.height} pixels of {spec.nchannels} channels "
+                               f"(at most {MAX_IMAGE_SIDE} a side, {MAX_IMAGE_PIXELS:,} pixels, 4 channels)")
+
+
+def _open(path: Path):
     inp = oiio.ImageInput.open(str(path))
     if inp is None:
-        raise InputError(path, f"cannot read image ({oiio.geterror().strip() or 'unknown format'})")
-    spec = inp.spec()
-    inp.close()
+        raise InputError(path, f"cannot read image ({_one_line(oiio.geterror()) or 'unknown format'})")
+    return inp
+
+
+@contextlib.contextmanager
+def _decoder_failures(path: Path):
+    """Whatever a damaged file makes OpenImageIO's bindings raise (a header string that is not UTF-8 raises
+    UnicodeDecodeError) is an unreadable image, named as such."""
+    try:
+        yield
+    except InputError:
+        raise
+    except Exception as e:
+        raise InputError(path, f"cannot read image ({e.__class__.__name__}: {_one_line(str(e))})") from None
+
+
+@contextlib.contextmanager
+def _decoder_messages_silenced():
+    """libpng prints its errors on the process's stderr itself; OpenImageIO hands the same text to us, and we
+    report it in one line, so the native stream is muted while a decoder runs."""
+    sys.stderr.flush()
+    saved, devnull = os.dup(2), os.open(os.devnull, os.O_WRONLY)
+    os.dup2(devnull, 2)
+    os.close(devnull)
+    try:
+        yield
+    finally:
+        os.dup2(saved, 2)
+        os.close(saved)
+
+
+def _one_line(message: str) -> str:
+    """A decoder's message (often several lines) as one line."""
+    return " ".join(message.split())
+
+
+def image_size(path: str | os.PathLike) -> tuple[int, int]:
+    """(width, height) from the file header, without decoding pixels."""
+    with _decoder_messages_silenced(), _decoder_failures(path):
+        inp = _open(path)
+        spec = inp.spec()
+        inp.close()
     return spec.width, spec.height
 
 
@@ -82,9 +136,9 @@ def write_png(path: str | os.PathLike, rgb: np.ndarray) -> None:
         spec = oiio.ImageSpec(data.shape[1], data.shape[0], data.shape[2], oiio.UINT8)
         spec.attribute("png:compressionLevel", 1)   # 3.5x faster than the default for 17% more bytes
         if out is None or not out.open(str(tmp), spec):
-            raise OSError(f"{path}: cannot write PNG ({oiio.geterror().strip()})")
+            raise OSError(f"PNG writer: {oiio.geterror().strip()}")
         ok = out.write_image(data)
         out.close()
         if not ok:
-            raise OSError(f"{path}: cannot write PNG ({oiio.geterror().strip()})")
+            raise OSError(f"PNG writer: {oiio.geterror().strip()}")
     write_atomic(path, write)

@@ -63,12 +63,14 @@ def _read_transforms(path: Path, distorted: dict[str, pycolmap.Camera]) -> list[
     for i, frame in enumerate(frames):
         try:
             info = {**meta, **frame}  # per-frame intrinsics override the top level
-            name = str(frame["file_path"])
-            image = _image_file(path.parent, name)
+            name = frame["file_path"]
+            if not isinstance(name, str):
+                raise TypeError(f"file_path must be a string, not {json.dumps(name)[:40]}")
+            image = _image_file(path, name)
             header = image_size(image)
-            size = (round(float(info["w"])), round(float(info["h"]))) if "w" in info and "h" in info else header
-            check_size(image, header, size)
-            R, t = _world_to_camera(np.asarray(frame["transform_matrix"], dtype=np.float64), path, i)
+            size = (round(_number(info, "w")), round(_number(info, "h"))) if "w" in info and "h" in info else header
+            check_size(image, header, size, path)
+            R, t = _world_to_camera(_numbers(frame["transform_matrix"], "transform_matrix"), path, i)
             camera, dist = make_camera(name, image, _colmap_camera(info, size, path), R, t, path)
         except (KeyError, TypeError, ValueError) as e:
             raise InputError(path, f"frame {i}: malformed entry ({type(e).__name__}: {e})") from None
@@ -78,12 +80,30 @@ def _read_transforms(path: Path, distorted: dict[str, pycolmap.Camera]) -> list[
     return cameras
 
 
-def _image_file(folder: Path, file_path: str) -> Path:
-    base = folder / file_path
+def _number(info: dict, key: str) -> float:
+    """A JSON number (not a bool, a string or null), finite."""
+    value = info[key]
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise ValueError(f"{key} must be a finite number, not {json.dumps(value)[:40]}")
+    return float(value)
+
+
+def _numbers(value, key: str) -> np.ndarray:
+    """A nested list of JSON numbers as float64 (bools, strings and nulls refused, as NaN and Inf)."""
+    def ok(v):
+        return all(ok(x) for x in v) if isinstance(v, list) else isinstance(v, (int, float)) and not isinstance(v, bool)
+    array = np.asarray(value, dtype=np.float64) if isinstance(value, list) and ok(value) else None
+    if array is None or not np.isfinite(array).all():
+        raise ValueError(f"{key} must be a matrix of finite numbers")
+    return array
+
+
+def _image_file(transforms: Path, file_path: str) -> Path:
+    base = transforms.parent / file_path
     for candidate in (base, *(base.with_name(base.name + ext) for ext in IMAGE_EXTENSIONS)):
         if candidate.is_file():
             return candidate
-    raise InputError(base, f"image not found (also tried the extensions {', '.join(IMAGE_EXTENSIONS)})")
+    raise InputError(transforms, f"image {base} not found (also tried the extensions {', '.join(IMAGE_EXTENSIONS)})")
 
 
 def _world_to_camera(c2w: np.ndarray, path: Path, i: int) -> tuple[np.ndarray, np.ndarray]:
@@ -100,15 +120,16 @@ def _colmap_camera(info: dict, size: tuple[int, int], path: Path) -> pycolmap.Ca
     """The camera as COLMAP would model it: PINHOLE, or OPENCV / FULL_OPENCV / OPENCV_FISHEYE with distortion."""
     w, h = size
     if "fl_x" in info:
-        fx = float(info["fl_x"])
-        fy = float(info.get("fl_y", fx))
+        fx = _number(info, "fl_x")
+        fy = _number(info, "fl_y") if "fl_y" in info else fx
     elif "camera_angle_x" in info:
-        fx = 0.5 * w / math.tan(0.5 * float(info["camera_angle_x"]))
-        fy = 0.5 * h / math.tan(0.5 * float(info["camera_angle_y"])) if "camera_angle_y" in info else fx
+        fx = 0.5 * w / math.tan(0.5 * _number(info, "camera_angle_x"))
+        fy = 0.5 * h / math.tan(0.5 * _number(info, "camera_angle_y")) if "camera_angle_y" in info else fx
     else:
         raise InputError(path, "no focal length: expected fl_x or camera_angle_x")
-    cx, cy = float(info.get("cx", w / 2)), float(info.get("cy", h / 2))
-    k1, k2, k3, k4, p1, p2 = (float(info.get(k, 0.0)) for k in ("k1", "k2", "k3", "k4", "p1", "p2"))
+    cx = _number(info, "cx") if "cx" in info else w / 2
+    cy = _number(info, "cy") if "cy" in info else h / 2
+    k1, k2, k3, k4, p1, p2 = (_number(info, k) if k in info else 0.0 for k in ("k1", "k2", "k3", "k4", "p1", "p2"))
     # nerfstudio writes camera_model instead of instant-ngp's is_fisheye
     if info.get("is_fisheye") or info.get("camera_model") == "OPENCV_FISHEYE":
         model, params = "OPENCV_FISHEYE", [fx, fy, cx, cy, k1, k2, k3, k4]

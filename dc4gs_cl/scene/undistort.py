@@ -15,15 +15,18 @@ import pycolmap
 
 from ..errors import InputError
 from .camera import Camera
-from .images import read_image, write_png
+from .images import MAX_IMAGE_SIDE, read_image, write_png
 
 PINHOLE_MODELS = ("PINHOLE", "SIMPLE_PINHOLE")
 
 
 def make_camera(name: str, image_path: Path, cam: pycolmap.Camera, R: np.ndarray, t: np.ndarray,
-                where: str | os.PathLike) -> tuple[Camera, pycolmap.Camera | None]:
+                where: str | os.PathLike, pose_where: str | os.PathLike | None = None
+                ) -> tuple[Camera, pycolmap.Camera | None]:
     """A full-size PINHOLE Camera for an image taken with `cam`, and `cam` itself when its pixels
-    need undistorting (else None). `where` is the file named when the model cannot be undistorted."""
+    need undistorting (else None). `where` is the file named when the camera is unusable or cannot be
+    undistorted, `pose_where` (default `where`) the file named for a bad pose."""
+    check_camera(where, pose_where or where, name, cam, R, t)
     distorted = None
     if cam.model.name not in PINHOLE_MODELS:
         try:
@@ -31,6 +34,9 @@ def make_camera(name: str, image_path: Path, cam: pycolmap.Camera, R: np.ndarray
         except ValueError as e:  # non-perspective models (EQUIRECTANGULAR) fail pycolmap's check
             raise InputError(where, f"camera model {cam.model.name} cannot be undistorted ({e})") from None
         cam, distorted = pinhole, cam
+        if not (np.isfinite(cam.params).all() and cam.focal_length_x > 0 and cam.focal_length_y > 0):
+            raise InputError(where, f"image {name!r}: the camera's distortion cannot be undone (undistorted "
+                                    f"intrinsics {np.round(cam.params, 4).tolist()})")
     size = (int(cam.width), int(cam.height))
     return Camera(name=name, width=size[0], height=size[1],
                   fx=float(cam.focal_length_x), fy=float(cam.focal_length_y),
@@ -39,9 +45,30 @@ def make_camera(name: str, image_path: Path, cam: pycolmap.Camera, R: np.ndarray
                   image_path=Path(image_path), source_size=size), distorted
 
 
-def check_size(path: str | os.PathLike, actual: tuple[int, int], expected: tuple[int, int]) -> None:
+def check_camera(where, pose_where, name: str, cam: pycolmap.Camera, R: np.ndarray, t: np.ndarray) -> None:
+    """A camera that could not have taken a picture (a size or focal length <= 0, a NaN anywhere, a rotation
+    that is none) stops here, naming the file and the image, rather than as NaN in training (and before
+    pycolmap's undistortion walks an absurd image border)."""
+    if not (1 <= cam.width <= MAX_IMAGE_SIDE and 1 <= cam.height <= MAX_IMAGE_SIDE):
+        raise InputError(where, f"image {name!r}: camera size {cam.width}x{cam.height} out of range")
+    focal = np.asarray(cam.params)[list(cam.focal_length_idxs())]   # none for EQUIRECTANGULAR (refused below)
+    if not (np.isfinite(cam.params).all() and (focal > 0).all()):
+        raise InputError(where, f"image {name!r}: intrinsics must be finite with focal lengths > 0 "
+                                f"(got {np.round(cam.params, 4).tolist()})")
+    R, t = np.asarray(R, dtype=np.float64), np.asarray(t, dtype=np.float64)
+    if not (np.isfinite(R).all() and np.isfinite(t).all()):
+        raise InputError(pose_where, f"image {name!r}: the pose holds NaN or infinite values")
+    if not np.allclose(R.T @ R, np.eye(3), atol=1e-3) or np.linalg.det(R) < 0:
+        raise InputError(pose_where, f"image {name!r}: the pose's rotation is not a rotation")
+
+
+def check_size(path: str | os.PathLike, actual: tuple[int, int], expected: tuple[int, int],
+               camera_where: str | os.PathLike | None = None) -> None:
+    """The image at `path` must have its camera's size; `camera_where` is the file the camera came from,
+    named beside the image since either may be the one at fault."""
     if tuple(actual) != tuple(expected):
-        raise InputError(path, f"image is {actual[0]}x{actual[1]} but its camera is {expected[0]}x{expected[1]}")
+        of = f" (in {camera_where})" if camera_where is not None else ""
+        raise InputError(path, f"image is {actual[0]}x{actual[1]} but its camera{of} is {expected[0]}x{expected[1]}")
 
 
 def cache_file(path: Path, name: str, cam: pycolmap.Camera, cache_dir: Path) -> Path:

@@ -27,7 +27,7 @@ from ..host.trainable import TrainableGaussians
 from ..loss import Loss
 from ..model import initial_model
 from ..render import DeviceGaussians, Renderer, Tuning
-from ..run_folder import RunFolder
+from ..run_folder import Checkpoint, RunFolder
 from ..runtime import Runtime
 from ..scene.camera import Camera, Scene
 from ..config import TrainConfig
@@ -40,6 +40,17 @@ class Progress:
     loss: float = math.nan
     psnr: float = math.nan
     gaussians: int = 0
+
+
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+
+class Stopped(KeyboardInterrupt):
+    """Training stopped by a signal after writing a checkpoint; the process should exit 128 + signum."""
+
+    def __init__(self, signum: int):
+        super().__init__(signal.Signals(signum).name)
+        self.signum = signum
 
 
 class Trainer:
@@ -135,10 +146,11 @@ class Trainer:
                 "train_cameras": [c.name for c in self.scene.train], "gaussians": self.model.n}
         self.run_folder.write_checkpoint(arrays, meta)
 
-    def resume(self) -> None:
-        """Continue from the run folder's checkpoint, which must come from these settings and images."""
-        arrays, meta = self.run_folder.read_checkpoint()
-        path = self.run_folder.checkpoint_path
+    def resume(self) -> Checkpoint:
+        """Continue from the run folder's newest intact checkpoint (returned: which file, and the corrupt ones
+        passed over), which must come from these settings and images."""
+        checkpoint = self.run_folder.read_checkpoint()
+        arrays, meta, path = checkpoint.arrays, checkpoint.meta, checkpoint.path
         try:
             saved = TrainConfig.from_json(meta["config"])
             group = lambda prefix: {k.split("/", 1)[1]: v for k, v in arrays.items() if k.startswith(prefix + "/")}
@@ -165,24 +177,27 @@ class Trainer:
         self.camera_stack = stack
         self.iteration = iteration
         self.progress.gaussians = n
+        return checkpoint
 
     # outputs ------------------------------------------------------------------------------------------
     def save_model(self) -> Path:
         return self.run_folder.save_model(self.iteration, self.params.download_model())
 
     def run(self, progress: bool = True, log_every: int = 10) -> None:
-        """Train to cfg.iterations; Ctrl-C (SIGINT) stops at the next iteration boundary after a checkpoint."""
+        """Train to cfg.iterations. Ctrl-C (SIGINT) or SIGTERM (what job schedulers send) stops at the next
+        iteration boundary after a checkpoint, raising Stopped."""
         from tqdm import tqdm
-        stop = {"now": False}
+        stop = {"signal": None}
         main_thread = threading.current_thread() is threading.main_thread()
-        previous = signal.signal(signal.SIGINT, lambda *_: stop.update(now=True)) if main_thread else None
+        previous = {sig: signal.signal(sig, lambda signum, _: stop.update(signal=signum))
+                    for sig in STOP_SIGNALS} if main_thread else {}
         bar = tqdm(total=self.cfg.iterations, initial=self.iteration, disable=not progress, dynamic_ncols=True,
                    unit="it")
         try:
             while self.iteration < self.cfg.iterations:
-                if stop["now"]:
+                if stop["signal"] is not None:
                     self.save_checkpoint()
-                    raise KeyboardInterrupt
+                    raise Stopped(stop["signal"])
                 self.step()
                 bar.update(1)
                 if self.iteration % self.cfg.checkpoint_every == 0:
@@ -197,5 +212,5 @@ class Trainer:
             self.save_checkpoint()
         finally:
             bar.close()
-            if previous is not None:
-                signal.signal(signal.SIGINT, previous)
+            for sig, handler in previous.items():
+                signal.signal(sig, handler)

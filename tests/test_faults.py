@@ -1,0 +1,135 @@
+"""Faults while training: checkpoints carry a checksum and the one before them survives until the next is
+complete; --resume passes over a corrupt checkpoint to the previous one; a write that fails (disk full,
+read-only folder) says what failed and leaves the earlier outputs intact."""
+import errno
+import json
+import os
+import shutil
+
+import numpy as np
+import pytest
+
+from dc4gs_cl.cli import main
+from dc4gs_cl.errors import InputError
+from dc4gs_cl.run_folder import CHECKPOINT, PREVIOUS_CHECKPOINT, RunFolder
+
+SMALL = ["--scene", "builtin", "-r", "4", "--no-progress"]
+
+
+def state(rng, n=5):
+    return {"param/means": rng.normal(size=(n, 3)).astype(np.float32),
+            "window/count": rng.integers(0, 9, n).astype(np.float32)}
+
+
+def flip_byte(path, offset):
+    data = bytearray(path.read_bytes())
+    data[offset] ^= 0x40
+    path.write_bytes(bytes(data))
+
+
+def array_offset(path, array: np.ndarray) -> int:
+    """Where an array's bytes lie in an uncompressed .npz (np.savez stores members as they are)."""
+    return path.read_bytes().index(array.tobytes())
+
+
+def test_the_previous_checkpoint_stays_until_the_next_is_complete(tmp_path, rng):
+    run = RunFolder(tmp_path)
+    first, second = state(rng), state(rng)
+    run.write_checkpoint(first, {"iteration": 10})
+    assert not (tmp_path / PREVIOUS_CHECKPOINT).exists()
+    run.write_checkpoint(second, {"iteration": 20})
+    got = run.read_checkpoint()
+    assert got.path.name == CHECKPOINT and got.meta["iteration"] == 20 and not got.passed_over
+    np.testing.assert_array_equal(got.arrays["param/means"], second["param/means"])
+    with np.load(tmp_path / PREVIOUS_CHECKPOINT) as f:
+        np.testing.assert_array_equal(f["param/means"], first["param/means"])
+    assert sorted(p.name for p in tmp_path.iterdir()) == [CHECKPOINT, PREVIOUS_CHECKPOINT]   # no temporaries
+
+
+@pytest.mark.parametrize("damage", ["flipped array byte", "truncated", "empty", "metadata edited"])
+def test_resume_passes_over_a_corrupt_checkpoint_to_the_previous_one(tmp_path, rng, damage):
+    run = RunFolder(tmp_path)
+    first, second = state(rng), state(rng)
+    run.write_checkpoint(first, {"iteration": 10})
+    run.write_checkpoint(second, {"iteration": 20})
+    current = tmp_path / CHECKPOINT
+    if damage == "flipped array byte":   # the zip CRC and the checksum both see it
+        flip_byte(current, array_offset(current, second["param/means"]) + int(rng.integers(60)))
+    elif damage == "truncated":
+        current.write_bytes(current.read_bytes()[: int(rng.integers(1, current.stat().st_size))])
+    elif damage == "empty":
+        current.write_bytes(b"")
+    else:                                # a consistent archive whose metadata no longer matches its checksum
+        with np.load(current) as f:
+            entries = {k: f[k] for k in f.files}
+        meta = json.loads(bytes(entries["meta"]).decode()) | {"iteration": 30}
+        np.savez(current, **(entries | {"meta": np.frombuffer(json.dumps(meta).encode(), np.uint8)}))
+    got = run.read_checkpoint()
+    assert got.path.name == PREVIOUS_CHECKPOINT and got.meta["iteration"] == 10
+    assert len(got.passed_over) == 1 and CHECKPOINT in str(got.passed_over[0])
+    assert "corrupt checkpoint" in str(got.passed_over[0])
+    np.testing.assert_array_equal(got.arrays["param/means"], first["param/means"])
+    (tmp_path / PREVIOUS_CHECKPOINT).write_bytes(b"PK\x03\x04 not really")
+    with pytest.raises(InputError, match="no intact checkpoint left") as e:
+        run.read_checkpoint()
+    assert "\n" not in str(e.value)
+
+
+def test_resume_from_the_command_line_says_which_checkpoint_it_continues(tmp_path, capsys):
+    out = tmp_path / "run"
+    assert main(["train", *SMALL, "--iterations", "20", "--checkpoint-every", "5", "--test-every", "0",
+                 "--out", str(out)]) == 0
+    final = (out / "point_cloud" / "iteration_20" / "point_cloud.ply").read_bytes()
+    # as if the run had been killed after its checkpoint at iteration 15 and its last checkpoint were damaged
+    shutil.rmtree(out / "point_cloud")
+    flip_byte(out / CHECKPOINT, (out / CHECKPOINT).stat().st_size // 2)
+    capsys.readouterr()
+    assert main(["train", "--out", str(out), "--resume", "--no-progress"]) == 0
+    err = capsys.readouterr().err
+    assert f"{out / CHECKPOINT}: corrupt checkpoint" in err and "resuming from checkpoint.prev.npz" in err
+    # the run continues from the previous checkpoint and, training being deterministic, ends where it did
+    assert (out / "point_cloud" / "iteration_20" / "point_cloud.ply").read_bytes() == final
+
+
+def partial_write_then_enospc(file):
+    file.write(b"PK\x03\x04" + bytes(100))
+    raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+
+def test_a_full_disk_stops_training_naming_the_file_and_keeps_the_last_checkpoint(tmp_path, capsys, monkeypatch):
+    out = tmp_path / "run"
+    real_savez, calls = np.savez, []
+
+    def savez(file, **entries):   # the third checkpoint (iteration 15) finds the disk full
+        calls.append(1)
+        return partial_write_then_enospc(file) if len(calls) == 3 else real_savez(file, **entries)
+    monkeypatch.setattr(np, "savez", savez)
+    capsys.readouterr()
+    code = main(["train", *SMALL, "--iterations", "20", "--checkpoint-every", "5", "--test-every", "0",
+                 "--out", str(out)])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 1
+    assert err[-1] == f"dc4gs-cl train: error: {out / CHECKPOINT}: cannot write: No space left on device"
+    assert RunFolder(out).read_checkpoint().meta["iteration"] == 10      # the last complete one, intact
+    assert not [p for p in out.iterdir() if p.name.startswith(".")]      # no temporary left behind
+
+
+def test_a_read_only_folder_stops_the_model_save_and_keeps_earlier_outputs(tmp_path, capsys, monkeypatch):
+    """A rename refused by a read-only file system (simulated: the tests may run as root, whom chmod does not
+    stop) when the final model is saved: the error names the PLY; the checkpoints stay resumable."""
+    out = tmp_path / "run"
+    real_replace = os.replace
+
+    def replace(src, dst):
+        if str(dst).endswith("point_cloud.ply"):
+            raise OSError(errno.EROFS, os.strerror(errno.EROFS))
+        return real_replace(src, dst)
+    monkeypatch.setattr(os, "replace", replace)
+    capsys.readouterr()
+    code = main(["train", *SMALL, "--iterations", "10", "--checkpoint-every", "5", "--test-every", "0",
+                 "--out", str(out)])
+    err = capsys.readouterr().err.strip().splitlines()
+    ply = out / "point_cloud" / "iteration_10" / "point_cloud.ply"
+    assert code == 1 and err[-1] == f"dc4gs-cl train: error: {ply}: cannot write: Read-only file system"
+    assert not ply.exists() and not list(ply.parent.iterdir())
+    assert RunFolder(out).read_checkpoint().meta["iteration"] == 10
