@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
+from . import report
 from .config import RECIPE_ITERATIONS
 from .errors import DeviceError, InputError, OutputError
 from .files import replace_folder, staging_folder
@@ -21,6 +22,7 @@ from .finite import NonFiniteError
 from .host.densify import STRATEGIES as STRATEGY_NAMES
 from .host.densify.dc4gs import DCC_READINGS, DENSE_CANDIDATES, POOLINGS, SPLIT_PICKS
 from .scene.builtin import BUILTIN_SCENE
+from .train.log import DEFAULT_LINE_EVERY
 
 BUILTIN_ITERATIONS = 5_000   # the default run on the built-in scene: about five minutes on 2 CPU cores
 
@@ -90,11 +92,18 @@ def build_parser() -> argparse.ArgumentParser:
                    help="downscale images by this factor (default: widths above 1600 px scaled to 1600)")
     p.add_argument("--test-every", type=int, default=None, help="every N-th image (by name) is a test image (8; 0: none)")
     p.add_argument("--save-at", type=int, nargs="*", default=None, help="also write the PLY at these iterations")
+    p.add_argument("--eval-at", type=int, nargs="*", default=None,
+                   help="evaluate the test views after these iterations too, into metrics.jsonl (default: 7,000 "
+                        "scaled to the run, as the Inria code; the last iteration always)")
     p.add_argument("--densify-until", type=int, default=None, help="end of the densification window (0: no densification)")
     p.add_argument("--checkpoint-every", type=int, default=None, help="iterations between checkpoints (1000)")
     p.add_argument("--seed", type=int, default=None, help="random seed: the same seed gives the same model (0)")
     p.add_argument("--sh-degree", type=int, default=None, help="largest spherical-harmonics degree, 0 to 3 (3)")
     p.add_argument("--white-background", action="store_true", default=None, help="white background (Blender scenes)")
+    p.add_argument("--max-gaussians", type=int, default=None,
+                   help="a cap, not a target: densification never grows the model past N Gaussians. A step that "
+                        "would takes its clone and split candidates by their criterion over its threshold, highest "
+                        "first; pruning goes on as usual (default: no cap)")
     g = p.add_argument_group("DC4GS (directional-consistency density control, on any base strategy)")
     g.add_argument("--dc4gs", action="store_true", default=None, help="DCC and DCS together")
     g.add_argument("--dcc", action="store_true", default=None,
@@ -120,10 +129,17 @@ def build_parser() -> argparse.ArgumentParser:
                         "about 17%% less device memory, as fast, not bit-reproducible from run to run")
     p.add_argument("--resume", action="store_true", help="continue the run in --out from its checkpoint")
     p.add_argument("--force", action="store_true", help="replace a previous run's files in --out")
-    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.add_argument("--no-progress", action="store_true", help="no progress display")
+    p.add_argument("--log-every", type=int, default=DEFAULT_LINE_EVERY,
+                   help="when the output is not a terminal (a log file, a job scheduler), one progress line every N "
+                        f"iterations instead of a bar ({DEFAULT_LINE_EVERY})")
     p.add_argument("--profile", action="store_true", help="print per-stage device time per iteration at the end")
     _add_check_finite(p)
     _add_device(p)
+
+    p = sub.add_parser("report", help="draw training runs' metrics (curves, runs overlaid, test views beside ground "
+                                      "truth) to one HTML page or a PNG")
+    report.add_arguments(p)
 
     p = sub.add_parser("eval", help="render a trained model's test views and write PSNR / SSIM (results.json)")
     p.add_argument("--model", type=Path, required=True, help="a training output folder")
@@ -226,8 +242,9 @@ def train_config(args, run):
     # the settings the command line gives (each flag defaults to None: "not given")
     given = {f.name: getattr(args, f.name) for f in fields(TrainConfig) if getattr(args, f.name, None) is not None}
     dc4gs_given = {field: getattr(args, flag) for flag, field in DC4GS_FLAGS.items() if getattr(args, flag) is not None}
-    if "save_at" in given:
-        given["save_at"] = tuple(given["save_at"])
+    for key in ("save_at", "eval_at"):
+        if key in given:
+            given[key] = tuple(given[key])
     if "scene" in given and given["scene"] != BUILTIN_SCENE:
         given["scene"] = str(Path(given["scene"]).resolve())
     if args.resume:
@@ -252,11 +269,11 @@ def train_config(args, run):
 
 def cmd_train(args) -> int:
     import time
-    from .evaluate import evaluate
     from .run_folder import RunFolder
     from .runtime import Runtime, describe
     from .scene import load_scene
     from .train import Stopped, Trainer
+    from .train.log import progress_mode
 
     if args.out is None:
         if args.resume:
@@ -266,6 +283,8 @@ def cmd_train(args) -> int:
     run = RunFolder(args.out)
     if args.resume and args.force:
         raise InputError(None, "--resume and --force exclude each other")
+    if args.log_every < 1:
+        raise InputError(None, f"--log-every {args.log_every} must be at least 1")
     if args.resume and not run.has_checkpoint():
         raise InputError(run.path, "nothing to resume: no checkpoint.npz")
     if not args.resume and run.holds_run() and not args.force:
@@ -274,7 +293,7 @@ def cmd_train(args) -> int:
     scene = load_scene(cfg.scene, resolution=cfg.resolution, cache_dir=run.path / "undistorted",
                        test_every=cfg.test_every, white_background=cfg.white_background)
     scene.read_all_images()
-    rt = Runtime(args.device, profiling=args.profile)
+    rt = Runtime(args.device, profiling=True)   # stage times go to metrics.jsonl; no measurable cost on PoCL
     trainer = Trainer(cfg, scene, rt, run, check_finite=args.check_finite)
     if args.resume:
         checkpoint = trainer.resume()
@@ -289,21 +308,20 @@ def cmd_train(args) -> int:
           f"{trainer.model.n:,} initial Gaussians\noutput: {run}", file=sys.stderr)
     start, first = time.perf_counter(), trainer.iteration
     try:
-        trainer.run(progress=not args.no_progress)
+        trainer.run(progress=progress_mode(args.no_progress), line_every=args.log_every)
     except Stopped as e:
         print(f"{e} at iteration {trainer.iteration}; a checkpoint is in {run}. Continue with: "
               f"dc4gs-cl train --out {run} --resume", file=sys.stderr)
         return 128 + e.signum
     seconds = time.perf_counter() - start
     if args.profile:
-        times = rt.stage_times()
-        done = max(trainer.iteration - first, 1)
-        print("device time per iteration: " + ", ".join(f"{k} {v / done * 1e3:.2f} ms" for k, v in times.items()))
+        done = trainer.log.profiled_iterations
+        print("device time per iteration: " + ", ".join(f"{k} {v / done * 1e3:.2f} ms"
+                                                         for k, v in trainer.log.stage_seconds.items()))
     print(f"trained {trainer.iteration - first:,} iterations in {seconds:.0f} s "
           f"({(trainer.iteration - first) / max(seconds, 1e-9):.1f} it/s); {trainer.model.n:,} Gaussians")
     if scene.test:
-        result = evaluate(rt, trainer.renderer, trainer.params, scene, scene.test, trainer.sh_degree,
-                          run.views_dir("test", trainer.iteration))
+        result = trainer.evaluate_test(run.views_dir("test", trainer.iteration))
         run.write_results(trainer.iteration, result)
         print(f"test views: PSNR {result['mean']['PSNR']:.2f} dB, SSIM {result['mean']['SSIM']:.4f} "
               f"({result['views']} views; LPIPS skipped: {result['lpips']})")
@@ -334,7 +352,8 @@ def cmd_eval(args) -> int:
     return 0
 
 
-COMMANDS = {"devices": cmd_devices, "render": cmd_render, "train": cmd_train, "eval": cmd_eval}
+COMMANDS = {"devices": cmd_devices, "render": cmd_render, "train": cmd_train, "eval": cmd_eval,
+            "report": report.cmd_report}
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -12,7 +12,7 @@ from .host.densify import STRATEGIES
 from .host.densify.dc4gs import DC4GSConfig
 
 RECIPE_ITERATIONS = 30_000   # the 3DGS schedule is written for this many iterations; shorter runs scale it
-OUTPUT_SETTINGS = ("save_at", "checkpoint_every")   # settings that do not change the trained model
+OUTPUT_SETTINGS = ("save_at", "checkpoint_every", "eval_at")   # settings that do not change the trained model
 # config.json of runs made before the DC4GS settings were nested: flat key -> DC4GSConfig field
 FLAT_DC4GS_KEYS = {"dcc": "dcc", "dcs": "dcs", "dc_pooling": "pooling", "split_pick": "split_pick",
                    "split_candidates": "candidates", "dcc_reading": "dcc_reading", "dcs_track": "track"}
@@ -30,6 +30,7 @@ class TrainConfig:
     sh_degree: int = SH_MAX_DEGREE
     save_at: tuple[int, ...] = ()          # PLYs at these iterations (the last one is always saved)
     checkpoint_every: int = 1_000
+    eval_at: tuple[int, ...] | None = None  # test views evaluated after these iterations (None: the recipe's)
     # learning rates (3DGS); the position's decays log-linearly over the run and scales with the extent
     lr_means: float = 1.6e-4
     lr_means_final: float = 1.6e-6
@@ -39,6 +40,7 @@ class TrainConfig:
     lr_scales: float = 5e-3
     lr_quats: float = 1e-3
     densify_until: int | None = None       # override the strategy's (scaled) window end; 0 disables densification
+    max_gaussians: int | None = None       # densification never grows the model past this many Gaussians
     low_memory: bool = False               # backward sums with float atomics, no per-pair slots (not bit-reproducible)
     dc4gs: DC4GSConfig = DC4GSConfig()     # off unless dcc or dcs
 
@@ -50,12 +52,16 @@ class TrainConfig:
             problems.append(f"--strategy {self.strategy!r} is not one of {', '.join(STRATEGIES)}")
         if any(s < 1 or s > self.iterations for s in self.save_at):
             problems.append(f"--save-at {list(self.save_at)} must lie in 1..{self.iterations}")
+        if self.eval_at is not None and any(s < 1 or s > self.iterations for s in self.eval_at):
+            problems.append(f"--eval-at {list(self.eval_at)} must lie in 1..{self.iterations}")
         if self.test_every < 0:
             problems.append(f"--test-every {self.test_every} must be 0 (no test views) or positive")
         if self.checkpoint_every < 1:
             problems.append(f"--checkpoint-every {self.checkpoint_every} must be at least 1")
         if self.densify_until is not None and self.densify_until < 0:
             problems.append(f"--densify-until {self.densify_until} must be >= 0")
+        if self.max_gaussians is not None and self.max_gaussians < 1:
+            problems.append(f"--max-gaussians {self.max_gaussians} must be at least 1")
         if not 0 <= self.sh_degree <= SH_MAX_DEGREE:
             problems.append(f"--sh-degree {self.sh_degree} must be 0..{SH_MAX_DEGREE}")
         if problems:
@@ -69,6 +75,7 @@ class TrainConfig:
     def to_json(self) -> dict:
         d = asdict(self)
         d["save_at"] = list(self.save_at)
+        d["eval_at"] = None if self.eval_at is None else list(self.eval_at)
         return d
 
     @staticmethod
@@ -87,6 +94,8 @@ class TrainConfig:
         check_json_types(TrainConfig, out, skip=("dc4gs",))
         check_json_types(DC4GSConfig, dc4gs, prefix="dc4gs.")
         out["save_at"] = tuple(out.get("save_at", ()))
+        if out.get("eval_at") is not None:
+            out["eval_at"] = tuple(out["eval_at"])
         out["dc4gs"] = DC4GSConfig(**dc4gs)
         return TrainConfig(**out)
 
@@ -103,7 +112,7 @@ def _json_type_ok(annotation: str, value) -> bool:
         return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
     if annotation == "str":
         return isinstance(value, str)
-    if annotation == "tuple[int, ...]":
+    if annotation == "tuple[int, ...]":   # a JSON list
         return isinstance(value, list) and all(_json_type_ok("int", v) for v in value)
     raise AssertionError(f"no JSON check for the annotation {annotation!r}")
 

@@ -74,6 +74,14 @@ class Loss(Stage):
         if grad_out is not None:
             self.check(lambda: {"dL_dimage": rt.to_host(grad_out, (h, width, 3))})
 
+    def running_sums(self) -> tuple[list[float], int]:
+        """The stats' running sums and call count, to carry them through a checkpoint (restore_sums)."""
+        return self.rt.to_host(self.stats, len(STAT_KEYS)).tolist(), self.calls
+
+    def restore_sums(self, sums: list[float], calls: int) -> None:
+        self.rt.write(self.stats, np.asarray(sums, np.float32))
+        self.calls = calls
+
     def read_stats(self) -> dict[str, float]:
         """Means over the calls since the last read (NaN when there was none) of loss, l1, ssim and mse
         (mse of the unclamped image), then reset them. Waits for the queue: call it every N iterations."""

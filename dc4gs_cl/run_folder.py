@@ -10,6 +10,8 @@ go through this module; every file is written atomically (files.py).
                                           resumed from when checkpoint.npz is corrupt
     point_cloud/iteration_N/point_cloud.ply   the model saved at iteration N (standard 3DGS PLY)
     results.json, per_view.json           test-view metrics keyed by "ours_N"
+    metrics.jsonl                         the run's metrics over iterations, a JSON object per line, appended
+                                          while training (train/log.py); `dc4gs-cl report` draws them
     <split>/ours_N/{renders,gt}/          rendered views beside their ground truth
 """
 from __future__ import annotations
@@ -24,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import InputError
+from .errors import InputError, OutputError
 from .files import write_atomic, write_json
 from .model import GaussianModel
 from .ply import read_ply, write_ply
@@ -33,7 +35,8 @@ from .config import TrainConfig
 CONFIG = "config.json"
 CHECKPOINT, PREVIOUS_CHECKPOINT = "checkpoint.npz", "checkpoint.prev.npz"
 RESULTS, PER_VIEW = "results.json", "per_view.json"
-RUN_FILES = (CONFIG, "cfg_args", "cameras.json", CHECKPOINT, PREVIOUS_CHECKPOINT, RESULTS, PER_VIEW)
+METRICS = "metrics.jsonl"
+RUN_FILES = (CONFIG, "cfg_args", "cameras.json", CHECKPOINT, PREVIOUS_CHECKPOINT, RESULTS, PER_VIEW, METRICS)
 RUN_DIRS = ("point_cloud", "test", "train")
 META = "meta"           # the checkpoint entry holding the JSON metadata
 CHECKSUM = "sha256"     # the metadata key holding checkpoint_checksum(arrays, meta)
@@ -192,6 +195,45 @@ class RunFolder:
             return Checkpoint(path, arrays, meta, passed_over)
         raise InputError(existing[0], "; ".join(e.problem if e.path == str(existing[0]) else str(e)
                                                 for e in passed_over) + "; no intact checkpoint left to resume from")
+
+    # metrics over iterations -----------------------------------------------------------------------------
+    @property
+    def metrics_path(self) -> Path:
+        return self.path / METRICS
+
+    def read_metrics(self) -> list[dict]:
+        """The metrics rows in the order written. Appending is not atomic: a last line cut short by a crash is
+        left out, as is any line that is not a JSON object with an integer "iteration"."""
+        try:
+            lines = self.metrics_path.read_text(encoding="utf-8").splitlines()
+        except FileNotFoundError:
+            return []
+        except (OSError, UnicodeDecodeError) as e:
+            raise InputError(self.metrics_path, f"unreadable metrics ({_one_line(e)})") from None
+        rows = []
+        for line in lines:
+            try:
+                row = json.loads(line)
+            except ValueError:
+                continue
+            if isinstance(row, dict) and isinstance(row.get("iteration"), int):
+                rows.append(row)
+        return rows
+
+    def append_metrics(self, row: dict) -> None:
+        try:
+            with open(self.metrics_path, "a", encoding="utf-8") as f:
+                f.write(json.dumps(row) + "\n")
+        except OSError as e:
+            raise OutputError(self.metrics_path, f"cannot write: {e.strerror or e}") from e
+
+    def cut_metrics(self, iteration: int) -> list[dict]:
+        """Keep the rows up to `iteration` (where a resumed run continues; later rows came from the part of the
+        interrupted run that is trained again), rewriting the file atomically; returns the rows kept."""
+        kept = [r for r in self.read_metrics() if r["iteration"] <= iteration]
+        if self.metrics_path.exists():
+            write_atomic(self.metrics_path, lambda tmp: tmp.write_text("".join(json.dumps(r) + "\n" for r in kept)))
+        return kept
 
     # results ---------------------------------------------------------------------------------------------
     def write_results(self, iteration: int, result: dict) -> None:

@@ -1,5 +1,7 @@
 """Densification rules on hand-built states: clone, split, prune, opacity reset and clamp, the three
 criteria, and Adam moments staying with their Gaussians through every operation."""
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -112,6 +114,45 @@ def test_pixelgs_averages_over_pixels_not_views(rng):
     assert s.densify(gs, stats, it=1000, extent=EXTENT, rng=rng).cloned == 1
 
 
+def test_cap_takes_the_highest_criteria_of_clones_and_splits_together(rng):
+    """With max_gaussians the step adds at most the room left; clone and split candidates are ranked together
+    by criterion over threshold (AbsGS: clones on grad / 2e-4, splits on abs / 4e-4)."""
+    n = 8
+    gs = hand_built(rng, n=n)
+    gs.params["log_scales"][:4] = np.log(0.001)                    # 0-3 small (clone; AbsGS: <= 0.001 x extent)
+    gs.params["log_scales"][4:] = np.log(0.5)                      # 4-7 large (split)
+    gs.params["opacity_logits"][:] = 2.0
+    ratios = rng.permutation(np.linspace(1.1, 3.0, n))             # every one qualifies, distinct scores
+    stats = window(n)
+    stats["grad"][:4] = 10 * 2e-4 * ratios[:4]
+    stats["abs"][4:] = 10 * 4e-4 * ratios[4:]
+    for room in (0, 1, 3, 5, 8, 20):
+        g = GaussianSet({k: v.copy() for k, v in gs.params.items()}, dict(gs.m), dict(gs.v))
+        report = AbsGS(replace(AbsGS.default_config(), max_gaussians=n + room)).densify(
+            g, {k: v.copy() for k, v in stats.items()}, it=1000, extent=EXTENT, rng=rng)
+        taken = min(room, n)
+        assert g.n == n + taken and report.cloned + report.split == taken and report.capped == n - taken
+        winners = set(np.argsort(-ratios)[:taken])
+        cloned = set(np.flatnonzero(np.arange(n) < 4)) & winners
+        split = winners - cloned
+        assert (report.cloned, report.split) == (len(cloned), len(split))
+        # the originals stay in order less the split parents; clones of the winners follow, then children
+        np.testing.assert_array_equal(g.params["sh"][:n - len(split), 0], sorted(set(range(n)) - split))
+        np.testing.assert_array_equal(g.params["sh"][n - len(split):n - len(split) + len(cloned), 0], sorted(cloned))
+
+
+def test_cap_growth_ties_and_growth(rng):
+    clone = np.array([1, 0, 1, 0], bool)
+    split = np.array([0, 1, 0, 1], bool)
+    score = np.ones(4)                                            # all tied: lower index first
+    c, s = ops.cap_growth(2, [(clone, score, 1), (split, score, 1)])
+    np.testing.assert_array_equal(c | s, [1, 1, 0, 0])
+    c, s = ops.cap_growth(3, [(clone, score, 1), (split, score, 2)])   # a split adding two needs room for two
+    assert c.sum() + 2 * s.sum() <= 3 and c[0] and s[1]
+    c, s = ops.cap_growth(-5, [(clone, score, 1), (split, score, 1)])  # already past the cap: nothing
+    assert not c.any() and not s.any()
+
+
 def test_schedule_follows_the_recipe():
     s = Strategy()
     steps = [it for it in range(1, 30_001) if s.densify_now(it)]
@@ -166,5 +207,5 @@ def test_a_new_base_strategy_trains(rt, tmp_path, dc4gs):
                       strategy=strategy)
     assert trainer.strategy is strategy and strategy.label == ("toy+DC4GS" if dc4gs else "toy")
     start = trainer.model.n
-    trainer.run(progress=False)
+    trainer.run(progress="none")
     assert trainer.model.n != start and np.isfinite(trainer.params.download()["means"]).all()

@@ -15,7 +15,7 @@ from dc4gs_cl.cli import main
 from dc4gs_cl.metrics import psnr
 from dc4gs_cl.scene import load_scene
 from dc4gs_cl.config import TrainConfig
-from dc4gs_cl.run_folder import CHECKPOINT
+from dc4gs_cl.run_folder import CHECKPOINT, RunFolder
 from dc4gs_cl.train import Trainer
 
 SMALL = ["--scene", "builtin", "-r", "2", "--no-progress"]
@@ -33,7 +33,7 @@ def test_training_improves_the_test_views(rt, tmp_path, low_memory):
                              scene.image(c)) for c in scene.test])
 
     before = test_psnr()
-    trainer.run(progress=False)
+    trainer.run(progress="none")
     after = test_psnr()
     assert after > before + 6, (before, after)       # measured: 16.2 -> 27.6 dB
     assert trainer.params.n > len(scene.points)      # densified
@@ -101,6 +101,33 @@ def test_interrupted_run_resumes_to_the_same_model(straight_run, tmp_path, how):
     assert resumed.returncode == 0
     # Training is deterministic (no float atomics), so the resumed run ends bit for bit where the straight one does.
     assert final_ply(stopped, 240) == final_ply(straight_run, 240)
+    # ... and its metrics file holds each iteration once, as the straight run's: the rows an interrupted run
+    # wrote after its checkpoint were cut back when it resumed.
+    def comparable(rows):
+        return [{k: v for k, v in r.items() if k not in ("it_per_s", "elapsed_s", "stage_ms")} for r in rows]
+    resumed_rows, straight_rows = RunFolder(stopped).read_metrics(), RunFolder(straight_run).read_metrics()
+    assert comparable(resumed_rows) == comparable(straight_rows)
+    elapsed = [r["elapsed_s"] for r in resumed_rows if "elapsed_s" in r]
+    assert elapsed == sorted(elapsed)                                   # the training clock goes on across the resume
+
+
+def test_metrics_file_and_progress_lines_off_a_terminal(straight_run, tmp_path):
+    """Every run writes metrics.jsonl: a sample every 10 iterations, the test views at the scaled 7,000 and at
+    the end. Off a terminal (a pipe here) progress is one line every --log-every iterations, no bar redraws."""
+    rows = RunFolder(straight_run).read_metrics()
+    samples = [r for r in rows if "loss" in r]
+    assert [r["iteration"] for r in samples] == list(range(10, 241, 10))
+    assert all(np.isfinite([r["loss"], r["train_psnr"], r["it_per_s"]]).all() and r["gaussians"] > 0 for r in samples)
+    assert [r["iteration"] for r in rows if "test_psnr" in r] == [56, 240]      # 7,000 of 30,000 scaled to 240
+    assert all(set(r["stage_ms"]) >= {"project", "rasterize", "rasterize_backward"} for r in samples)
+    out = tmp_path / "o"
+    proc = subprocess.run([sys.executable, "-m", "dc4gs_cl", "train", "--scene", "builtin", "-r", "4", "--iterations",
+                           "60", "--log-every", "20", "--out", str(out)], capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    err = proc.stderr
+    assert "\r" not in err
+    assert [int(line.split()[1].split("/")[0]) for line in err.splitlines() if line.startswith("iteration ") and "/" in line
+            ] == [20, 40, 60]
 
 
 def snapshot(folder: Path) -> dict:
@@ -152,12 +179,26 @@ def test_corrupt_and_mismatched_checkpoints(finished_run, tmp_path, capsys):
     (["--split-candidates", "1"], "--split-candidates 1"),      # checked even with DC4GS off
     (["--dcs", "--dcs-track", "1.5"], "--dcs-track 1.5"),
     (["--sh-degree", "4"], "--sh-degree 4"),
+    (["--max-gaussians", "0"], "--max-gaussians 0 must be at least 1"),
+    (["--max-gaussians", "100"], "--max-gaussians 100 is below the"),
     (["--white-background"], "built-in scene"),
 ])
 def test_settings_that_make_no_sense(tmp_path, capsys, args, says):
     out = [] if "--resume" in args else ["--out", str(tmp_path / "o")]
     assert says in bad(capsys, *SMALL, *args, *out)
     assert not (tmp_path / "o").exists()
+
+
+def test_max_gaussians_caps_every_densification_step(rt, tmp_path):
+    scene = load_scene("builtin", resolution=4)
+    start = len(scene.points)
+    cap = start + 150
+    trainer = Trainer(TrainConfig(scene="builtin", iterations=400, resolution=4, max_gaussians=cap), scene, rt, tmp_path)
+    peak = 0
+    while trainer.iteration < 400:
+        trainer.step()
+        peak = max(peak, trainer.model.n)
+    assert cap - 20 <= peak <= cap           # it grows to the cap (pruning may take a few) and never past it
 
 
 def test_a_saved_iteration_precedes_its_opacity_reset(rt, tmp_path):

@@ -10,6 +10,7 @@ from ..config import RECIPE_ITERATIONS, TrainConfig
 
 MIN_DENSIFY_STEPS = 10   # a short run still densifies about this often
 SH_DEGREE_EVERY = 1_000  # one more SH degree every this many (scaled) iterations
+EVALUATE_AT = (7_000,)   # test views evaluated at these (scaled) iterations and at the end, as the Inria code
 
 
 class Schedule:
@@ -32,10 +33,17 @@ class Schedule:
         c = replace(base, densify_from=start, densify_until=stop, densify_every=every,
                     big_world_after=self.scaled(base.big_world_after),
                     opacity_reset_every=self.scaled(base.opacity_reset_every),
-                    opacity_clamp_every=None if base.opacity_clamp_every is None else self.scaled(base.opacity_clamp_every))
+                    opacity_clamp_every=None if base.opacity_clamp_every is None else self.scaled(base.opacity_clamp_every),
+                    max_gaussians=self.cfg.max_gaussians)
         if self.cfg.densify_until is not None:
             c = replace(c, densify_until=self.cfg.densify_until)
         return cls(c, self.cfg.dc4gs)
+
+    def evaluations(self) -> list[int]:
+        """The iterations after which the test views are evaluated: --eval-at, else EVALUATE_AT scaled; the
+        last iteration always."""
+        at = self.cfg.eval_at if self.cfg.eval_at is not None else tuple(self.scaled(i) for i in EVALUATE_AT)
+        return sorted(set(at) | {self.cfg.iterations})
 
     def sh_degree(self, it: int) -> int:
         """Active SH degree at iteration it: one more every SH_DEGREE_EVERY (scaled), up to the model's."""

@@ -8,14 +8,13 @@ One iteration (docs/architecture.md draws it module by module):
     view's statistics into its window -> projection backward with Adam's step fused in, where the recipe
     steps -> the strategy densifies and limits opacities where its schedule says.
 Per iteration the host uploads the target image and reads back two counts (visible Gaussians, pairs); the
-loss is read every few iterations for the progress bar.
+loss is read every few iterations for the metrics file and the progress display (log.py).
 """
 from __future__ import annotations
 
-import math
 import signal
 import threading
-from dataclasses import dataclass, replace
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -24,22 +23,15 @@ from ..backward import ProjectBackward, RasterizeBackward
 from ..errors import InputError
 from ..host.densify import GaussianSet, Strategy
 from ..host.trainable import TrainableGaussians
-from ..loss import Loss
+from ..loss import STAT_KEYS, Loss
 from ..model import initial_model
 from ..render import DeviceGaussians, Renderer, Tuning
 from ..run_folder import Checkpoint, RunFolder
 from ..runtime import Runtime
 from ..scene.camera import Camera, Scene
 from ..config import TrainConfig
+from .log import DEFAULT_LINE_EVERY, SAMPLE_EVERY, TrainingLog
 from .schedule import Schedule
-
-
-@dataclass
-class Progress:
-    """What the progress bar shows; refreshed every few iterations."""
-    loss: float = math.nan
-    psnr: float = math.nan
-    gaussians: int = 0
 
 
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
@@ -74,10 +66,14 @@ class Trainer:
         self.rng = np.random.default_rng(cfg.seed)
         self.iteration = 0
         self.camera_stack: list[int] = []
-        self.model = TrainableGaussians(rt, initial_model(scene.points, scene.colors, self.rng, cfg.sh_degree))
+        initial = initial_model(scene.points, scene.colors, self.rng, cfg.sh_degree)
+        if cfg.max_gaussians is not None and len(initial) > cfg.max_gaussians:
+            raise InputError(None, f"--max-gaussians {cfg.max_gaussians:,} is below the {len(initial):,} Gaussians the "
+                                   "scene starts from (one per SfM point)")
+        self.model = TrainableGaussians(rt, initial)
         self.strategy = strategy or self.schedule.strategy()
         self.strategy.attach(self.context, scene.extent, self.model.n, cfg.white_background)
-        self.progress = Progress(gaussians=self.model.n)
+        self.log: TrainingLog | None = None   # while run() runs, and after it for the final evaluation
 
     @property
     def params(self) -> DeviceGaussians:
@@ -117,7 +113,6 @@ class Trainer:
         if it in self.cfg.save_at:   # before this iteration's densification and opacity limits, as Inria saves
             self.save_model()
         if s.apply(actions, it, self.model, self.rng) is not None:
-            self.progress.gaussians = self.model.n
             if self.context.check.enabled:
                 self.context.check("densify", self.model.download().params)
 
@@ -127,7 +122,6 @@ class Trainer:
         self.model.upload(gs)
         self.strategy.window.reset(gs.n)
         self.iteration = iteration
-        self.progress.gaussians = gs.n
 
     def memory_held(self) -> dict[str, int]:
         """Device bytes held now, by what holds them (capacity included)."""
@@ -143,7 +137,8 @@ class Trainer:
         arrays |= {f"window/{k}": v for k, v in self.strategy.window.download().items()}
         meta = {"iteration": self.iteration, "config": self.cfg.to_json(), "adam_steps": self.model.adam.steps,
                 "rng": self.rng.bit_generator.state, "camera_stack": self.camera_stack,
-                "train_cameras": [c.name for c in self.scene.train], "gaussians": self.model.n}
+                "train_cameras": [c.name for c in self.scene.train], "gaussians": self.model.n,
+                "loss_sums": self.loss.running_sums()}   # so the first metrics sample after --resume is the same
         self.run_folder.write_checkpoint(arrays, meta)
 
     def resume(self) -> Checkpoint:
@@ -158,6 +153,12 @@ class Trainer:
             window = group("window")
             steps, state, stack, iteration = meta["adam_steps"], meta["rng"], meta["camera_stack"], meta["iteration"]
             cameras, n = meta["train_cameras"], meta["gaussians"]
+            loss_sums = meta.get("loss_sums")
+            if loss_sums is not None:
+                sums, calls = loss_sums
+                loss_sums = [float(x) for x in sums], int(calls)
+                if len(sums) != len(STAT_KEYS):
+                    raise ValueError(f"loss_sums holds {len(sums)} sums")
         except (KeyError, TypeError, ValueError, InputError) as e:
             raise InputError(path, f"corrupt checkpoint ({e.__class__.__name__}: {e})") from None
         if diffs := saved.differences(self.cfg):
@@ -176,41 +177,59 @@ class Trainer:
         self.rng.bit_generator.state = state
         self.camera_stack = stack
         self.iteration = iteration
-        self.progress.gaussians = n
+        if loss_sums is not None:   # checkpoints before metrics.jsonl have none
+            self.loss.restore_sums(*loss_sums)
         return checkpoint
 
     # outputs ------------------------------------------------------------------------------------------
     def save_model(self) -> Path:
         return self.run_folder.save_model(self.iteration, self.params.download_model())
 
-    def run(self, progress: bool = True, log_every: int = 10) -> None:
-        """Train to cfg.iterations. Ctrl-C (SIGINT) or SIGTERM (what job schedulers send) stops at the next
-        iteration boundary after a checkpoint, raising Stopped."""
-        from tqdm import tqdm
+    def evaluate_test(self, render_dir: Path | None = None) -> dict:
+        """Evaluate the test views now (evaluate.evaluate; with render_dir, their PNGs too) and log it; the
+        training clock and the per-stage times leave the evaluation out."""
+        from ..evaluate import evaluate
+        log = self.log
+        if log is not None:
+            log.pause()
+        result = evaluate(self.rt, self.renderer, self.params, self.scene, self.scene.test, self.sh_degree, render_dir)
+        if self.rt.profiling:
+            self.rt.stage_times()   # the evaluation's renders are not training time
+        if log is not None:
+            log.evaluation(self.iteration, result)
+            log.resume()
+        return result
+
+    def run(self, progress: str = "bar", line_every: int = DEFAULT_LINE_EVERY) -> None:
+        """Train to cfg.iterations, evaluating the test views at the schedule's evaluation points before the
+        last (the caller evaluates the last, with renders), and logging to the run folder's metrics file.
+        progress: "bar", "lines" (one every line_every iterations) or "none" (train/log.py). Ctrl-C (SIGINT)
+        or SIGTERM (what job schedulers send) stops at the next iteration boundary after a checkpoint,
+        raising Stopped."""
         stop = {"signal": None}
         main_thread = threading.current_thread() is threading.main_thread()
         previous = {sig: signal.signal(sig, lambda signum, _: stop.update(signal=signum))
                     for sig in STOP_SIGNALS} if main_thread else {}
-        bar = tqdm(total=self.cfg.iterations, initial=self.iteration, disable=not progress, dynamic_ncols=True,
-                   unit="it")
+        self.log = TrainingLog(self.run_folder, self.cfg.iterations, self.iteration, progress, line_every,
+                               self.rt.stage_times if self.rt.profiling else None)
+        evaluate_at = {i for i in self.schedule.evaluations() if i < self.cfg.iterations} if self.scene.test else set()
         try:
             while self.iteration < self.cfg.iterations:
                 if stop["signal"] is not None:
                     self.save_checkpoint()
                     raise Stopped(stop["signal"])
                 self.step()
-                bar.update(1)
+                self.log.step()
+                if self.iteration % SAMPLE_EVERY == 0 or self.iteration == self.cfg.iterations:
+                    stats = self.loss.read_stats()
+                    self.log.sample(self.iteration, stats["loss"], stats["mse"], self.model.n)
+                if self.iteration in evaluate_at:
+                    self.evaluate_test()
                 if self.iteration % self.cfg.checkpoint_every == 0:
                     self.save_checkpoint()
-                if self.iteration % log_every == 0 or self.iteration == self.cfg.iterations:
-                    stats = self.loss.read_stats()
-                    self.progress.loss = stats["loss"]
-                    self.progress.psnr = 10 * math.log10(1 / max(stats["mse"], 1e-12))
-                    bar.set_postfix(loss=f"{self.progress.loss:.4f}", psnr=f"{self.progress.psnr:.2f}",
-                                    gaussians=f"{self.progress.gaussians:,}", refresh=False)
             self.save_model()
             self.save_checkpoint()
         finally:
-            bar.close()
+            self.log.close()
             for sig, handler in previous.items():
                 signal.signal(sig, handler)

@@ -15,6 +15,7 @@ from ...model import logit, sigmoid
 
 SPLIT_CHILDREN = 2
 SPLIT_SCALE_DIVISOR = 1.6   # = 0.8 * SPLIT_CHILDREN in the 3DGS code
+SPLIT_GROWTH = SPLIT_CHILDREN - 1   # Gaussians a split adds (its children replace it); a clone adds one
 
 
 @dataclass
@@ -50,6 +51,23 @@ class GaussianSet:
 
     def opacities(self) -> np.ndarray:
         return sigmoid(self.params["opacity_logits"][:, 0].astype(np.float64))
+
+
+def cap_growth(budget: int, candidates: list[tuple[np.ndarray, np.ndarray, int]]) -> list[np.ndarray]:
+    """Which candidates a densification step may take when it may add at most `budget` Gaussians.
+    candidates: (mask, score, growth) per operation (clone, split): the Gaussians that qualify, a score per
+    Gaussian that ranks them (criterion over its threshold, so clones and splits compare without units) and
+    how many Gaussians each adds. The highest scores win, ties to the lower index then the earlier operation;
+    the masks returned keep the winners."""
+    rows = [(-score[mask], np.flatnonzero(mask), np.full(int(mask.sum()), op), np.full(int(mask.sum()), growth))
+            for op, (mask, score, growth) in enumerate(candidates)]
+    neg_score, index, op, growth = (np.concatenate(col) for col in zip(*rows))
+    order = np.lexsort((op, index, neg_score))
+    taken = order[np.cumsum(growth[order]) <= max(budget, 0)]
+    out = [np.zeros_like(mask) for mask, _, _ in candidates]
+    for k, mask in enumerate(out):
+        mask[index[taken][op[taken] == k]] = True
+    return out
 
 
 def clone(gs: GaussianSet, mask: np.ndarray) -> int:

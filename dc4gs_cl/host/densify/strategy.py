@@ -32,7 +32,7 @@ from ...scene.camera import Camera
 from . import ops
 from .dc4gs import DC4GSConfig, dcc_criterion, split_positions
 from .densify_stats import DensifyStats
-from .ops import GaussianSet
+from .ops import SPLIT_GROWTH, GaussianSet
 from .statistics import GRAD_PER_VIEW, MAX_RADIUS, SPLIT_COSTS, Criterion, StatisticsSpec
 
 
@@ -52,6 +52,7 @@ class DensifyConfig:
     opacity_reset_to: float = 0.01
     opacity_clamp_every: int | None = None   # AbsGS: clamp opacities to <= opacity_clamp this often
     opacity_clamp: float = 0.8
+    max_gaussians: int | None = None   # densification never grows the model past this (cap_growth)
 
 
 @dataclass
@@ -59,6 +60,7 @@ class DensifyReport:
     cloned: int = 0
     split: int = 0
     pruned: int = 0
+    capped: int = 0   # candidates left out by max_gaussians
 
 
 @dataclass(frozen=True)
@@ -213,10 +215,15 @@ class Strategy:
         gs.aux[MAX_RADIUS] = window[MAX_RADIUS].astype(np.float32)
         large = gs.scales().max(axis=1) > c.percent_dense * extent
         report = DensifyReport()
-        report.cloned = ops.clone(gs, (clone_v >= c.clone_threshold) & ~large)
-        split_mask = np.zeros(gs.n, bool)
-        split_mask[:n] = (split_v >= c.split_threshold) & large
-        report.split = self.split(gs, split_mask, rng, window)
+        clone_mask = (clone_v >= c.clone_threshold) & ~large
+        split_mask = (split_v >= c.split_threshold) & large
+        if c.max_gaussians is not None:
+            wanted = int(clone_mask.sum() + split_mask.sum())
+            clone_mask, split_mask = ops.cap_growth(c.max_gaussians - n, [
+                (clone_mask, clone_v / c.clone_threshold, 1), (split_mask, split_v / c.split_threshold, SPLIT_GROWTH)])
+            report.capped = wanted - int(clone_mask.sum() + split_mask.sum())
+        report.cloned = ops.clone(gs, clone_mask)
+        report.split = self.split(gs, np.concatenate([split_mask, np.zeros(gs.n - n, bool)]), rng, window)
         prune = gs.opacities() < c.prune_opacity
         if it > c.big_world_after:
             prune |= gs.scales().max(axis=1) > c.big_world_fraction * extent
