@@ -100,6 +100,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=None, help="random seed: the same seed gives the same model (0)")
     p.add_argument("--sh-degree", type=int, default=None, help="largest spherical-harmonics degree, 0 to 3 (3)")
     p.add_argument("--white-background", action="store_true", default=None, help="white background (Blender scenes)")
+    p.add_argument("--alpha-mask", action="store_true", default=None,
+                   help="images' alpha channel masks pixels out (no loss, no densification statistics) instead of "
+                        "being composited onto the background; a masks/ folder beside images/ is always used")
     p.add_argument("--max-gaussians", type=int, default=None,
                    help="a cap, not a target: densification never grows the model past N Gaussians. A step that "
                         "would takes its clone and split candidates by their criterion over its threshold, highest "
@@ -260,6 +263,7 @@ def train_config(args, run):
     given.setdefault("scene", BUILTIN_SCENE)
     given.setdefault("iterations", BUILTIN_ITERATIONS if given["scene"] == BUILTIN_SCENE else RECIPE_ITERATIONS)
     given["white_background"] = bool(given.get("white_background"))
+    given["alpha_mask"] = bool(given.get("alpha_mask"))
     try:
         dc4gs = DC4GSConfig(**dc4gs_given)
     except ValueError as e:   # every DC4GS setting is checked, DC4GS on or off: a mistyped flag never passes
@@ -291,7 +295,7 @@ def cmd_train(args) -> int:
         raise InputError(run.path, "holds another run: continue it with --resume, or replace it with --force")
     cfg = train_config(args, run)
     scene = load_scene(cfg.scene, resolution=cfg.resolution, cache_dir=run.path / "undistorted",
-                       test_every=cfg.test_every, white_background=cfg.white_background)
+                       test_every=cfg.test_every, white_background=cfg.white_background, alpha_mask=cfg.alpha_mask)
     scene.read_all_images()
     rt = Runtime(args.device, profiling=True)   # stage times go to metrics.jsonl; no measurable cost on PoCL
     trainer = Trainer(cfg, scene, rt, run, check_finite=args.check_finite)
@@ -340,7 +344,7 @@ def cmd_eval(args) -> int:
     cfg = run.read_config()
     iteration, model = run.load_model(args.iteration)
     scene = load_scene(cfg.scene, resolution=cfg.resolution, cache_dir=run.path / "undistorted",
-                       test_every=cfg.test_every, white_background=cfg.white_background)
+                       test_every=cfg.test_every, white_background=cfg.white_background, alpha_mask=cfg.alpha_mask)
     if not scene.test:
         raise InputError(run.config_path, "the run has no test views (test_every = 0)")
     rt = Runtime(args.device)

@@ -26,6 +26,7 @@ class TrainConfig:
     resolution: int | None = None
     test_every: int = 8
     white_background: bool = False
+    alpha_mask: bool = False               # images' alpha masks pixels out instead of being composited
     seed: int = 0
     sh_degree: int = SH_MAX_DEGREE
     save_at: tuple[int, ...] = ()          # PLYs at these iterations (the last one is always saved)

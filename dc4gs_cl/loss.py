@@ -15,6 +15,7 @@ SSIM_C2 = 0.03 ** 2
 SSIM_WINDOW = 11        # Gaussian window side (pixels, odd)
 SSIM_SIGMA = 1.5
 
+MASK_WG = 64            # work-group of mask_pixels (one item per pixel)
 STAT_KEYS = ("loss", "l1", "dssim", "mse")   # layout of the device stats buffer (sums over calls)
 
 
@@ -36,14 +37,14 @@ class Loss(Stage):
     512 floats and as fast as 4096; at 160x120 all equal; wg > 1 was 2.5x (seg 64, wg 4) to 11x (seg 1,
     wg 256) slower, PoCL not vectorising across work-items here. GPUs: one float per item, 256 per group.
     """
-    FILE, KERNELS = "loss.cl", ("loss_ssim", "loss_grad", "loss_reduce")
+    FILE, KERNELS = "loss.cl", ("loss_ssim", "loss_grad", "loss_reduce", "mask_pixels")
 
     def __init__(self, ctx: StageContext, seg: int | None = None, wg: int | None = None):
         super().__init__(ctx)
         self.seg = seg or (2304 if self.rt.caps.is_cpu else 1)
         self.wg = wg or (1 if self.rt.caps.is_cpu else 256)
         k = self.kernels()
-        self.k_ssim, self.k_grad, self.k_reduce = k["loss_ssim"], k["loss_grad"], k["loss_reduce"]
+        self.k_ssim, self.k_grad, self.k_reduce, self.k_mask = (k[name] for name in self.KERNELS)
         self.stats = self.rt.buffer(4 * len(STAT_KEYS))
         self.rt.fill(self.stats, np.float32(0), self.stats.size)
         self.calls = 0
@@ -52,23 +53,31 @@ class Loss(Stage):
         return {**loss_defines(), "SEG": self.seg, "WG": self.wg}
 
     def __call__(self, image: cl.Buffer, target: cl.Buffer, width: int, height: int,
-                 grad_out: cl.Buffer | None, stage: str = "loss") -> None:
+                 grad_out: cl.Buffer | None, stage: str = "loss", keep: cl.Buffer | None = None,
+                 kept: int = 0) -> None:
         """Write dL/dimage to grad_out ([H*W*3] float32) and add this image's loss, L1, SSIM and MSE to the
-        running stats. grad_out=None computes only the stats (evaluation)."""
+        running stats. grad_out=None computes only the stats (evaluation). keep: the view's mask (H x W
+        uint8, 0 = masked out; the target must be zero there) with `kept` pixels kept: the loss is the mean
+        over those, and dL/dimage at masked pixels is meaningless (the backward skips them)."""
         if width < 1 or height < 1:
             raise ValueError(f"image size {width} x {height}")
         rt, n3w, h = self.rt, 3 * width, height
         m = n3w * h
+        if keep is not None:
+            masked = self.ws.get("loss.masked", 4 * m)
+            rt.launch_items(stage, self.k_mask, width * h, MASK_WG, np.int32(width * h), image, keep, masked)
+            image = masked
+        scale = 3 * max(kept, 1) if keep is not None else m   # the floats the mean is over
         groups_x = -(-n3w // (self.seg * self.wg))
         shape, local = (groups_x * self.wg, h), (self.wg, 1)
         d = [self.ws.get(f"loss.d{q}", 4 * m) for q in range(3)]
         partial = self.ws.get("loss.partial", 4 * 3 * groups_x * h)
         args = (np.int32(n3w), np.int32(h))
-        rt.launch(stage, self.k_ssim, shape, local, *args, np.float32(-LAMBDA_DSSIM / m), image, target, *d, partial)
+        rt.launch(stage, self.k_ssim, shape, local, *args, np.float32(-LAMBDA_DSSIM / scale), image, target, *d, partial)
         if grad_out is not None:
-            rt.launch(stage, self.k_grad, shape, local, *args, np.float32((1 - LAMBDA_DSSIM) / m), image, target,
+            rt.launch(stage, self.k_grad, shape, local, *args, np.float32((1 - LAMBDA_DSSIM) / scale), image, target,
                       *d, grad_out)
-        rt.launch(stage, self.k_reduce, self.wg, self.wg, np.int32(groups_x * h), np.float32(1 / m), partial,
+        rt.launch(stage, self.k_reduce, self.wg, self.wg, np.int32(groups_x * h), np.float32(1 / scale), partial,
                   self.stats)
         self.calls += 1
         if grad_out is not None:

@@ -222,6 +222,7 @@ class RunFolder:
 
     def append_metrics(self, row: dict) -> None:
         try:
+            self.path.mkdir(parents=True, exist_ok=True)
             with open(self.metrics_path, "a", encoding="utf-8") as f:
                 f.write(json.dumps(row) + "\n")
         except OSError as e:

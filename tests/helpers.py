@@ -1,7 +1,10 @@
-"""Work shapes the device tests run in; random inputs come from dc4gs_cl.testing."""
+"""Work shapes the device tests run in; random inputs come from dc4gs_cl.testing; the tools' modules."""
 from __future__ import annotations
 
+import importlib.util
+import sys
 from dataclasses import replace
+from pathlib import Path
 
 from dc4gs_cl.render import Tuning
 from dc4gs_cl.testing import random_camera, random_model  # noqa: F401 (re-exported for the tests)
@@ -12,3 +15,13 @@ CPU_SHAPE = Tuning(pixels_per_item=256, batch=64, radix_bits=8, sort_blocks=8, s
 GPU_SHAPE = Tuning(pixels_per_item=1, batch=256, radix_bits=4, sort_blocks=512, scan_wg=256, scan_groups=64, isect_wg=256)
 MID_SHAPE = replace(CPU_SHAPE, pixels_per_item=16, batch=16, radix_bits=6, sort_blocks=37, scan_wg=16, scan_groups=5)
 SHAPES = {"cpu": CPU_SHAPE, "gpu": GPU_SHAPE, "mid": MID_SHAPE}
+
+
+def load_tool(name: str):
+    """A module of tools/ (not a package), e.g. load_tool("fuzz_inputs")."""
+    path = Path(__file__).resolve().parents[1] / "tools" / f"{name}.py"
+    spec = importlib.util.spec_from_file_location(name, path)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module      # dataclasses look their module up there
+    spec.loader.exec_module(module)
+    return module

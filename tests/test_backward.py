@@ -129,6 +129,36 @@ def test_rasterize_backward_kernel_matches_reference(rt, rng, shape, dc, pair_su
         assert err < (2e-3 if key in ("pixels", "dc") else 5e-4), (key, err)
 
 
+@pytest.mark.parametrize("shape", SHAPES)
+def test_rasterize_backward_with_a_mask_matches_reference(rt, rng, shape):
+    """A masked-out pixel adds no gradient and no statistic: the kernel's -D PIXEL_MASK variant against the
+    reference with those pixels left out, on a random mask (a block and scattered pixels)."""
+    from dataclasses import replace
+    model = random_model(rng, 1500, spread=1.0)
+    cam = random_camera(rng, int(rng.integers(80, 140)), int(rng.integers(60, 110)))
+    bg = rng.uniform(0, 1, 3)
+    renderer = Renderer(rt, replace(SHAPES[shape], pair_sums=True), poison=True)
+    res = renderer.render(DeviceGaussians(rt, model), cam, 3, bg)
+    dL_dimage = rng.normal(size=(cam.height, cam.width, 3)).astype(np.float32)
+    keep = rng.uniform(size=(cam.height, cam.width)) > 0.2
+    y, x = rng.integers(0, cam.height // 2), rng.integers(0, cam.width // 2)
+    keep[y:y + cam.height // 3, x:x + cam.width // 3] = False
+    layout = SumsLayout(stats=True, dc_stats=True)
+    sums = RasterizeBackward(renderer.context)(res, rt.to_device(dL_dimage), bg, layout,
+                                               keep=rt.to_device(keep.astype(np.uint8)))
+    n = len(model)
+    got = layout.views(rt.to_host(sums, (n, layout.width)).astype(np.float64))
+    p = download_projected(rt, res, n)
+    args = (p["mean2d"], p["conic_opacity"][:, :3], p["conic_opacity"][:, 3], p["rgb"], p["gaussian_of_pair"],
+            p["ranges"], cam.width, cam.height, res.tiles_x, bg, dL_dimage)
+    ref, unmasked = rasterize_backward_reference(*args, keep=keep), rasterize_backward_reference(*args)
+    assert ref["pixels"].sum() < 0.85 * unmasked["pixels"].sum()      # the mask takes pixels away
+    for key in got:
+        assert np.isfinite(got[key]).all()
+        err = np.linalg.norm(got[key] - ref[key]) / max(np.linalg.norm(ref[key]), 1e-30)
+        assert err < (2e-3 if key in ("pixels", "dc") else 5e-4), (key, err)
+
+
 def projection_case(rng, n=40):
     """Gaussians well inside a camera's view (so visibility and the FOV clamp do not change under small
     steps), plus a few beside it whose x/z is clamped, with SH colours away from the clamp at 0."""

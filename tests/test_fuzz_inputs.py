@@ -3,9 +3,7 @@ length, NaN/Inf, huge counts, wrong JSON types, wrong image sizes; paths with sp
 and every case must read as before or stop with one line naming the file. CI runs a fixed budget from a fresh
 seed (printed; DC4GS_TEST_SEED repeats it); `python tools/fuzz_inputs.py --cases 300` runs a larger one.
 Also the faults the fuzzer found or the issue named, each as its own regression test."""
-import importlib.util
 import struct
-import sys
 import zlib
 from pathlib import Path
 
@@ -15,12 +13,9 @@ import pytest
 from dc4gs_cl.cli import main
 from dc4gs_cl.errors import InputError
 from dc4gs_cl.scene import load_scene
+from helpers import load_tool
 
-_PATH = Path(__file__).resolve().parents[1] / "tools" / "fuzz_inputs.py"
-_spec = importlib.util.spec_from_file_location("fuzz_inputs", _PATH)
-fuzz_inputs = importlib.util.module_from_spec(_spec)
-sys.modules["fuzz_inputs"] = fuzz_inputs      # dataclasses look their module up there
-_spec.loader.exec_module(fuzz_inputs)
+fuzz_inputs = load_tool("fuzz_inputs")
 
 CASES_PER_FORMAT = 60   # CI budget: 17 formats x 60 = 1,020 cases (about 10 s on 2 cores)
 

@@ -57,6 +57,46 @@ def test_kernel_matches_reference(rt, rng, shape):
             assert stats[key] == pytest.approx(value, rel=1e-6), f"{w}x{h} {key}"
 
 
+def test_masked_reference_gradient_matches_finite_differences(rng):
+    y = rng.uniform(0.1, 0.9, (13, 17, 3))
+    x = y + rng.choice([-1.0, 1.0], y.shape) * rng.uniform(0.02, 0.1, y.shape)
+    keep = rng.uniform(size=y.shape[:2]) > 0.3
+    keep[2:8, 3:9] = False
+    g = ref.loss_gradient(x, y, keep=keep)
+    fd, step = np.empty_like(x), 1e-6
+    for i in np.ndindex(x.shape):
+        xp, xm = x.copy(), x.copy()
+        xp[i] += step
+        xm[i] -= step
+        fd[i] = (ref.loss_value(xp, y, keep=keep) - ref.loss_value(xm, y, keep=keep)) / (2 * step)
+    assert np.linalg.norm(fd - g) / np.linalg.norm(g) < 1e-6
+    assert not g[~keep].any()                              # a masked pixel's value changes nothing
+
+
+@pytest.mark.parametrize("shape", SHAPES)
+def test_masked_kernel_matches_reference(rt, rng, shape):
+    """A masked view: the loss is the mean over kept pixels, masked pixels equal in both images whatever the
+    render holds there (NaN included); the gradient is compared where pixels are kept (the backward reads
+    nothing else)."""
+    loss = Loss(StageContext(rt, poison=True), *SHAPES[shape])
+    for w, h in [(37, 23), (130, 97)]:
+        y = rng.uniform(0, 1, (h, w, 3))
+        x = np.clip(y + rng.normal(0, 0.2, y.shape), -0.05, 1.05)
+        keep = rng.uniform(size=(h, w)) > 0.25
+        keep[h // 4: h // 2, w // 3: w // 2] = False
+        x[~keep] = np.nan                                  # what a render holds under the mask must not matter
+        y = (y * keep[..., None]).astype(np.float32)       # the host zeroes the target under the mask
+        grad = rt.to_device(np.full(x.size, np.nan, np.float32))
+        loss(rt.to_device(x.astype(np.float32)), rt.to_device(y), w, h, grad,
+             keep=rt.to_device(keep.astype(np.uint8)), kept=int(keep.sum()))
+        grad, stats = rt.to_host(grad, x.shape), loss.read_stats()
+        x = np.nan_to_num(x).astype(np.float32)
+        want = ref.loss_gradient(x, y, keep=keep)
+        assert np.isfinite(grad[keep]).all()
+        assert np.linalg.norm(grad[keep] - want[keep]) / np.linalg.norm(want[keep]) < 1e-5, f"{w}x{h}"
+        assert stats["loss"] == pytest.approx(ref.loss_value(x, y, keep=keep), rel=1e-5), f"{w}x{h}"
+
+
 def test_identical_images(rt, rng):
     x = rng.uniform(0, 1, (41, 29, 3)).astype(np.float32)
     x[10:20, 5:15] = 0.5   # a flat patch: variances ~0, the C2-dominated case

@@ -21,8 +21,9 @@ class RasterizeBackward(Stage):
         return {**raster_defines(self.ctx), "PAIR_SUMS": int(self.ctx.tuning.pair_sums)}
 
     def __call__(self, res: RenderResult, dL_dimage: cl.Buffer, background, layout: SumsLayout,
-                 geometry: cl.Buffer | None = None) -> cl.Buffer:
-        """Per-Gaussian sums (N x layout.width floats); split sums need the view's split geometry."""
+                 geometry: cl.Buffer | None = None, keep: cl.Buffer | None = None) -> cl.Buffer:
+        """Per-Gaussian sums (N x layout.width floats); split sums need the view's split geometry. keep: the
+        view's mask (H x W uint8, 0 = masked out), whose masked pixels add nothing."""
         if layout.split_candidates and geometry is None:
             raise ValueError("split costs need the split geometry of the view")
         rt, pair_sums = self.rt, self.ctx.tuning.pair_sums
@@ -33,13 +34,13 @@ class RasterizeBackward(Stage):
         else:
             target = sums
             rt.fill(sums, np.float32(0), 4 * layout.width * n)
-        k = self.kernels(layout.defines())
+        k = self.kernels({**layout.defines(), "PIXEL_MASK": int(keep is not None)})
         items = TILE_SIZE * TILE_SIZE // self.ctx.tuning.pixels_per_item
         rt.launch("rasterize_backward", k["rasterize_backward"], res.tiles_x * res.tiles_y * items, items,
                   np.int32(res.width), np.int32(res.height), np.int32(res.tiles_x), background_value(background),
                   res.isect.ranges, res.isect.gaussian_of_pair, res.proj.mean2d, res.proj.conic_opacity,
                   res.proj.rgb, res.proj.alpha_extent, res.raster.final_T, res.raster.last_pair, dL_dimage,
-                  geometry if geometry is not None else sums, target)
+                  geometry if geometry is not None else sums, *([keep] if keep is not None else []), target)
         if pair_sums and n:
             rt.launch_items("rasterize_backward", k["sum_pairs"], n, PER_GAUSSIAN_WG, np.uint32(n),
                             res.proj.tiles_touched, res.isect.pair_first, res.isect.pair_of_emission, target,

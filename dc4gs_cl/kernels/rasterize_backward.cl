@@ -1,6 +1,8 @@
 // rasterize_backward.cl: tile rasterizer, backward. One work-group per tile (the forward's shape, see
 // raster.h), back to front from the last pair any of its pixels blended.
 //   in  dL_dimage [H*W*3]; final_T [H*W], last_pair [H*W]: from the forward; the rest as in rasterize.cl
+//       keep [H*W] uchar, -D PIXEL_MASK=1 only: 0 where the view is masked out; such a pixel is treated as
+//       one outside the image: it adds no gradient and no statistic (the loss also ignores it, loss.cl)
 //   out sums: per Gaussian, its terms summed over this view's pixels where it was blended (the SUM record:
 //       offsets SUM_<FIELD> and SUM_WIDTH are -D options from dc4gs_cl/backward/rasterize_backward.py,
 //       SumsLayout). Two designs (-D PAIR_SUMS):
@@ -28,6 +30,7 @@ REQUIRE_DEFINED(STATS);
 REQUIRE_DEFINED(DC_STATS);
 REQUIRE_DEFINED(SPLIT_CANDIDATES);
 REQUIRE_DEFINED(PAIR_SUMS);
+REQUIRE_DEFINED(PIXEL_MASK);
 
 // One pair: this work-item's pixels within the Gaussian's reach, walked back past the Gaussian; its terms
 // summed per column lane into lanes. with_split, a constant at each call, adds the split terms: each call
@@ -105,7 +108,11 @@ void rasterize_backward(const int width, const int height, const int tiles_x, co
                         __global const float *mean2d, __global const float *conic_opacity, __global const float *rgb,
                         __global const float *alpha_extent, __global const float *final_T,
                         __global const int *last_pair, __global const float *dL_dimage,
-                        __global const float *split_geometry, __global float *sums) {
+                        __global const float *split_geometry,
+#if PIXEL_MASK
+                        __global const uchar *keep,
+#endif
+                        __global float *sums) {
     const int tile = get_group_id(0), lid = get_local_id(0);
     const int x0 = (tile % tiles_x) * TILE_SIZE, y0 = (tile / tiles_x) * TILE_SIZE;
     const int first = ranges[2 * tile];
@@ -138,6 +145,9 @@ void rasterize_backward(const int width, const int height, const int tiles_x, co
         int x = x0 + q % TILE_SIZE, y = y0 + q / TILE_SIZE;
         int inside = x < width && y < height;
         int pix = inside ? y * width + x : 0;
+#if PIXEL_MASK
+        inside = inside && keep[pix];
+#endif
         px[p] = (float)x + 0.5f;
         py[p] = (float)y + 0.5f;
         T[p] = inside ? final_T[pix] : 1.f;

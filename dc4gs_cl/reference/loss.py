@@ -46,20 +46,32 @@ def ssim_map(x, y) -> np.ndarray:
     return A * B / (C * D)
 
 
-def loss_value(x, y, lam: float = LAMBDA_DSSIM) -> float:
+def masked(x, y, keep=None) -> tuple[np.ndarray, np.ndarray, int]:
+    """x and y in float64, zero where keep (H, W) is False, and the number of floats the loss averages over
+    (the kept ones; all without a mask)."""
     x, y = np.asarray(x, np.float64), np.asarray(y, np.float64)
-    return float((1 - lam) * np.abs(x - y).mean() + lam * (1 - ssim_map(x, y).mean()))
+    if keep is None:
+        return x, y, x.size
+    k = np.asarray(keep, bool)[..., None]
+    return x * k, y * k, max(3 * int(k.sum()), 1)
 
 
-def loss_gradient(x, y, lam: float = LAMBDA_DSSIM) -> np.ndarray:
+def loss_value(x, y, lam: float = LAMBDA_DSSIM, keep=None) -> float:
+    """The loss, a mean over the pixels keep keeps (all without a mask); masked pixels count as zero in both."""
+    x, y, m = masked(x, y, keep)
+    return float(((1 - lam) * np.abs(x - y).sum() + lam * (1 - ssim_map(x, y)).sum()) / m)
+
+
+def loss_gradient(x, y, lam: float = LAMBDA_DSSIM, keep=None) -> np.ndarray:
     """dL/dx. S = AB/(CD) depends on x through mu_x, E[x^2] and E[xy]; the blur is its own adjoint, so
-    d mean(S)/dx = (blur(dS/dmu_x) + 2 x blur(dS/dE[x^2]) + y blur(dS/dE[xy])) / M."""
-    x, y = np.asarray(x, np.float64), np.asarray(y, np.float64)
+    d mean(S)/dx = (blur(dS/dmu_x) + 2 x blur(dS/dE[x^2]) + y blur(dS/dE[xy])) / M. With a mask, zero at
+    masked pixels (x enters as x * keep)."""
+    x, y, m = masked(x, y, keep)
     mx, my, A, B, C, D = _moments(x, y)
     S = A * B / (C * D)
     dmu = S * (2 * my / A - 2 * my / B - 2 * mx / C + 2 * mx / D)
     dxx = -S / D
     dxy = 2 * S / B
-    m = x.size
     dssim = (blur(dmu) + 2 * x * blur(dxx) + y * blur(dxy)) / m
-    return (1 - lam) * np.sign(x - y) / m - lam * dssim
+    grad = (1 - lam) * np.sign(x - y) / m - lam * dssim
+    return grad if keep is None else grad * np.asarray(keep, bool)[..., None]

@@ -71,7 +71,7 @@ def _tile_blend(mean2d, conic, opacity, g, xs, ys):
 
 
 def rasterize_backward_reference(mean2d, conic, opacity, rgb, gaussian_of_pair, ranges, width: int, height: int,
-                                 tiles_x: int, background, dL_dimage, split=None) -> dict[str, np.ndarray]:
+                                 tiles_x: int, background, dL_dimage, split=None, keep=None) -> dict[str, np.ndarray]:
     """Gradients of sum(image * dL_dimage) with respect to the rasterizer's per-Gaussian inputs, and the
     densification statistics, in closed form per tile (reverse cumulative sums over each tile's list):
         mean2d (N, 2) px, conic (N, 3), opacity (N,), rgb (N, 3);
@@ -81,6 +81,7 @@ def rasterize_backward_reference(mean2d, conic, opacity, rgb, gaussian_of_pair, 
         dc4gs.split_geometry_reference: split (N, C, 5), for each candidate the sums (u_x, u_y, count,
         |g_x|, |g_y|) over the pixels with |g| > 0 on its left, decided as the paper's algorithm 3 does:
         left when (end - candidate) . (pixel - candidate) < 0.
+    keep (H, W) bool: a mask; the pixels it masks out take no part (no gradient, no statistic).
     No gradient flows through alpha where min(ALPHA_MAX, o G) clamps."""
     n = len(mean2d)
     out = {"mean2d": np.zeros((n, 2)), "conic": np.zeros((n, 3)), "opacity": np.zeros(n), "rgb": np.zeros((n, 3)),
@@ -95,6 +96,9 @@ def rasterize_backward_reference(mean2d, conic, opacity, rgb, gaussian_of_pair, 
             continue
         y0, x0 = (tile // tiles_x) * K.TILE_SIZE, (tile % tiles_x) * K.TILE_SIZE
         ys, xs = np.mgrid[y0:min(y0 + K.TILE_SIZE, height), x0:min(x0 + K.TILE_SIZE, width)]
+        if keep is not None:
+            kept = keep[ys, xs]
+            ys, xs = ys[kept], xs[kept]
         if ys.size == 0:
             continue
         g = np.asarray(gaussian_of_pair[first:end])

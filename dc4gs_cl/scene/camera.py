@@ -29,6 +29,7 @@ class Camera:
     t: np.ndarray                  # (3,) float64 world-to-camera translation
     image_path: Path | None = None  # file the pixels come from (None: a generated scene)
     source_size: tuple[int, int] | None = None  # (width, height) the file must have
+    mask_path: Path | None = None   # its mask (scene/masks.py), of the source size; None: every pixel counts
 
     def at_resolution(self, resolution: int | None, max_width: int | None = None) -> "Camera":
         """This camera after the CLI's -r: 1/resolution of its size, or (None) its size but at most
@@ -89,6 +90,8 @@ class Scene:
     colors: np.ndarray | None      # (P, 3) float32 in [0, 1]
     background: np.ndarray         # (3,) float32 in [0, 1]; RGBA images are composited onto it
     read_image: Callable[[Camera], np.ndarray] = field(repr=False)  # -> (H, W, 3) float32 in [0, 1]
+    read_mask: Callable[[Camera], np.ndarray | None] = field(repr=False, default=lambda cam: None)
+    # -> (H, W) bool, True where a pixel counts (scene/masks.py), or None: all count
     extent: float = 0.0            # filled by __post_init__ from the training cameras
 
     def __post_init__(self):
@@ -98,11 +101,15 @@ class Scene:
     def image(self, cam: Camera) -> np.ndarray:
         return self.read_image(cam)
 
+    def mask(self, cam: Camera) -> np.ndarray | None:
+        return self.read_mask(cam)
+
     def read_all_images(self) -> None:
-        """Decode every view's image now (they are kept once decoded), so that a damaged file stops a
-        command before it writes anything rather than midway."""
+        """Decode every view's image and mask now (they are kept once decoded), so that a damaged file stops
+        a command before it writes anything rather than midway."""
         for cam in self.train + self.test:
             self.read_image(cam)
+            self.read_mask(cam)
 
 
 def scene_extent(cameras: list[Camera]) -> float:

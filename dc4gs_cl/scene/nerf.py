@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import math
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -72,6 +73,13 @@ def _read_transforms(path: Path, distorted: dict[str, pycolmap.Camera]) -> list[
             check_size(image, header, size, path)
             R, t = _world_to_camera(_numbers(frame["transform_matrix"], "transform_matrix"), path, i)
             camera, dist = make_camera(name, image, _colmap_camera(info, size, path), R, t, path)
+            if "mask_path" in frame:   # nerfstudio's per-frame mask (scene/masks.py)
+                if not isinstance(frame["mask_path"], str):
+                    raise TypeError(f"mask_path must be a string, not {json.dumps(frame['mask_path'])[:40]}")
+                mask = path.parent / frame["mask_path"]
+                if not mask.is_file():
+                    raise InputError(path, f"frame {i}: mask {mask} not found")
+                camera = replace(camera, mask_path=mask)
         except (KeyError, TypeError, ValueError) as e:
             raise InputError(path, f"frame {i}: malformed entry ({type(e).__name__}: {e})") from None
         cameras.append(camera)
