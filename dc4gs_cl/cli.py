@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from . import report
+from . import export, report, viewer
 from .config import RECIPE_ITERATIONS
 from .errors import DeviceError, InputError, OutputError
 from .files import replace_folder, staging_folder
@@ -23,6 +23,7 @@ from .host.densify import STRATEGIES as STRATEGY_NAMES
 from .host.densify.dc4gs import DCC_READINGS, DENSE_CANDIDATES, POOLINGS, SPLIT_PICKS
 from .scene.builtin import BUILTIN_SCENE
 from .train.log import DEFAULT_LINE_EVERY
+from .viewer import DEFAULT_PORT
 
 BUILTIN_ITERATIONS = 5_000   # the default run on the built-in scene: about five minutes on 2 CPU cores
 
@@ -132,6 +133,10 @@ def build_parser() -> argparse.ArgumentParser:
                         "about 17%% less device memory, as fast, not bit-reproducible from run to run")
     p.add_argument("--resume", action="store_true", help="continue the run in --out from its checkpoint")
     p.add_argument("--force", action="store_true", help="replace a previous run's files in --out")
+    p.add_argument("--viewer", action="store_true",
+                   help="watch training in the browser (the viewer extra; see `view`): while a browser is connected, "
+                        "at most 2 frames a second, each a render training waits for; none costs nothing")
+    p.add_argument("--port", type=int, default=DEFAULT_PORT, help=f"with --viewer: the viewer's port ({DEFAULT_PORT})")
     p.add_argument("--no-progress", action="store_true", help="no progress display")
     p.add_argument("--log-every", type=int, default=DEFAULT_LINE_EVERY,
                    help="when the output is not a terminal (a log file, a job scheduler), one progress line every N "
@@ -139,6 +144,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--profile", action="store_true", help="print per-stage device time per iteration at the end")
     _add_check_finite(p)
     _add_device(p)
+
+    p = sub.add_parser("view", help="look at a trained run or a PLY in the browser, rendered by dc4gs-cl's own "
+                                    "renderer, with the training cameras (the viewer extra)")
+    viewer.add_arguments(p)
+    _add_device(p)
+
+    p = sub.add_parser("export", help="write a trained model or a 3DGS PLY for other viewers: .splat, .spz, "
+                                      "PlayCanvas compressed PLY or PLY")
+    export.add_arguments(p)
 
     p = sub.add_parser("report", help="draw training runs' metrics (curves, runs overlaid, test views beside ground "
                                       "truth) to one HTML page or a PNG")
@@ -299,6 +313,11 @@ def cmd_train(args) -> int:
     scene.read_all_images()
     rt = Runtime(args.device, profiling=True)   # stage times go to metrics.jsonl; no measurable cost on PoCL
     trainer = Trainer(cfg, scene, rt, run, check_finite=args.check_finite)
+    live = None
+    if args.viewer:   # before anything is written: a port in use stops the command
+        from .render import Renderer
+        live = viewer.Viewer(rt, Renderer(rt), scene.train, port=args.port, background=scene.background,
+                             images=scene.image, points=scene.points)
     if args.resume:
         checkpoint = trainer.resume()
         for corrupt in checkpoint.passed_over:
@@ -311,12 +330,17 @@ def cmd_train(args) -> int:
           f"{scene.train[0].width}x{scene.train[0].height}), strategy {trainer.strategy.label}, {cfg.iterations:,} iterations, "
           f"{trainer.model.n:,} initial Gaussians\noutput: {run}", file=sys.stderr)
     start, first = time.perf_counter(), trainer.iteration
+    if live is not None:
+        print(f"viewer: {live.url}", file=sys.stderr)
     try:
-        trainer.run(progress=progress_mode(args.no_progress), line_every=args.log_every)
+        trainer.run(progress=progress_mode(args.no_progress), line_every=args.log_every, viewer=live)
     except Stopped as e:
         print(f"{e} at iteration {trainer.iteration}; a checkpoint is in {run}. Continue with: "
               f"dc4gs-cl train --out {run} --resume", file=sys.stderr)
         return 128 + e.signum
+    finally:
+        if live is not None:
+            live.close()
     seconds = time.perf_counter() - start
     if args.profile:
         done = trainer.log.profiled_iterations
@@ -357,7 +381,8 @@ def cmd_eval(args) -> int:
 
 
 COMMANDS = {"devices": cmd_devices, "render": cmd_render, "train": cmd_train, "eval": cmd_eval,
-            "report": report.cmd_report}
+            "report": report.cmd_report, "view": viewer.cmd_view,
+            "export": export.cmd_export}
 
 
 def main(argv: list[str] | None = None) -> int:

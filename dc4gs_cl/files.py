@@ -5,6 +5,7 @@ one folder is atomic); a folder of renders is filled under a temporary name and 
 """
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import secrets
@@ -36,11 +37,17 @@ def write_atomic(path: str | os.PathLike, write: Callable[[Path], None], keep_pr
             os.replace(path, keep_previous)
         os.replace(tmp, path)
     except OSError as e:
-        tmp.unlink(missing_ok=True)
+        _remove(tmp)
         raise OutputError(path, f"cannot write: {e.strerror or e}") from e
     except BaseException:
-        tmp.unlink(missing_ok=True)
+        _remove(tmp)
         raise
+
+
+def _remove(tmp: Path) -> None:
+    """Remove a temporary file if there is one; where its folder cannot exist (a file in the way) neither can it."""
+    with contextlib.suppress(OSError):
+        tmp.unlink()
 
 
 def write_json(path: str | os.PathLike, data) -> None:

@@ -80,7 +80,7 @@ def read_ply(path: str | os.PathLike) -> GaussianModel:
     properties, or NaN/Inf values."""
     try:
         with open(path, "rb") as f:
-            order, elements = _read_header(path, f)
+            order, elements = read_header(path, f)
             index = next((i for i, e in enumerate(elements) if e["name"] == "vertex"), None)
             if index is None:
                 raise InputError(path, "no 'vertex' element")
@@ -100,7 +100,7 @@ def read_ply(path: str | os.PathLike) -> GaussianModel:
     return _to_model(path, cols, names)
 
 
-def _read_header(path, f) -> tuple[str | None, list[dict]]:
+def read_header(path, f) -> tuple[str | None, list[dict]]:
     """Byte order ('<', '>', or None for ASCII) and the elements, each {name, count, props}; props maps
     a property name to its NumPy type, or for a list property to None (with the types in `lists`)."""
     if f.readline(8).rstrip(b"\r\n") != b"ply":

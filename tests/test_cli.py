@@ -21,7 +21,7 @@ def run_cli(*args) -> subprocess.CompletedProcess:
 def test_help_lists_the_commands():
     out = run_cli("--help")
     assert out.returncode == 0
-    for command in ("devices", "render", "train", "eval"):
+    for command in ("devices", "render", "train", "eval", "view", "export", "report"):
         assert command in out.stdout
 
 

@@ -82,6 +82,16 @@ def test_a_track_pointing_at_a_missing_observation_is_refused(tmp_path, rng):
     assert "images.bin does not hold" in stops_naming(points, load_scene, points.parents[2])
 
 
+def test_an_image_name_that_is_not_utf8_is_named(tmp_path, rng):
+    """Found by the fuzzer (a flipped byte in images.txt): pycolmap's image name raised UnicodeDecodeError."""
+    model = build("colmap txt images", tmp_path, rng)
+    images = model.parent / "images.txt" if model.is_file() else model / "images.txt"
+    data = images.read_bytes()
+    at = data.index("é".encode())
+    images.write_bytes(data[:at] + b"\xcd" + data[at + 2:])      # a lead byte followed by no continuation
+    assert "not UTF-8" in stops_naming(images, load_scene, images.parents[2])
+
+
 def test_a_colmap_text_file_cut_within_its_last_line_is_truncated(tmp_path, rng):
     points = build("colmap txt points3D", tmp_path, rng)
     points.write_bytes(points.read_bytes()[:-3])      # a shorter last number still parses

@@ -68,7 +68,7 @@ def test_nerfstudio_mask_path_and_alpha_mask(tmp_path, rng):
     by_name = {c.name: c for c in scene.train}
     alpha = scene.mask(by_name[meta["frames"][1]["file_path"]])
     x = (np.arange(W) / W)[None].repeat(H, 0)
-    assert alpha[:, x[0] > 0.35].all() and not alpha[:, x[0] < 0.15].any()
+    assert alpha[:, x[0] > 0.45].all() and not alpha[:, x[0] < 0.12].any()   # 0.5 at x = 0.29; noise 0.02
     first = scene.mask(by_name[meta["frames"][0]["file_path"]])
     assert not (first & ~keep).any() and (first != keep).any()
 

@@ -150,16 +150,20 @@ def read_colmap(root: Path) -> tuple[list[Camera], dict[str, pycolmap.Camera], n
         if not img.has_pose:  # an image COLMAP could not register has no pose to train with
             continue
         cam = rec.cameras[img.camera_id]
-        path = root / "images" / img.name
+        try:
+            name = img.name
+        except UnicodeDecodeError:   # pycolmap hands names out as UTF-8
+            raise InputError(_model_file(d, "images"), f"image {img.image_id}: its name is not UTF-8") from None
+        path = root / "images" / name
         if not path.is_file():
             raise InputError(path, f"image listed in the COLMAP model {d} not found")
         pose = img.cam_from_world()
-        camera, dist = make_camera(img.name, path, cam, pose.rotation.matrix(), pose.translation, cameras_file,
+        camera, dist = make_camera(name, path, cam, pose.rotation.matrix(), pose.translation, cameras_file,
                                    pose_where=_model_file(d, "images"))
         check_size(path, image_size(path), (cam.width, cam.height), cameras_file)
         cameras.append(camera)
         if dist is not None:
-            distorted[img.name] = dist
+            distorted[name] = dist
     if not cameras:
         raise InputError(_model_file(d, "images"), "no registered images")
 

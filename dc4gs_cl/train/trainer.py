@@ -206,12 +206,12 @@ class Trainer:
             log.resume()
         return result
 
-    def run(self, progress: str = "bar", line_every: int = DEFAULT_LINE_EVERY) -> None:
+    def run(self, progress: str = "bar", line_every: int = DEFAULT_LINE_EVERY, viewer=None) -> None:
         """Train to cfg.iterations, evaluating the test views at the schedule's evaluation points before the
         last (the caller evaluates the last, with renders), and logging to the run folder's metrics file.
         progress: "bar", "lines" (one every line_every iterations) or "none" (train/log.py). Ctrl-C (SIGINT)
         or SIGTERM (what job schedulers send) stops at the next iteration boundary after a checkpoint,
-        raising Stopped."""
+        raising Stopped. viewer: a viewer.Viewer shown the model between iterations (live training)."""
         stop = {"signal": None}
         main_thread = threading.current_thread() is threading.main_thread()
         previous = {sig: signal.signal(sig, lambda signum, _: stop.update(signal=signum))
@@ -226,6 +226,9 @@ class Trainer:
                     raise Stopped(stop["signal"])
                 self.step()
                 self.log.step()
+                if viewer is not None:   # returns at once while no browser is connected
+                    viewer.publish(self.params, self.sh_degree, self.iteration,
+                                   stopping=lambda: stop["signal"] is not None)
                 if self.iteration % SAMPLE_EVERY == 0 or self.iteration == self.cfg.iterations:
                     stats = self.loss.read_stats()
                     self.log.sample(self.iteration, stats["loss"], stats["mse"], self.model.n)

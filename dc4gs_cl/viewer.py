@@ -1,0 +1,449 @@
+"""A browser viewer on viser: the picture is rendered by our OpenCL renderer (the trainer's own pipeline) and sent
+to each browser tab as its background image; viser supplies the page, the orbit controls and the training
+cameras' frustums.
+
+    dc4gs-cl view RUN_FOLDER | FILE.ply [--scene S] [--port P] [--host H] [--iteration N] [--device D]
+
+Frames are rendered in one background thread, one browser tab after another, each at the tab's latest camera
+(camera messages that arrive during a render coalesce into one frame): at MOVING_SCALE of the size while the
+camera moves, full size once it has been still for SETTLE_SECONDS. The renderer and the device are not
+thread-safe: every render holds `Viewer.lock`.
+
+Live training: the trainer calls `publish()` once per iteration from its own thread. With no browser connected
+that returns at once; otherwise it renders at most LIVE_FRAMES_PER_SECOND frames per tab, in the training thread
+between two iterations, so training never shares the device with the viewer's thread.
+
+viser is optional (the `viewer` extra): this module imports without it and its entry points raise InputError.
+"""
+from __future__ import annotations
+
+import argparse
+import contextlib
+import errno
+import io
+import math
+import socket
+import sys
+import threading
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Callable
+
+import numpy as np
+
+from .errors import InputError
+from .scene.camera import Camera, scene_extent
+from .scene.images import resize
+
+if TYPE_CHECKING:
+    import viser
+
+    from .render import DeviceGaussians, Renderer
+    from .runtime import Runtime
+
+DEFAULT_PORT = 8080
+DEFAULT_HOST = "127.0.0.1"       # this machine only: the viewer has no password
+MAX_FRAME_SIDE = 640             # px: a still frame is the canvas scaled down to fit this; a GUI slider changes it
+FRAME_SIDE_SLIDER = (128, 4096, 32)  # px: that slider's range and step
+MOVING_SCALE = 0.5               # frames while the camera moves, relative to a still frame (a quarter the pixels)
+SETTLE_SECONDS = 0.25            # a camera unmoved this long gets a full-size frame
+LIVE_FRAMES_PER_SECOND = 2.0     # while training: each frame is a render the training waits for
+SIGNAL_POLL_SECONDS = 0.2        # serve_forever() wakes this often, so that Ctrl-C stops it
+PAUSE_POLL_SECONDS = 0.1         # while training is paused: how often publish() looks at the checkbox
+JPEG_QUALITY = 90
+FRUSTUM_SCALE = 0.05             # frustum depth, as a fraction of the cameras' extent
+FRUSTUM_COLOR = (255, 120, 0)
+FRUSTUM_LINE_PX = 2.0
+THUMBNAIL_WIDTH = 128            # px: training images on the frustums
+HOME_FOV_Y = math.radians(60)    # first view of a model without cameras: vertical field of view,
+HOME_DIRECTION = np.array([1.0, 1.0, 0.6]) / np.linalg.norm([1.0, 1.0, 0.6])  # direction from the model's centre,
+HOME_DISTANCE = 2.5              # and distance in units of its radius (the 90th percentile of the means' distances)
+Z_UP = np.array([0.0, 0.0, 1.0])
+VIEWER_EXTRA = 'pip install "dc4gs-cl[viewer]"'
+
+
+def _viser():
+    """The viser module, or InputError saying how to install it."""
+    try:
+        import viser
+        import viser.transforms  # noqa: F401  (the conversions below use it)
+    except ImportError:
+        raise InputError(None, f"the viewer needs viser, which is not installed: {VIEWER_EXTRA}") from None
+    return viser
+
+
+# cameras ----------------------------------------------------------------------------------------------------
+# viser's cameras use our axes (OpenCV: x right, y down, z forward) but store camera-to-world: wxyz is the
+# rotation R_world_camera and position the camera centre. Its field of view is vertical, and the background
+# image is stretched over the whole canvas.
+
+def view_camera(wxyz, position, fov_y: float, aspect: float, width: int, height: int, name: str = "viewer") -> Camera:
+    """Our camera for a viser pose, rendering a width x height image that fills a canvas of this aspect
+    (width / height) and vertical field of view: principal point at the centre, fx set by the aspect, so a
+    frame whose size rounds the aspect still covers the canvas exactly."""
+    R = _viser().transforms.SO3(np.asarray(wxyz, np.float64)).as_matrix().T
+    tan_half = math.tan(0.5 * fov_y)
+    fy = 0.5 * height / tan_half
+    fx = 0.5 * width / (aspect * tan_half)
+    return Camera(name, width, height, fx, fy, 0.5 * width, 0.5 * height, R, -R @ np.asarray(position, np.float64))
+
+
+def viser_pose(cam: Camera) -> tuple[np.ndarray, np.ndarray, float, float]:
+    """(wxyz, position, vertical fov, aspect) of our camera as viser takes them (frustums, client cameras);
+    the principal point is taken as centred."""
+    wxyz = _viser().transforms.SO3.from_matrix(cam.R.T).wxyz
+    return wxyz, cam.center, 2 * math.atan(0.5 * cam.height / cam.fy), (cam.width / cam.fx) / (cam.height / cam.fy)
+
+
+def frame_size(canvas_width: int, canvas_height: int, max_side: int, scale: float = 1.0) -> tuple[int, int]:
+    """The frame for a canvas: its size scaled to fit max_side, times scale."""
+    s = scale * min(1.0, max_side / max(canvas_width, canvas_height))
+    return max(1, round(canvas_width * s)), max(1, round(canvas_height * s))
+
+
+def _home_view(cameras: list[Camera], points: np.ndarray | None) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+    """(position, look_at, up, vertical fov) of the first view: the first camera's, orbiting about the points'
+    centre at its depth; without cameras, the points seen from HOME_DIRECTION."""
+    centre, radius = np.zeros(3), 1.0
+    if points is not None and len(points):
+        centre = np.median(points, axis=0).astype(np.float64)
+        radius = float(np.percentile(np.linalg.norm(points - centre, axis=1), 90)) or 1.0
+    if not cameras:
+        return centre + HOME_DISTANCE * radius * HOME_DIRECTION, centre, Z_UP, HOME_FOV_Y
+    up = -np.mean([c.R[1] for c in cameras], axis=0)   # image y points down
+    up = up / np.linalg.norm(up) if np.linalg.norm(up) > 1e-6 else Z_UP
+    cam = cameras[0]
+    forward = cam.R[2]
+    depth = float(forward @ (centre - cam.center)) if points is not None else 0.0
+    depth = depth if depth > 0 else scene_extent(cameras)
+    return cam.center, cam.center + depth * forward, up, viser_pose(cam)[2]
+
+
+# the server -------------------------------------------------------------------------------------------------
+
+def check_address(host: str, port: int) -> None:
+    """InputError naming the flag when the viewer cannot listen on host:port. viser itself would quietly take
+    the next free port, and retry forever on an address that is not this machine's."""
+    if not 0 <= port <= 65535:
+        raise InputError(None, f"--port {port}: not a port number (0 to 65535)")
+    try:
+        addresses = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM, flags=socket.AI_PASSIVE)
+    except socket.gaierror as e:
+        raise InputError(None, f"--host {host}: {e.strerror}") from None
+    for family, kind, proto, _, address in addresses:
+        with socket.socket(family, kind, proto) as s:
+            s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)   # as asyncio's server: TIME_WAIT is free
+            try:
+                s.bind(address)
+            except OSError as e:
+                if e.errno == errno.EADDRINUSE:
+                    raise _port_taken(port) from None
+                raise InputError(None, f"--host {host}: cannot listen there ({e.strerror})") from None
+
+
+def _quiet():
+    """viser prints its own banner and farewell on stdout; the command says where it serves on stderr."""
+    return contextlib.redirect_stdout(io.StringIO())
+
+
+def _port_taken(port: int) -> InputError:
+    return InputError(None, f"--port {port}: already in use (another viewer?); choose another with --port")
+
+
+@dataclass
+class _Model:
+    gaussians: "DeviceGaussians"
+    sh_degree: int
+    iteration: int | None
+    live: bool          # the trainer's parameters: rendered only inside publish(), in the training thread
+
+
+@dataclass
+class _View:
+    """One browser tab."""
+    client: "viser.ClientHandle"
+    moved_at: float = -math.inf   # time.monotonic() of its latest camera message
+    stale: bool = True            # camera or model changed since its last frame
+    sharp: bool = False           # its last frame was full size
+    camera: Camera | None = None  # the camera of its last full-size frame
+
+
+class Viewer:
+    def __init__(self, rt: "Runtime", renderer: "Renderer", cameras: list[Camera], port: int = DEFAULT_PORT,
+                 host: str = DEFAULT_HOST, background=(0.0, 0.0, 0.0),
+                 images: Callable[[Camera], np.ndarray] | None = None, points: np.ndarray | None = None,
+                 max_side: int = MAX_FRAME_SIDE):
+        """Serve on host:port (port 0: any free port; see `url`). cameras: shown as frustums (click one to look
+        through it); images: a camera's (H, W, 3) picture, offered on the frustums; points (N, 3): what the
+        first view frames (the model's means); max_side: px, the largest side of a still frame (a GUI slider
+        changes it). Nothing is drawn until show() or publish()."""
+        viser = _viser()
+        check_address(host, port)
+        self.rt, self.renderer, self.cameras = rt, renderer, list(cameras)
+        self.background = np.asarray(background, np.float32)
+        self.lock = threading.Lock()   # the device: held by every render, and by show()
+        self._model: _Model | None = None
+        self._views: dict[int, _View] = {}
+        self._wake = threading.Condition()
+        self._closing = threading.Event()
+        self._next_live_frame = 0.0
+        self._pause = None             # the "Pause training" checkbox, added by the first publish()
+        self._last_frame = ""
+
+        with _quiet():
+            self.server = viser.ViserServer(host=host, port=port, verbose=False)
+        if port and self.server.get_port() != port:   # taken between check_address and viser's bind
+            with _quiet():
+                self.server.stop()
+            raise _port_taken(port)
+        self.server.gui.configure_theme(show_share_button=False)   # sharing opens a public tunnel
+        self.host = host
+        position, look_at, up, fov_y = _home_view(self.cameras, points)
+        self.server.scene.set_up_direction(up)
+        home = self.server.initial_camera
+        home.position, home.look_at, home.up, home.fov = position, look_at, up, fov_y
+        self._status = self.server.gui.add_markdown("waiting for a model")
+        low, high, step = FRAME_SIDE_SLIDER
+        self._max_side = self.server.gui.add_slider("Frame size (px)", min=low, max=high, step=step,
+                                                    initial_value=max_side)
+        self._max_side.on_update(lambda _: self._model_changed())
+        self._add_frustums(images)
+        self.server.on_client_connect(self._connected)
+        self.server.on_client_disconnect(self._disconnected)
+        self._worker = threading.Thread(target=self._serve, name="viewer", daemon=True)
+        self._worker.start()
+
+    @property
+    def url(self) -> str:
+        host = "localhost" if self.host in ("0.0.0.0", "::") else self.host
+        return f"http://{host}:{self.server.get_port()}"
+
+    def __enter__(self) -> "Viewer":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def close(self) -> None:
+        self._closing.set()
+        with self._wake:
+            self._wake.notify_all()
+        self._worker.join()
+        with _quiet():
+            self.server.stop()
+
+    def serve_forever(self) -> None:
+        """Block until close() (from another thread) or Ctrl-C, whose KeyboardInterrupt propagates."""
+        while not self._closing.wait(SIGNAL_POLL_SECONDS):   # SIGINT may reach another thread: Python acts on it
+            pass                                              # only when the main thread wakes
+
+    # what is shown ----------------------------------------------------------------------------------------
+    def show(self, gaussians: "DeviceGaussians", sh_degree: int, iteration: int | None = None) -> None:
+        """Show these Gaussians from now on, rendered in the viewer's thread: from here on, other device work on
+        the same Runtime must hold `lock` (the trainer's publish() needs none)."""
+        with self.lock:
+            self._model = _Model(gaussians, sh_degree, iteration, live=False)
+        if self._pause is not None:
+            self._pause.remove()
+            self._pause = None
+        self._model_changed()
+
+    def publish(self, gaussians: "DeviceGaussians", sh_degree: int, iteration: int,
+                stopping: Callable[[], bool] | None = None) -> None:
+        """The trainer's hook, called after each iteration from the training thread. Nobody watching: returns at
+        once. Otherwise renders every tab, at most LIVE_FRAMES_PER_SECOND times a second, here, between two
+        iterations; and while "Pause training" is ticked, keeps rendering camera moves here until it is
+        unticked, the last tab closes, or stopping() says the run is being stopped (Ctrl-C)."""
+        if not self._views:
+            return
+        with self.lock:
+            self._model = _Model(gaussians, sh_degree, iteration, live=True)
+        if self._pause is None:
+            self._pause = self.server.gui.add_checkbox("Pause training", initial_value=False)
+        now = time.monotonic()
+        if now >= self._next_live_frame:
+            self._next_live_frame = now + 1.0 / LIVE_FRAMES_PER_SECOND
+            self._model_changed()
+            self._render_due(in_training=True)
+        while (self._pause.value and self._views and not self._closing.is_set()
+               and not (stopping is not None and stopping())):
+            self._render_due(in_training=True)
+            with self._wake:
+                self._wake.wait(PAUSE_POLL_SECONDS)
+
+    def frame_cameras(self) -> dict[int, Camera]:
+        """Each tab whose picture is up to date, full size: the camera it was rendered from (by client id)."""
+        return {k: v.camera for k, v in list(self._views.items()) if v.sharp and not v.stale and v.camera}
+
+    def _model_changed(self) -> None:
+        for view in list(self._views.values()):
+            view.stale = True
+        self._update_status()
+        self._notify()
+
+    def _update_status(self) -> None:
+        model = self._model
+        if model is None:
+            return
+        text = f"**{model.gaussians.n:,} Gaussians**, SH degree {model.sh_degree}"
+        if model.iteration is not None:
+            text += f", iteration {model.iteration:,}"
+        self._status.content = text + self._last_frame
+
+    # frustums ---------------------------------------------------------------------------------------------
+    def _add_frustums(self, images: Callable[[Camera], np.ndarray] | None) -> None:
+        if not self.cameras:
+            return
+        scale = FRUSTUM_SCALE * scene_extent(self.cameras)
+        frustums = []
+        for i, cam in enumerate(self.cameras):
+            wxyz, position, fov_y, aspect = viser_pose(cam)
+            frustum = self.server.scene.add_camera_frustum(
+                f"/cameras/{i}", fov=fov_y, aspect=aspect, scale=scale, wxyz=wxyz, position=position,
+                color=FRUSTUM_COLOR, thickness=FRUSTUM_LINE_PX, thickness_units="screen")
+            frustum.on_click(lambda event, cam=cam: self._look_through(event.client, cam))
+            frustums.append(frustum)
+        shown = self.server.gui.add_checkbox("Training cameras", initial_value=True)
+
+        @shown.on_update
+        def _(_) -> None:
+            for frustum in frustums:
+                frustum.visible = shown.value
+        if images is None:
+            return
+        pictures = self.server.gui.add_checkbox("Training images", initial_value=False)
+
+        @pictures.on_update
+        def _(_) -> None:   # read on first use: a large scene's images take a while
+            for cam, frustum in zip(self.cameras, frustums):
+                height = max(1, round(THUMBNAIL_WIDTH * cam.height / cam.width))
+                frustum.image = resize(images(cam), THUMBNAIL_WIDTH, height) if pictures.value else None
+
+    @staticmethod
+    def _look_through(client: "viser.ClientHandle", cam: Camera) -> None:
+        wxyz, position, fov_y, _ = viser_pose(cam)
+        with client.atomic():
+            client.camera.wxyz = wxyz
+            client.camera.position = position
+            client.camera.fov = fov_y
+
+    # clients and frames -----------------------------------------------------------------------------------
+    # The callbacks are coroutines: viser runs them on its event loop in order, so a tab's first camera
+    # message already finds its view. They only mark what to draw and wake the thread.
+    async def _connected(self, client: "viser.ClientHandle") -> None:
+        self._views[client.client_id] = view = _View(client)
+
+        @client.camera.on_update
+        async def _(_) -> None:
+            view.moved_at, view.stale = time.monotonic(), True
+            self._notify()
+        self._notify()
+
+    async def _disconnected(self, client: "viser.ClientHandle") -> None:
+        self._views.pop(client.client_id, None)
+        self._notify()
+
+    def _notify(self) -> None:
+        with self._wake:
+            self._wake.notify_all()
+
+    def _serve(self) -> None:
+        while not self._closing.is_set():
+            with self._wake:
+                self._wake.wait(self._next_wait())
+            if not self._closing.is_set():
+                self._render_due(in_training=False)
+
+    def _next_wait(self) -> float | None:
+        """Seconds until a tab needs a frame from this thread (None: until woken)."""
+        model = self._model
+        if model is None or model.live:
+            return None
+        now = time.monotonic()
+        waits = [0.0 if v.stale else v.moved_at + SETTLE_SECONDS - now
+                 for v in list(self._views.values()) if v.stale or not v.sharp]
+        return max(0.0, min(waits)) if waits else None
+
+    def _render_due(self, in_training: bool) -> None:
+        now = time.monotonic()
+        for view in list(self._views.values()):
+            moving = now - view.moved_at < SETTLE_SECONDS
+            if view.stale:
+                self._send_frame(view, MOVING_SCALE if moving else 1.0, in_training)
+            elif not view.sharp and not moving:
+                self._send_frame(view, 1.0, in_training)
+
+    def _send_frame(self, view: _View, scale: float, in_training: bool) -> None:
+        camera = view.client.camera
+        with self.lock:
+            model = self._model
+            if model is None or model.live != in_training:
+                return
+            view.stale = False   # before reading the camera: a message arriving during the render marks it again
+            width, height = frame_size(camera.image_width, camera.image_height, int(self._max_side.value), scale)
+            cam = view_camera(camera.wxyz, camera.position, camera.fov, camera.aspect, width, height)
+            start = time.perf_counter()
+            image = self.renderer.render(model.gaussians, cam, model.sh_degree, self.background).image(self.rt)
+            seconds = time.perf_counter() - start
+        view.client.scene.set_background_image(image, format="jpeg", jpeg_quality=JPEG_QUALITY)
+        view.sharp = scale == 1.0
+        view.camera = cam if view.sharp else None
+        self._last_frame = f"<br/>frame {width}x{height}: {seconds * 1e3:.0f} ms"
+        self._update_status()
+
+
+# the command ------------------------------------------------------------------------------------------------
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """The `view` command's arguments (cli.py adds --device)."""
+    p.add_argument("source", type=Path, help="a training output folder (its model and training cameras) or a 3DGS "
+                                             "PLY file")
+    p.add_argument("--scene", default=None,
+                   help="the scene whose training cameras to show (default: a run folder's own; none for a PLY)")
+    p.add_argument("--iteration", type=int, default=None,
+                   help="with a run folder: which saved iteration (default: the last)")
+    p.add_argument("--port", type=int, default=DEFAULT_PORT, help=f"port to serve on ({DEFAULT_PORT})")
+    p.add_argument("--host", default=DEFAULT_HOST,
+                   help=f"address to listen on ({DEFAULT_HOST}: this machine only; 0.0.0.0: every network, and "
+                        "anyone there can see the model)")
+    p.add_argument("--white-background", action="store_true",
+                   help="render onto white (Blender scenes; a run folder says for itself)")
+
+
+def cmd_view(args) -> int:
+    _viser()
+    check_address(args.host, args.port)   # before loading: a large model takes a while
+    from .ply import read_ply
+    from .render import DeviceGaussians, Renderer
+    from .run_folder import RunFolder
+    from .runtime import Runtime, describe
+    from .scene import load_scene
+
+    source = Path(args.source)
+    if not source.exists():
+        raise InputError(source, "not found: expected a training output folder or a .ply file")
+    white = args.white_background
+    if source.is_dir():
+        run = RunFolder(source)
+        cfg = run.read_config()
+        iteration, model = run.load_model(args.iteration)
+        scene_name, cache_dir = args.scene or cfg.scene, run.path / "undistorted"
+        resolution, test_every, white = cfg.resolution, cfg.test_every, white or cfg.white_background
+    else:
+        if args.iteration is not None:
+            raise InputError(None, "--iteration needs a training output folder")
+        iteration, model = None, read_ply(source)
+        scene_name, cache_dir, resolution, test_every = args.scene, None, None, 8
+    scene = (load_scene(scene_name, resolution=resolution, cache_dir=cache_dir, test_every=test_every,
+                        white_background=white) if scene_name else None)
+    background = scene.background if scene else np.full(3, 1.0 if white else 0.0, np.float32)
+    rt = Runtime(args.device)
+    with Viewer(rt, Renderer(rt), scene.train if scene else [], port=args.port, host=args.host,
+                background=background, images=scene.image if scene else None, points=model.means) as viewer:
+        viewer.show(DeviceGaussians(rt, model), model.sh_degree, iteration)
+        print(f"device: {describe(rt.device)}; {len(model):,} Gaussians (SH degree {model.sh_degree})"
+              f"{f', {len(scene.train)} training cameras' if scene else ''}\nviewer: {viewer.url} (Ctrl-C to stop)",
+              file=sys.stderr)
+        viewer.serve_forever()
+    return 0

@@ -1,0 +1,263 @@
+"""The browser viewer: viser poses and our cameras agree, the server serves and refuses a taken port, and a
+headless Chromium shows exactly what our renderer renders for the camera the browser reports, both for a
+shown model and for one published by a training loop."""
+import argparse
+import base64
+import json
+import math
+import shutil
+import socket
+import subprocess
+import sys
+import time
+import urllib.request
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from dc4gs_cl.errors import InputError
+from dc4gs_cl.metrics import psnr
+from dc4gs_cl.render import DeviceGaussians, Renderer
+from dc4gs_cl.scene.camera import Camera
+from dc4gs_cl.scene.images import read_image
+from dc4gs_cl.testing import random_camera, random_model
+
+viser = pytest.importorskip("viser", reason='viser is not installed (pip install "dc4gs-cl[viewer]")')
+from dc4gs_cl.viewer import (MOVING_SCALE, Viewer, add_arguments, cmd_view, frame_size,  # noqa: E402
+                             view_camera, viser_pose)
+
+WIDTH, HEIGHT = 128, 96
+
+
+def viser_pose_looking_at(eye, target, up, fov_y: float):
+    """A viser camera as its docs define it: wxyz rotates camera to world with the camera looking along its +z
+    and its up along -y (OpenCV axes); position is the camera centre; fov is vertical."""
+    forward = (target - eye) / np.linalg.norm(target - eye)
+    right = np.cross(forward, up)
+    right /= np.linalg.norm(right)
+    down = np.cross(forward, right)
+    R_world_camera = np.stack([right, down, forward], axis=1)
+    return viser.transforms.SO3.from_matrix(R_world_camera).wxyz, eye, fov_y
+
+
+def test_a_viser_pose_renders_as_our_camera_built_directly(rt, rng):
+    model = random_model(rng, 300, sh_degree=1)
+    renderer, gaussians = Renderer(rt), DeviceGaussians(rt, model)
+    eye, target = 2.5 * rng.normal(size=3), rng.uniform(-0.2, 0.2, 3)
+    fov_x = rng.uniform(0.6, 1.2)
+    direct = Camera.look_at("direct", eye, target, WIDTH, HEIGHT, fov_x)
+    fov_y = 2 * math.atan(math.tan(0.5 * fov_x) * HEIGHT / WIDTH)
+    wxyz, position, fov = viser_pose_looking_at(eye, target, np.array([0.0, 0.0, 1.0]), fov_y)
+    cam = view_camera(wxyz, position, fov, WIDTH / HEIGHT, WIDTH, HEIGHT)
+    np.testing.assert_allclose(cam.R, direct.R, atol=1e-12)
+    np.testing.assert_allclose(cam.t, direct.t, atol=1e-12)
+    np.testing.assert_allclose([cam.fx, cam.fy, cam.cx, cam.cy], [direct.fx, direct.fy, direct.cx, direct.cy])
+    ours = renderer.render(gaussians, cam, 1).image(rt)
+    theirs = renderer.render(gaussians, direct, 1).image(rt)
+    assert ours.std() > 0.01                                 # the model is in view
+    np.testing.assert_allclose(ours, theirs, atol=1e-5)      # float64 poses agree to 1e-12: float32 rounding only
+
+
+def test_a_training_camera_round_trips_through_its_viser_pose(rng):
+    # viser's cameras have a centred principal point; focal lengths may differ (non-square pixels)
+    cam = random_camera(rng, WIDTH, HEIGHT)
+    cam = replace(cam, cx=0.5 * WIDTH, cy=0.5 * HEIGHT)
+    back = view_camera(*viser_pose(cam), WIDTH, HEIGHT)
+    np.testing.assert_allclose(back.R, cam.R, atol=1e-12)
+    np.testing.assert_allclose(back.t, cam.t, atol=1e-12)
+    np.testing.assert_allclose([back.fx, back.fy, back.cx, back.cy], [cam.fx, cam.fy, cam.cx, cam.cy], rtol=1e-12)
+
+
+def test_frames_fit_the_canvas_in_the_largest_side():
+    assert frame_size(1920, 1080, 640) == (640, 360)
+    assert frame_size(1920, 1080, 640, MOVING_SCALE) == (320, 180)
+    assert frame_size(400, 300, 640) == (400, 300)       # never upscaled
+
+
+def look_at_origin(rng, width: int, height: int, fov_y: float) -> Camera:
+    """A camera 2.5 from the origin looking at it, z up, with this vertical field of view."""
+    direction = rng.normal(size=3)
+    eye = 2.5 * direction / np.linalg.norm(direction)
+    fov_x = 2 * math.atan(math.tan(0.5 * fov_y) * width / height)
+    return Camera.look_at("home", eye, np.zeros(3), width, height, fov_x)
+
+
+@pytest.fixture
+def served(rt, rng):
+    """A viewer showing random Gaussians, with one training camera: the browser's first view."""
+    model = random_model(rng, 300, sh_degree=1)
+    home = look_at_origin(rng, WIDTH, HEIGHT, fov_y=rng.uniform(0.6, 1.0))
+    with Viewer(rt, Renderer(rt), [home], port=0, points=model.means) as viewer:
+        viewer.show(DeviceGaussians(rt, model), model.sh_degree, iteration=7)
+        yield viewer, model, home
+
+
+def test_the_page_is_served_and_a_taken_port_refused(served, rt):
+    viewer, _, _ = served
+    with urllib.request.urlopen(viewer.url, timeout=10) as page:
+        assert b"<html" in page.read().lower()
+    port = viewer.server.get_port()
+    with pytest.raises(InputError, match=f"^--port {port}: already in use"):
+        Viewer(rt, Renderer(rt), [], port=port)
+
+
+def view_args(*argv: str) -> argparse.Namespace:
+    p = argparse.ArgumentParser()
+    add_arguments(p)
+    p.add_argument("--device")
+    return p.parse_args(argv)
+
+
+def test_view_names_a_missing_source_and_a_taken_port(tmp_path):
+    with pytest.raises(InputError, match="not found"):
+        cmd_view(view_args(str(tmp_path / "nothing.ply"), "--port", "0"))
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        with pytest.raises(InputError, match=f"^--port {port}: already in use"):   # before reading the model
+            cmd_view(view_args(str(tmp_path / "nothing.ply"), "--port", str(port)))
+
+
+def test_without_viser_the_viewer_says_how_to_install_it(monkeypatch, tmp_path):
+    monkeypatch.setitem(sys.modules, "viser", None)   # makes `import viser` fail
+    with pytest.raises(InputError, match=r'pip install "dc4gs-cl\[viewer\]"'):
+        cmd_view(view_args(str(tmp_path)))
+
+
+def test_publish_renders_nothing_without_a_browser(served):
+    viewer, _, _ = served
+    for i in range(1000):
+        viewer.publish(None, 0, i)   # a model of None would fail any render: nobody is watching, none is made
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_train_with_the_viewer_and_a_taken_port(tmp_path, capsys):
+    from dc4gs_cl.cli import main
+    small = ["train", "--scene", "builtin", "-r", "4", "--iterations", "20", "--no-progress", "--viewer"]
+    assert main([*small, "--port", str(free_port()), "--out", str(tmp_path / "live")]) == 0
+    assert "viewer: http://" in capsys.readouterr().err
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        assert main([*small, "--port", str(port), "--out", str(tmp_path / "refused")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and f"--port {port}: already in use" in err[0]
+    assert not (tmp_path / "refused").exists()
+
+
+# the browser --------------------------------------------------------------------------------------------------
+CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
+WINDOW = (640, 480)              # CSS px at device scale 1: the canvas, and (under MAX_FRAME_SIDE) the frame
+# viser draws its control panel (top right), a software-WebGL notice (top left) and an axes gizmo (bottom left)
+# over the picture, and the frustum of the camera the browser looks through outlines it: compare inside of them
+EDGE = 4                         # px
+CLEAR = (slice(WINDOW[1] // 2, WINDOW[1] - EDGE), slice(WINDOW[0] // 4, WINDOW[0] - EDGE))
+MIN_PSNR = 35.0                  # dB: the frame travels as a quality-90 JPEG (about 45 dB here)
+TIMEOUT = 20.0                   # s, for each wait on the browser
+
+
+class DevTools:
+    """The few Chrome DevTools protocol calls the test needs, over viser's own websockets dependency."""
+
+    def __init__(self, profile):
+        from websockets.sync.client import connect
+        port_file = profile / "DevToolsActivePort"
+        deadline = time.monotonic() + TIMEOUT
+        while not port_file.is_file() or not port_file.read_text().strip():
+            assert time.monotonic() < deadline, "Chromium did not open its DevTools port"
+            time.sleep(0.05)
+        port = int(port_file.read_text().split()[0])
+        with urllib.request.urlopen(f"http://127.0.0.1:{port}/json/list", timeout=TIMEOUT) as f:
+            page = next(t for t in json.load(f) if t["type"] == "page")
+        self.ws = connect(page["webSocketDebuggerUrl"], max_size=None, open_timeout=TIMEOUT)
+        self.calls = 0
+
+    def call(self, method: str, **params) -> dict:
+        self.calls += 1
+        self.ws.send(json.dumps({"id": self.calls, "method": method, "params": params}))
+        while True:   # events arrive in between; the answer carries our id
+            message = json.loads(self.ws.recv(timeout=TIMEOUT))
+            if message.get("id") == self.calls:
+                assert "error" not in message, message
+                return message["result"]
+
+    def screenshot(self, path) -> np.ndarray:
+        path.write_bytes(base64.b64decode(self.call("Page.captureScreenshot", format="png")["data"]))
+        return read_image(path)[..., :3]
+
+
+@pytest.fixture
+def browser(tmp_path):
+    if CHROMIUM is None:
+        pytest.skip("no Chromium installed (Debian: apt-get install chromium)")
+    profile = tmp_path / "profile"
+    proc = subprocess.Popen([CHROMIUM, "--headless=new", "--no-sandbox", "--remote-debugging-port=0",
+                             f"--user-data-dir={profile}", f"--window-size={WINDOW[0]},{WINDOW[1]}",
+                             "--use-angle=swiftshader", "--enable-unsafe-swiftshader", "about:blank"],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        tools = DevTools(profile)
+        tools.call("Emulation.setDeviceMetricsOverride", width=WINDOW[0], height=WINDOW[1], deviceScaleFactor=1,
+                   mobile=False)
+        yield tools
+        tools.ws.close()
+    finally:
+        proc.terminate()
+        proc.wait(timeout=10)
+
+
+def wait_for_frame(viewer: Viewer, centre=None) -> Camera:
+    """The camera of the browser's full-size frame, once there is one (from a camera at `centre`: the browser
+    reports its default pose before it moves to the viewer's first view)."""
+    deadline = time.monotonic() + TIMEOUT
+    while True:
+        cameras = list(viewer.frame_cameras().values())
+        if cameras and (centre is None or np.allclose(cameras[0].center, centre, atol=1e-4)):
+            return cameras[0]
+        assert time.monotonic() < deadline, f"no full-size frame from a camera at {centre} reached the browser"
+        time.sleep(0.05)
+
+
+def shows(browser: DevTools, expected: np.ndarray, path) -> np.ndarray:
+    """The browser's screenshot once its clear region shows `expected` (the browser draws a frame some time
+    after it was sent), or the last one taken."""
+    deadline = time.monotonic() + TIMEOUT
+    while True:
+        shot = browser.screenshot(path)
+        if psnr(shot[CLEAR], expected[CLEAR]) > MIN_PSNR or time.monotonic() > deadline:
+            return shot
+
+
+def test_the_browser_shows_our_render_of_the_training_camera_it_starts_at(served, browser, rt, rng, tmp_path):
+    viewer, model, home = served
+    browser.call("Page.navigate", url=viewer.url)
+    camera = wait_for_frame(viewer, centre=home.center)
+    # the browser's canvas, seen from the training camera with its vertical field of view
+    fov_y = 2 * math.atan(0.5 * home.height / home.fy)
+    expected_camera = Camera.look_at("expected", home.center, np.zeros(3), *WINDOW,
+                                     2 * math.atan(math.tan(0.5 * fov_y) * WINDOW[0] / WINDOW[1]))
+    np.testing.assert_allclose(camera.R, expected_camera.R, atol=1e-5)   # the browser computes in float32
+    np.testing.assert_allclose(camera.t, expected_camera.t, atol=1e-5)
+    np.testing.assert_allclose([camera.fx, camera.fy, camera.cx, camera.cy],
+                               [expected_camera.fx, expected_camera.fy, expected_camera.cx, expected_camera.cy],
+                               rtol=1e-5)
+    renderer = Renderer(rt)
+    expected = renderer.render(DeviceGaussians(rt, model), expected_camera, model.sh_degree).image(rt)
+    shot = shows(browser, expected, tmp_path / "shown.png")
+    assert shot.shape == expected.shape
+    assert shot[CLEAR].std() > 0.02, "the browser shows a blank picture"
+    assert psnr(shot[CLEAR], expected[CLEAR]) > MIN_PSNR
+
+    # a training loop's publish(): rendered in the calling thread, so the frame is out when it returns
+    trained = random_model(rng, 300, sh_degree=0)
+    viewer.publish(DeviceGaussians(rt, trained), 0, iteration=8)
+    expected = renderer.render(DeviceGaussians(rt, trained), wait_for_frame(viewer), 0).image(rt)
+    assert psnr(shows(browser, expected, tmp_path / "published.png")[CLEAR], expected[CLEAR]) > MIN_PSNR
