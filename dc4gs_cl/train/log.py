@@ -64,9 +64,9 @@ class TrainingLog:
         seconds = now - self.last_time
         self.elapsed += seconds
         done = iteration - self.last_iteration
-        row = {"iteration": iteration, "loss": round(loss, 6), "train_psnr": round(10 * math.log10(1 / max(mse, 1e-12)), 4),
-               "gaussians": gaussians, "it_per_s": round(done / seconds, 3) if seconds > 0 else math.nan,
-               "elapsed_s": round(self.elapsed, 3)}
+        psnr = 10 * math.log10(1 / max(mse, 1e-12))
+        row = {"iteration": iteration, "loss": round(loss, 6), "train_psnr": round(psnr, 4), "gaussians": gaussians,
+               "it_per_s": round(done / seconds, 3) if seconds > 0 else math.nan, "elapsed_s": round(self.elapsed, 3)}
         if self.stage_times is not None and done > 0:
             times = self.stage_times()
             row["stage_ms"] = {k: round(v / done * 1e3, 4) for k, v in times.items()}
@@ -101,8 +101,9 @@ class TrainingLog:
                "test_views": result["views"]}
         self.run_folder.append_metrics(row)
         if self.mode != "none":
-            line = (f"iteration {iteration:,}: test views PSNR {row['test_psnr']:.2f} dB, SSIM {row['test_ssim']:.4f} "
-                    f"({row['test_views']} views)")
+            mean = result["mean"]   # unrounded, as the final line of `train` prints it
+            line = (f"iteration {iteration:,}: test views PSNR {mean['PSNR']:.2f} dB, SSIM {mean['SSIM']:.4f} "
+                    f"({result['views']} views)")
             if self.bar is not None:
                 self.bar.write(line, file=self.stream)
             else:
