@@ -167,12 +167,17 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def cmd_devices(args) -> int:
-    from .runtime import Capabilities, choose_device, describe, list_devices
+    import os
+    from .runtime import DEVICE_ENV, Capabilities, choose_device, default_device, describe, is_simulator, list_devices
+    devices = list_devices()
     chosen, _ = choose_device(args.device)
-    for key, dev in list_devices():
-        print(f"{'*' if key == chosen else ' '} {key}  {describe(dev)}")
+    for key, dev in devices:
+        note = "  (a simulator: used only when named)" if is_simulator(dev) else ""
+        print(f"{'*' if key == chosen else ' '} {key}  {describe(dev)}{note}")
         print(f"      {Capabilities.of(dev).summary()}")
-    print("(* = the device dc4gs-cl would use; choose another with --device or $DC4GS_DEVICE)")
+    named = args.device if args.device is not None else os.environ.get(DEVICE_ENV)
+    why = f"named by {'--device' if args.device is not None else '$' + DEVICE_ENV}" if named else default_device(devices)[2]
+    print(f"(* = the device dc4gs-cl would use: {why}; choose another with --device or ${DEVICE_ENV})")
     return 0
 
 

@@ -17,7 +17,7 @@ SEED_ENV = "DC4GS_TEST_SEED"   # set to reproduce a failing draw
 
 @pytest.fixture(scope="session")
 def rt() -> Runtime:
-    """The device the tests run on ($DC4GS_DEVICE, default: a GPU if present, else PoCL's CPU)."""
+    """The device the tests run on ($DC4GS_DEVICE, else the default: runtime.default_device)."""
     return Runtime(profiling=True)
 
 

@@ -82,10 +82,13 @@ inline float ceil_nonnegative(float x) {
 #define DOT3(a, b) ((a).x * (b).x + (a).y * (b).y + (a).z * (b).z)
 
 // Emulated float atomic add (compare-and-swap on the bit pattern): OpenCL 1.2 has no float atomics.
+// The first compare-and-swap guesses 0.0f rather than reading *addr: a plain read there races with other
+// work-items' compare-and-swap under the memory model (Oclgrind reports it); a wrong guess costs one more
+// compare-and-swap, which then holds the value seen.
 #define DEFINE_ATOMIC_ADD_FLOAT(name, space)                                                       \
     inline void name(volatile space float *addr, float v) {                                         \
         union { unsigned int u; float f; } old, upd;                                               \
-        old.f = *addr;                                                                             \
+        old.u = 0u;                                                                                \
         do {                                                                                       \
             upd.f = old.f + v;                                                                     \
             unsigned int seen = atomic_cmpxchg((volatile space unsigned int *)addr, old.u, upd.u); \
