@@ -7,6 +7,7 @@ import math
 import numpy as np
 import pyopencl as cl
 
+from .errors import DeviceError
 from .render.stage import Stage, StageContext
 
 LAMBDA_DSSIM = 0.2      # L = (1 - LAMBDA_DSSIM) L1 + LAMBDA_DSSIM (1 - SSIM)
@@ -29,6 +30,28 @@ def loss_defines() -> dict:
             "LAMBDA_DSSIM": LAMBDA_DSSIM}
 
 
+def loss_local_bytes(seg: int, wg: int) -> int:
+    """Local memory loss_ssim takes (the largest of the three kernels): five blurred maps of LEN floats, LEN =
+    wg seg + 2 PAD (loss.cl), and the reduction's 3 wg floats."""
+    pad = 3 * (SSIM_WINDOW // 2)
+    return 4 * (5 * (wg * seg + 2 * pad) + 3 * wg)
+
+
+def fit_loss_shape(seg: int, wg: int, local_mem: int, max_wg: int) -> tuple[int, int]:
+    """The shape (seg, wg) narrowed to a device's limits: wg to the largest power of two within max_wg, then
+    seg halved until loss_local_bytes fits local_mem (a 32 KiB device cannot take the CPU shape's 46,692 bytes)."""
+    while wg > max(1, max_wg):
+        wg //= 2
+    while seg > 1 and loss_local_bytes(seg, wg) > local_mem:
+        seg = max(1, seg // 2)
+    while wg > 1 and loss_local_bytes(seg, wg) > local_mem:
+        wg //= 2
+    if loss_local_bytes(seg, wg) > local_mem:
+        raise DeviceError(f"the loss needs {loss_local_bytes(seg, wg):,} bytes of local memory; the device has "
+                          f"{local_mem:,}")
+    return seg, wg
+
+
 class Loss(Stage):
     """The loss of a rendered image against a target, both [H*W*3] float32 (interleaved RGB) buffers.
 
@@ -40,9 +63,11 @@ class Loss(Stage):
     FILE, KERNELS = "loss.cl", ("loss_ssim", "loss_grad", "loss_reduce", "mask_pixels")
 
     def __init__(self, ctx: StageContext, seg: int | None = None, wg: int | None = None):
+        """seg, wg: the work shape (default: the device kind's, then narrowed to the device's limits)."""
         super().__init__(ctx)
-        self.seg = seg or (2304 if self.rt.caps.is_cpu else 1)
-        self.wg = wg or (1 if self.rt.caps.is_cpu else 256)
+        caps = self.rt.caps
+        self.seg, self.wg = fit_loss_shape(seg or (2304 if caps.is_cpu else 1), wg or (1 if caps.is_cpu else 256),
+                                           caps.local_mem_size, caps.max_work_group_size)
         k = self.kernels()
         self.k_ssim, self.k_grad, self.k_reduce, self.k_mask = (k[name] for name in self.KERNELS)
         self.stats = self.rt.buffer(4 * len(STAT_KEYS))

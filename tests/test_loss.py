@@ -154,3 +154,24 @@ def test_degenerate_images_give_finite_results(rt, rng, case):
     tol_grad, tol_loss = (2e-4, 5e-4) if case == "one colour" else (1e-5, 1e-6)
     assert np.linalg.norm(grad - want) <= tol_grad * np.linalg.norm(want)
     assert stats["loss"] == pytest.approx(ref.loss_value(x, y), rel=tol_loss)
+
+
+@pytest.mark.parametrize("local_mem, max_wg", [(32 * 1024, 4096), (16 * 1024, 64)])
+def test_the_shape_fits_a_device_with_little_local_memory(rt, rng, monkeypatch, local_mem, max_wg):
+    """The CPU shape takes 46,692 bytes of local memory; on a device with less (or a smaller work-group limit)
+    the loss narrows its shape, and still matches the reference."""
+    import pyopencl as cl
+    from dataclasses import replace
+    from dc4gs_cl.loss import loss_local_bytes
+    monkeypatch.setattr(rt, "caps", replace(rt.caps, local_mem_size=local_mem, max_work_group_size=max_wg))
+    for seg, wg in [(2304, 1), (1, 256)]:
+        loss = Loss(StageContext(rt, poison=True), seg, wg)   # narrowed to the device by the constructor
+        assert loss_local_bytes(loss.seg, loss.wg) <= local_mem and loss.wg <= max_wg
+        used = loss.k_ssim.get_work_group_info(cl.kernel_work_group_info.LOCAL_MEM_SIZE, rt.device)
+        assert used <= local_mem, (seg, wg, used)              # what the driver reports for the built kernel
+        y = rng.uniform(0, 1, (45, 61, 3)).astype(np.float32)
+        x = np.clip(y + rng.normal(0, 0.2, y.shape), -0.05, 1.05).astype(np.float32)
+        grad, _ = run_loss(rt, loss, x, y)
+        want = ref.loss_gradient(x, y)
+        assert np.linalg.norm(grad - want) / np.linalg.norm(want) < 1e-5
+    assert Loss(StageContext(rt)).seg < 2304 or not rt.caps.is_cpu        # the default narrows too
