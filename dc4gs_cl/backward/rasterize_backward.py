@@ -8,12 +8,33 @@ import pyopencl as cl
 from ..constants import TILE_SIZE
 from ..render.rasterize import background_value, raster_defines
 from ..render.renderer import RenderResult
-from ..render.stage import PER_GAUSSIAN_WG, Stage, visible_rows
+from ..render.stage import PER_GAUSSIAN_WG, Stage, StageContext, visible_rows
 from .sums import SumsLayout
+
+
+def local_bytes(kernel: cl.Kernel) -> int:
+    """Local memory a built kernel takes, as its driver reports it (for the kernel's only device)."""
+    return kernel.get_work_group_info(cl.kernel_work_group_info.LOCAL_MEM_SIZE, kernel.context.devices[0])
 
 
 class RasterizeBackward(Stage):
     FILE, KERNELS = "rasterize_backward.cl", ("rasterize_backward", "sum_pairs")
+
+    def __init__(self, ctx: StageContext):
+        super().__init__(ctx)
+        self._batch: dict[tuple, int] = {}   # variant -> the batch that fits the device's local memory
+
+    def fitted_kernels(self, variant: dict) -> dict:
+        """The kernels of a variant with the largest batch (the tuning's, halved as needed) whose local arrays
+        (a batch of Gaussians, their split geometry and, in the cooperative shapes, their sums: tens of KB with
+        DC4GS' split sums at the GPU shape's 256) fit the device's local memory, as the built kernel reports."""
+        key = tuple(sorted(variant.items()))
+        if key not in self._batch:
+            batch, limit = self.ctx.tuning.batch, self.rt.caps.local_mem_size
+            while batch > 1 and local_bytes(self.kernels({**variant, "BATCH": batch})["rasterize_backward"]) > limit:
+                batch //= 2
+            self._batch[key] = batch
+        return self.kernels({**variant, "BATCH": self._batch[key]})
 
     def defines(self) -> dict:
         # pair_sums: one slot per (tile, Gaussian) pair, summed per Gaussian in a fixed order (deterministic);
@@ -34,7 +55,7 @@ class RasterizeBackward(Stage):
         else:
             target = sums
             rt.fill(sums, np.float32(0), 4 * layout.width * n)
-        k = self.kernels({**layout.defines(), "PIXEL_MASK": int(keep is not None)})
+        k = self.fitted_kernels({**layout.defines(), "PIXEL_MASK": int(keep is not None)})
         items = TILE_SIZE * TILE_SIZE // self.ctx.tuning.pixels_per_item
         rt.launch("rasterize_backward", k["rasterize_backward"], res.tiles_x * res.tiles_y * items, items,
                   np.int32(res.width), np.int32(res.height), np.int32(res.tiles_x), background_value(background),
