@@ -7,6 +7,7 @@ from dataclasses import replace
 from pathlib import Path
 
 from dc4gs_cl.render import Tuning
+from dc4gs_cl.runtime import Capabilities
 from dc4gs_cl.testing import random_camera, random_model  # noqa: F401 (re-exported for the tests)
 
 # Both work shapes of every kernel run on PoCL: the CPU's (256 pixels per work-item) and the GPUs'
@@ -15,6 +16,10 @@ CPU_SHAPE = Tuning(pixels_per_item=256, batch=64, radix_bits=8, sort_blocks=8, s
 GPU_SHAPE = Tuning(pixels_per_item=1, batch=256, radix_bits=4, sort_blocks=512, scan_wg=256, scan_groups=64, isect_wg=256)
 MID_SHAPE = replace(CPU_SHAPE, pixels_per_item=16, batch=16, radix_bits=6, sort_blocks=37, scan_wg=16, scan_groups=5)
 SHAPES = {"cpu": CPU_SHAPE, "gpu": GPU_SHAPE, "mid": MID_SHAPE}
+# The GPU shape on a device whose work-groups hold at most 64 items (Tuning.within): 4 pixels per item.
+NARROW_CAPS = Capabilities(is_cpu=False, compute_units=1, max_work_group_size=64, local_mem_size=32 * 1024,
+                           float_atomic_add=False, fp64=False)
+NARROW_SHAPE = GPU_SHAPE.within(NARROW_CAPS)
 
 
 def load_tool(name: str):

@@ -10,7 +10,7 @@ from dc4gs_cl.backward import GRADIENTS, ProjectBackward, RasterizeBackward, Sum
 from dc4gs_cl.model import group_widths
 from dc4gs_cl.render import DeviceGaussians, Renderer
 from dc4gs_cl.render.workspace import POISON
-from helpers import SHAPES, random_camera, random_model
+from helpers import NARROW_SHAPE, SHAPES, random_camera, random_model
 
 
 def small_raster_case(rng, n=12, width=37, height=29):
@@ -281,7 +281,7 @@ def test_whole_image_gradients_match_the_float64_chain(rt, rng):
         assert err < 5e-4, (key, err)   # float32 end to end (measured 1e-6 .. 3e-5); rare threshold flips
 
 
-@pytest.mark.parametrize("shape", ["gpu", "mid"])
+@pytest.mark.parametrize("shape", ["gpu", "mid", "gpu-within-64"])
 def test_rasterize_backward_fits_a_small_local_memory(rt, rng, monkeypatch, shape):
     """Found by Oclgrind (32 KiB, OpenCL 1.2's minimum): the GPU shape's batch of 256 with DC statistics takes
     more local memory than that. The backward halves its batch until the built kernel fits, and still matches
@@ -290,7 +290,8 @@ def test_rasterize_backward_fits_a_small_local_memory(rt, rng, monkeypatch, shap
     from dc4gs_cl.backward.rasterize_backward import local_bytes
     limit = 12 * 1024
     monkeypatch.setattr(rt, "caps", replace(rt.caps, local_mem_size=limit))
-    renderer, res, cam, bg, dL_dimage = backward_case(rt, rng, replace(SHAPES[shape], batch=256))
+    tuning = NARROW_SHAPE if shape == "gpu-within-64" else SHAPES[shape]
+    renderer, res, cam, bg, dL_dimage = backward_case(rt, rng, replace(tuning, batch=256))
     layout = SumsLayout(stats=True, dc_stats=True)
     backward = RasterizeBackward(renderer.context)
     sums = backward(res, rt.to_device(dL_dimage), bg, layout)

@@ -1,12 +1,15 @@
 """Tile intersection (compaction, two sorts, ranges) and the forward rasterizer against the float64
 references, fed with the device's own projected values so that integer outputs must agree exactly."""
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
+from dc4gs_cl.constants import TILE_SIZE
 from dc4gs_cl.reference import intersect_reference, rasterize_reference
 from dc4gs_cl.render import DeviceGaussians, Renderer
 from dc4gs_cl.scene.camera import Camera
-from helpers import SHAPES, random_camera, random_model
+from helpers import NARROW_CAPS, NARROW_SHAPE, SHAPES, random_camera, random_model
 
 
 def render_and_download(rt, renderer, model, cam, background):
@@ -28,13 +31,22 @@ def render_and_download(rt, renderer, model, cam, background):
     return res, host
 
 
-@pytest.mark.parametrize("shape", SHAPES)
+TUNINGS = {**SHAPES, "gpu-within-64": NARROW_SHAPE}
+
+
+def test_a_shape_narrowed_to_the_work_group_limit():
+    narrow = TUNINGS["gpu-within-64"]
+    assert TILE_SIZE * TILE_SIZE // narrow.pixels_per_item <= 64 and narrow.scan_wg <= 64 and narrow.isect_wg <= 64
+    assert SHAPES["gpu"].within(replace(NARROW_CAPS, max_work_group_size=1)).pixels_per_item == TILE_SIZE * TILE_SIZE
+
+
+@pytest.mark.parametrize("shape", TUNINGS)
 def test_intersections_and_raster_match_reference(rt, rng, shape):
     model = random_model(rng, 3000, spread=1.2)
     model.means[100:300] = model.means[100]     # equal depths: ties must keep index order
     cam = random_camera(rng, int(rng.integers(100, 180)), int(rng.integers(70, 140)))
     background = rng.uniform(0, 1, 3)
-    res, got = render_and_download(rt, Renderer(rt, SHAPES[shape], poison=True), model, cam, background)
+    res, got = render_and_download(rt, Renderer(rt, TUNINGS[shape], poison=True), model, cam, background)
 
     tile_of_pair, gaussian_of_pair, ranges = intersect_reference(
         got["mean2d"], got["radius"], got["alpha_extent"], got["tiles_touched"], got["depth"], res.tiles_x, res.tiles_y)

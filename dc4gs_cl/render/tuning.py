@@ -2,8 +2,9 @@
 for GPUs. Every kernel variant exists in both shapes, so the tests run both on PoCL."""
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
+from ..constants import TILE_SIZE
 from ..runtime import Capabilities
 
 
@@ -25,6 +26,23 @@ class Tuning:
             # sort and scan keep each core streaming through memory.
             cores = max(1, caps.compute_units)
             return Tuning(pixels_per_item=256, batch=32, radix_bits=8, sort_blocks=4 * cores,
-                          scan_wg=1, scan_groups=4 * cores, isect_wg=64)
+                          scan_wg=1, scan_groups=4 * cores, isect_wg=64).within(caps)
         return Tuning(pixels_per_item=1, batch=256, radix_bits=4, sort_blocks=4096,
-                      scan_wg=256, scan_groups=256, isect_wg=256)
+                      scan_wg=256, scan_groups=256, isect_wg=256).within(caps)
+
+    def within(self, caps: Capabilities) -> "Tuning":
+        """This shape narrowed to the device's work-group limit: a tile's items (TILE_SIZE^2 / pixels_per_item),
+        the scan's and the compaction's work-groups. (Local memory: the stages that hold arrays there fit
+        their own, Loss and RasterizeBackward.)"""
+        limit = max(1, caps.max_work_group_size)
+        ppi = self.pixels_per_item
+        while TILE_SIZE * TILE_SIZE // ppi > limit:
+            ppi *= 2          # 1, 2, 4, 8, then whole rows (16, 32, ...): the values raster.h takes
+        return replace(self, pixels_per_item=ppi, scan_wg=_power_of_two_within(self.scan_wg, limit),
+                       isect_wg=_power_of_two_within(self.isect_wg, limit))
+
+
+def _power_of_two_within(size: int, limit: int) -> int:
+    while size > limit:
+        size //= 2
+    return size
