@@ -24,25 +24,23 @@ PROGRESS_MODES = ("bar", "lines", "none")
 DEFAULT_LINE_EVERY = 100    # iterations between progress lines when the output is not a terminal
 
 
-def progress_mode(no_progress: bool, stream=None) -> str:
+def progress_mode(no_progress: bool) -> str:
     """No display when asked; a redrawn bar on a terminal; otherwise one line per interval (a bar written to a
     file is hundreds of carriage-return redraws)."""
     if no_progress:
         return "none"
-    stream = stream or sys.stderr
-    return "bar" if stream.isatty() else "lines"
+    return "bar" if sys.stderr.isatty() else "lines"
 
 
 class TrainingLog:
     def __init__(self, run_folder: RunFolder, total: int, iteration: int, mode: str = "bar",
-                 line_every: int = DEFAULT_LINE_EVERY, stage_times: Callable[[], dict[str, float]] | None = None,
-                 stream=None):
+                 line_every: int = DEFAULT_LINE_EVERY, stage_times: Callable[[], dict[str, float]] | None = None):
         """iteration: where training starts (a resumed run: its checkpoint's), the metrics file is cut back to
         it. stage_times: the runtime's per-stage device seconds since its last call (profiling runs only)."""
         if mode not in PROGRESS_MODES:
             raise ValueError(f"progress mode {mode!r} is not one of {PROGRESS_MODES}")
         self.run_folder, self.total, self.mode, self.line_every = run_folder, total, mode, line_every
-        self.stage_times, self.stream = stage_times, stream or sys.stderr
+        self.stage_times, self.stream = stage_times, sys.stderr
         earlier = run_folder.cut_metrics(iteration)
         self.elapsed = next((r["elapsed_s"] for r in reversed(earlier) if "elapsed_s" in r), 0.0)
         self.last_iteration, self.last_time = iteration, time.perf_counter()
