@@ -7,8 +7,7 @@ import math
 import numpy as np
 import pyopencl as cl
 
-from .errors import DeviceError
-from .render.stage import Stage, StageContext
+from .render.stage import Stage, StageContext, halvings
 
 LAMBDA_DSSIM = 0.2      # L = (1 - LAMBDA_DSSIM) L1 + LAMBDA_DSSIM (1 - SSIM)
 SSIM_C1 = 0.01 ** 2
@@ -30,28 +29,6 @@ def loss_defines() -> dict:
             "LAMBDA_DSSIM": LAMBDA_DSSIM}
 
 
-def loss_local_bytes(seg: int, wg: int) -> int:
-    """Local memory loss_ssim takes (the largest of the three kernels): five blurred maps of LEN floats, LEN =
-    wg seg + 2 PAD (loss.cl), and the reduction's 3 wg floats."""
-    pad = 3 * (SSIM_WINDOW // 2)
-    return 4 * (5 * (wg * seg + 2 * pad) + 3 * wg)
-
-
-def fit_loss_shape(seg: int, wg: int, local_mem: int, max_wg: int) -> tuple[int, int]:
-    """The shape (seg, wg) narrowed to a device's limits: wg to the largest power of two within max_wg, then
-    seg halved until loss_local_bytes fits local_mem (a 32 KiB device cannot take the CPU shape's 46,692 bytes)."""
-    while wg > max(1, max_wg):
-        wg //= 2
-    while seg > 1 and loss_local_bytes(seg, wg) > local_mem:
-        seg = max(1, seg // 2)
-    while wg > 1 and loss_local_bytes(seg, wg) > local_mem:
-        wg //= 2
-    if loss_local_bytes(seg, wg) > local_mem:
-        raise DeviceError(f"the loss needs {loss_local_bytes(seg, wg):,} bytes of local memory; the device has "
-                          f"{local_mem:,}")
-    return seg, wg
-
-
 class Loss(Stage):
     """The loss of a rendered image against a target, both [H*W*3] float32 (interleaved RGB) buffers.
 
@@ -63,35 +40,39 @@ class Loss(Stage):
     FILE, KERNELS = "loss.cl", ("loss_ssim", "loss_grad", "loss_reduce", "mask_pixels")
 
     def __init__(self, ctx: StageContext, seg: int | None = None, wg: int | None = None):
-        """seg, wg: the work shape (default: the device kind's, then narrowed to the device's limits)."""
+        """seg, wg: the work shape (default: the device kind's), narrowed to the device's limits: wg to its
+        work-group size, then seg (then wg) halved until loss_ssim's local arrays fit (the CPU shape's 46,680
+        bytes do not fit a 32 KiB device)."""
         super().__init__(ctx)
         caps = self.rt.caps
-        self.seg, self.wg = fit_loss_shape(seg or (2304 if caps.is_cpu else 1), wg or (1 if caps.is_cpu else 256),
-                                           caps.local_mem_size, caps.max_work_group_size)
-        k = self.kernels()
+        seg, wg = seg or (2304 if caps.is_cpu else 1), wg or (1 if caps.is_cpu else 256)
+        wg = next(w for w in halvings(wg) if w <= max(1, caps.max_work_group_size))
+        shapes = [{"SEG": s, "WG": wg} for s in halvings(seg)] + [{"SEG": 1, "WG": w} for w in halvings(wg)[1:]]
+        shape, k = self.fitting_kernels(shapes, "loss_ssim")
+        self.seg, self.wg = shape["SEG"], shape["WG"]
         self.k_ssim, self.k_grad, self.k_reduce, self.k_mask = (k[name] for name in self.KERNELS)
         self.stats = self.rt.buffer(4 * len(STAT_KEYS))
         self.rt.fill(self.stats, np.float32(0), self.stats.size)
         self.calls = 0
 
-    def defines(self) -> dict:
-        return {**loss_defines(), "SEG": self.seg, "WG": self.wg}
+    def defines(self) -> dict:   # SEG and WG: the shape, a variant (fitting_kernels)
+        return loss_defines()
 
     def __call__(self, image: cl.Buffer, target: cl.Buffer, width: int, height: int,
                  grad_out: cl.Buffer | None, stage: str = "loss", keep: cl.Buffer | None = None,
                  kept: int = 0) -> None:
         """Write dL/dimage to grad_out ([H*W*3] float32) and add this image's loss, L1, SSIM and MSE to the
         running stats. grad_out=None computes only the stats (evaluation). keep: the view's mask (H x W
-        uint8, 0 = masked out; the target must be zero there) with `kept` pixels kept: the loss is the mean
-        over those, and dL/dimage at masked pixels is meaningless (the backward skips them)."""
+        uint8 or bool, 0 = masked out) with `kept` pixels kept: both images count as zero under it, the loss
+        is the mean over the kept pixels, and dL/dimage at masked pixels is meaningless (the backward skips
+        them)."""
         if width < 1 or height < 1:
             raise ValueError(f"image size {width} x {height}")
         rt, n3w, h = self.rt, 3 * width, height
         m = n3w * h
-        if keep is not None:
-            masked = self.ws.get("loss.masked", 4 * m)
-            rt.launch_items(stage, self.k_mask, width * h, MASK_WG, np.int32(width * h), image, keep, masked)
-            image = masked
+        if keep is not None:   # both images zeroed under the mask, into scratch: neither input is changed
+            image, target = (self.mask(stage, src, keep, self.ws.get(f"loss.masked_{name}", 4 * m), width * h)
+                             for name, src in (("image", image), ("target", target)))
         scale = 3 * max(kept, 1) if keep is not None else m   # the floats the mean is over
         groups_x = -(-n3w // (self.seg * self.wg))
         shape, local = (groups_x * self.wg, h), (self.wg, 1)
@@ -107,6 +88,10 @@ class Loss(Stage):
         self.calls += 1
         if grad_out is not None:
             self.check(lambda: {"dL_dimage": rt.to_host(grad_out, (h, width, 3))})
+
+    def mask(self, stage: str, src: cl.Buffer, keep: cl.Buffer, out: cl.Buffer, pixels: int) -> cl.Buffer:
+        self.rt.launch_items(stage, self.k_mask, pixels, MASK_WG, np.int32(pixels), src, keep, out)
+        return out
 
     def running_sums(self) -> tuple[list[float], int]:
         """The stats' running sums and call count, to carry them through a checkpoint (restore_sums)."""

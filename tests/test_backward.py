@@ -287,7 +287,7 @@ def test_rasterize_backward_fits_a_small_local_memory(rt, rng, monkeypatch, shap
     more local memory than that. The backward halves its batch until the built kernel fits, and still matches
     the reference."""
     from dataclasses import replace
-    from dc4gs_cl.backward.rasterize_backward import local_bytes
+    from dc4gs_cl.render.stage import local_bytes
     limit = 12 * 1024
     monkeypatch.setattr(rt, "caps", replace(rt.caps, local_mem_size=limit))
     tuning = NARROW_SHAPE if shape == "gpu-within-64" else SHAPES[shape]

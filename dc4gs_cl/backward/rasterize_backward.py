@@ -8,13 +8,8 @@ import pyopencl as cl
 from ..constants import TILE_SIZE
 from ..render.rasterize import background_value, raster_defines
 from ..render.renderer import RenderResult
-from ..render.stage import PER_GAUSSIAN_WG, Stage, StageContext, visible_rows
+from ..render.stage import PER_GAUSSIAN_WG, Stage, StageContext, halvings, visible_rows
 from .sums import SumsLayout
-
-
-def local_bytes(kernel: cl.Kernel) -> int:
-    """Local memory a built kernel takes, as its driver reports it (for the kernel's only device)."""
-    return kernel.get_work_group_info(cl.kernel_work_group_info.LOCAL_MEM_SIZE, kernel.context.devices[0])
 
 
 class RasterizeBackward(Stage):
@@ -22,19 +17,17 @@ class RasterizeBackward(Stage):
 
     def __init__(self, ctx: StageContext):
         super().__init__(ctx)
-        self._batch: dict[tuple, int] = {}   # variant -> the batch that fits the device's local memory
+        self._fitted: dict[tuple, dict[str, cl.Kernel]] = {}
 
-    def fitted_kernels(self, variant: dict) -> dict:
-        """The kernels of a variant with the largest batch (the tuning's, halved as needed) whose local arrays
-        (a batch of Gaussians, their split geometry and, in the cooperative shapes, their sums: tens of KB with
-        DC4GS' split sums at the GPU shape's 256) fit the device's local memory, as the built kernel reports."""
+    def fitted_kernels(self, variant: dict) -> dict[str, cl.Kernel]:
+        """A variant's kernels with the largest batch (the tuning's, halved as needed) whose local arrays (a
+        batch of Gaussians, their split geometry and, in the cooperative shapes, their sums: 62 KB with DC4GS'
+        split sums at the GPU shape's 256) fit the device's local memory."""
         key = tuple(sorted(variant.items()))
-        if key not in self._batch:
-            batch, limit = self.ctx.tuning.batch, self.rt.caps.local_mem_size
-            while batch > 1 and local_bytes(self.kernels({**variant, "BATCH": batch})["rasterize_backward"]) > limit:
-                batch //= 2
-            self._batch[key] = batch
-        return self.kernels({**variant, "BATCH": self._batch[key]})
+        if key not in self._fitted:
+            self._fitted[key] = self.fitting_kernels([{**variant, "BATCH": b} for b in halvings(self.ctx.tuning.batch)],
+                                                     "rasterize_backward")[1]
+        return self._fitted[key]
 
     def defines(self) -> dict:
         # pair_sums: one slot per (tile, Gaussian) pair, summed per Gaussian in a fixed order (deterministic);

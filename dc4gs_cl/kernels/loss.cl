@@ -12,9 +12,9 @@
 //   loss_grad   d0, d1, d2, x, y -> grad [H][n3w] float32, dL/dx = l1scale * sign(x - y) + blur(d0)
 //               + 2 x blur(d1) + y blur(d2)
 //   loss_reduce partial -> stats [4] float32 += (loss, L1, 1 - SSIM, MSE) of this image (means over M)
-// A masked view (a mask, keep [H*W] uchar, 0 = masked out): mask_pixels zeroes x where masked, the host
-// zeroes y there, so masked pixels add no L1 and, in SSIM windows reaching them, are equal; M then counts
-// the kept floats only (the scales are host arguments), and the backward skips masked pixels.
+// A masked view (a mask, keep [H*W] uchar, 0 = masked out): mask_pixels zeroes x and y where masked, so
+// masked pixels add no L1 and, in SSIM windows reaching them, are equal; M then counts the kept floats only
+// (the scales are host arguments), and the backward skips masked pixels.
 //   mask_pixels x [H*W*3], keep [H*W] -> out [H*W*3]: x where kept, else 0
 // with S = AB / (CD), A = 2 mu_x mu_y + C1, B = 2 s_xy + C2, C = mu_x^2 + mu_y^2 + C1, D = s_xx + s_yy + C2,
 // dscale = -LAMBDA_DSSIM / M, l1scale = (1 - LAMBDA_DSSIM) / M (the loss weights folded into the maps;

@@ -12,6 +12,7 @@ from __future__ import annotations
 import numpy as np
 import pyopencl as cl
 
+from ..errors import DeviceError
 from ..finite import FiniteCheck
 from ..runtime import Runtime
 from .options import RenderOptions
@@ -54,10 +55,31 @@ class Stage:
             built = self._built[key] = {name: cl.Kernel(program, name) for name in self.KERNELS}
         return built
 
+    def fitting_kernels(self, variants: list[dict], kernel: str) -> tuple[dict, dict[str, cl.Kernel]]:
+        """The first of these variants (the preferred shape first, then smaller ones) whose built `kernel` fits
+        the device's local memory, as its driver reports it, and that variant's kernels. DeviceError if none."""
+        limit = self.rt.caps.local_mem_size
+        for variant in variants:
+            built = self.kernels(variant)
+            if local_bytes(built[kernel]) <= limit:
+                return variant, built
+        raise DeviceError(f"kernels/{self.FILE}: {kernel} needs {local_bytes(built[kernel]):,} bytes of local "
+                          f"memory even in its smallest shape; the device has {limit:,}")
+
     def check(self, arrays) -> None:
         """--check-finite: `arrays()` gives the host copies of this call's outputs; read only when on."""
         if self.ctx.check.enabled:
             self.ctx.check(self.FILE.removesuffix(".cl"), arrays())
+
+
+def local_bytes(kernel: cl.Kernel) -> int:
+    """Local memory a built kernel takes, as its driver reports it (for the kernel's only device)."""
+    return kernel.get_work_group_info(cl.kernel_work_group_info.LOCAL_MEM_SIZE, kernel.context.devices[0])
+
+
+def halvings(size: int) -> list[int]:
+    """size, size // 2, ..., 1: the shapes a stage tries, largest first, to fit a device's limits."""
+    return [size >> k for k in range(size.bit_length())]
 
 
 def visible_rows(rt: Runtime, buf: cl.Buffer, radius: np.ndarray, width: int) -> np.ndarray:

@@ -99,15 +99,14 @@ class Trainer:
         target_buf, dL_dimage = ws.get("train.target", target.nbytes), ws.get("train.dL_dimage", target.nbytes)
         keep_buf = None
         if keep is not None:   # masked pixels: no loss, no gradient, no statistic (loss.cl, rasterize_backward.cl)
-            target = target * keep[..., None]
             keep_buf = ws.get("train.keep", keep.size)
-            rt.write(keep_buf, keep.astype(np.uint8))
+            rt.write(keep_buf, keep)   # bool: one byte, 0 or 1, as the kernels' uchar
         rt.write(target_buf, target)
         background = self.scene.background
 
         res = self.renderer.render(self.params, cam, self.sh_degree, background)
         self.loss(res.raster.image, target_buf, cam.width, cam.height, dL_dimage, keep=keep_buf,
-                  kept=int(keep.sum()) if keep is not None else 0)
+                  kept=np.count_nonzero(keep) if keep is not None else 0)
         actions = s.actions(it)
         gathering = s.gather(it, self.params, cam, res)
         sums = self.rasterize_backward(res, dL_dimage, background, gathering.layout, gathering.geometry, keep_buf)
