@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from . import export, report, viewer
+from . import bench, export, report, viewer
 from .config import RECIPE_ITERATIONS
 from .errors import DeviceError, InputError, OutputError
 from .files import replace_folder, staging_folder
@@ -157,6 +157,11 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("report", help="draw training runs' metrics (curves, runs overlaid, test views beside ground "
                                       "truth) to one HTML page or a PNG")
     report.add_arguments(p)
+
+    p = sub.add_parser("bench", help="the benchmark to run on your device and post: per-stage times of a forward and a "
+                                     "training iteration, bytes per Gaussian, error against float64 (JSON + markdown)")
+    bench.add_arguments(p)
+    _add_device(p)
 
     p = sub.add_parser("eval", help="render a trained model's test views and write PSNR / SSIM (results.json)")
     p.add_argument("--model", type=Path, required=True, help="a training output folder")
@@ -387,7 +392,7 @@ def cmd_eval(args) -> int:
 
 COMMANDS = {"devices": cmd_devices, "render": cmd_render, "train": cmd_train, "eval": cmd_eval,
             "report": report.cmd_report, "view": viewer.cmd_view,
-            "export": export.cmd_export}
+            "export": export.cmd_export, "bench": bench.cmd_bench}
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -5,7 +5,8 @@ import pytest
 
 from dc4gs_cl import constants as K
 from dc4gs_cl.reference.isect import intersect_reference
-from dc4gs_cl.reference.rasterize import _tile_blend, rasterize_backward_reference, rasterize_reference
+from dc4gs_cl.reference.rasterize import (_tile_blend, rasterize_backward_reference, rasterize_reference,
+                                          undecided_pixels)
 from dc4gs_cl.backward import GRADIENTS, ProjectBackward, RasterizeBackward, SumsLayout
 from dc4gs_cl.model import group_widths
 from dc4gs_cl.render import DeviceGaussians, Renderer
@@ -43,24 +44,6 @@ def blend_masks(c):
         if end > first and ys.size:
             masks.append(_tile_blend(c["mean2d"], c["conic"], c["opacity"], c["gaussian_of_pair"][first:end], xs, ys)[4])
     return np.concatenate([m.ravel() for m in masks])
-
-
-def undecided_pixels(mean2d, conic, opacity, gaussian_of_pair, ranges, width, height, tiles_x, margin=1e-3):
-    """(height, width) mask of the pixels where float32 and float64 can decide a blend differently: some pair
-    within a relative `margin` of the 1/255 alpha cut-off or the alpha clamp, or transmittance within it of
-    the stop threshold. A flipped decision there moves whole pixels' worth of gradient, not rounding."""
-    out = np.zeros((height, width), bool)
-    near = lambda x, t: np.abs(x - t) < margin * t
-    for tile, (first, end) in enumerate(np.asarray(ranges)):
-        y0, x0 = (tile // tiles_x) * K.TILE_SIZE, (tile % tiles_x) * K.TILE_SIZE
-        ys, xs = np.mgrid[y0:min(y0 + K.TILE_SIZE, height), x0:min(x0 + K.TILE_SIZE, width)]
-        if end <= first or not ys.size:
-            continue
-        _, _, oG, alpha, blend, t_before = _tile_blend(mean2d, conic, opacity, gaussian_of_pair[first:end], xs, ys)
-        ambiguous = near(oG, K.ALPHA_MIN) | near(oG, K.ALPHA_MAX) | (blend & near(t_before * (1 - alpha),
-                                                                                 K.TRANSMITTANCE_MIN))
-        out[ys.ravel(), xs.ravel()] = ambiguous.any(axis=1)
-    return out
 
 
 def test_rasterize_backward_reference_matches_finite_differences(rng):

@@ -18,19 +18,16 @@ from __future__ import annotations
 
 import argparse
 import sys
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
+from dc4gs_cl.bench import frozen_trainer
 from dc4gs_cl.config import TrainConfig
 from dc4gs_cl.host.densify import DC4GSConfig
 from dc4gs_cl.runtime import Runtime, describe
 from dc4gs_cl.scene import load_scene
 from dc4gs_cl.train import Trainer
-from dc4gs_cl.train.schedule import Schedule
-
-NEVER = 10 ** 9
 
 
 CONFIGURATIONS = {   # name -> DC4GSConfig settings; "_" keys are the benchmark's own switches
@@ -47,14 +44,8 @@ def trainer_at(state, scene, rt, settings: dict, base: str, resolution) -> Train
     """A trainer holding the given Gaussians (a GaussianSet), that gathers statistics but never densifies."""
     dc4gs = DC4GSConfig(**{k: v for k, v in settings.items() if not k.startswith("_")})
     cfg = TrainConfig(scene="bench", iterations=30_000, strategy=base, resolution=resolution, dc4gs=dc4gs)
-    scaled = Schedule(cfg).strategy()
-    c = scaled.config
-    strategy = type(scaled)(replace(c, densify_every=NEVER, opacity_reset_every=NEVER, opacity_clamp_every=None,
-                                    densify_until=0 if settings.get("_closed") else c.densify_until,
-                                    percent_dense=0.0 if settings.get("_all") else c.percent_dense), dc4gs)
-    trainer = Trainer(cfg, scene, rt, Path("/nonexistent"), strategy=strategy)
-    trainer.start_from(state, 1_000)
-    return trainer
+    return frozen_trainer(cfg, scene, rt, state, 1_000, closed=settings.get("_closed", False),
+                          split_costs_for_all=settings.get("_all", False))
 
 
 def main(argv=None) -> int:

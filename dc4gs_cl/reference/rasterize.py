@@ -134,3 +134,21 @@ def rasterize_backward_reference(mean2d, conic, opacity, rgb, gaussian_of_pair, 
             side = np.einsum("gci,pgci->pgc", end[:, None] - cand, q[:, None, None] - cand[None])
             np.add.at(out["split"], g, np.einsum("pgc,pgv->gcv", (side < 0).astype(float), values))
     return out
+
+
+def undecided_pixels(mean2d, conic, opacity, gaussian_of_pair, ranges, width, height, tiles_x, margin=1e-3):
+    """(height, width) mask of the pixels where float32 and float64 can decide a blend differently: some pair
+    within a relative `margin` of the 1/255 alpha cut-off or the alpha clamp, or transmittance within it of
+    the stop threshold. A flipped decision there moves whole pixels' worth of gradient, not rounding."""
+    out = np.zeros((height, width), bool)
+    near = lambda x, t: np.abs(x - t) < margin * t
+    for tile, (first, end) in enumerate(np.asarray(ranges)):
+        y0, x0 = (tile // tiles_x) * K.TILE_SIZE, (tile % tiles_x) * K.TILE_SIZE
+        ys, xs = np.mgrid[y0:min(y0 + K.TILE_SIZE, height), x0:min(x0 + K.TILE_SIZE, width)]
+        if end <= first or not ys.size:
+            continue
+        _, _, oG, alpha, blend, t_before = _tile_blend(mean2d, conic, opacity, gaussian_of_pair[first:end], xs, ys)
+        ambiguous = near(oG, K.ALPHA_MIN) | near(oG, K.ALPHA_MAX) | (blend & near(t_before * (1 - alpha),
+                                                                                 K.TRANSMITTANCE_MIN))
+        out[ys.ravel(), xs.ravel()] = ambiguous.any(axis=1)
+    return out

@@ -1,0 +1,84 @@
+"""`dc4gs-cl bench`: the quick suite runs end to end and writes a report whose every number is real (finite,
+positive times, small errors against the float64 references); --compare reads two reports line by line."""
+import copy
+import json
+import math
+
+import pytest
+
+from dc4gs_cl import bench
+from dc4gs_cl.cli import main
+
+
+@pytest.fixture(scope="module")
+def quick_report(tmp_path_factory):
+    out = tmp_path_factory.mktemp("bench")
+    assert main(["bench", "--quick", "--out", str(out)]) == 0
+    written = sorted(p.name for p in out.iterdir())
+    assert len(written) == 2 and written[0].endswith(".json") and written[1].endswith(".md")
+    return out / written[0], json.loads((out / written[0]).read_text()), (out / written[1]).read_text()
+
+
+def test_quick_suite_measures_every_stage_and_writes_both_reports(quick_report):
+    _, report, text = quick_report
+    assert report["suite_version"] == bench.SUITE_VERSION and report["suite"] == "quick"
+    env = report["environment"]
+    assert env["device_name"] and env["driver_version"] and env["pyopencl"]
+    names = [c["name"] for c in report["cases"]]
+    assert names == ["builtin 48x36", "builtin 96x72", "random 20,000 160x90"]
+    for case in report["cases"]:
+        assert case["gaussians"] > 1000 and case["forward"]["pairs"] > 0
+        assert set(case["forward"]["stages_ms"]) == {"project", "isect", "sort", "rasterize"}
+        for name, run in case["train"].items():
+            stages = run["stages_ms"]
+            assert {"loss", "rasterize_backward", "project_backward", "densify_stats"} <= set(stages), name
+            assert ("split_geometry" in stages) == ("DC4GS" in name)
+            assert all(math.isfinite(v) and v > 0 for v in stages.values()), (name, stages)
+            assert run["device_ms"] >= max(stages.values())
+            assert 100 < run["bytes_per_gaussian"] < 1e5
+    rows = {(r["stage"], r["quantity"]): r["rel_l2"] for r in report["accuracy"]}
+    assert len(rows) == 14
+    for key, err in rows.items():   # NaN fails too
+        assert err < 1e-3, key
+    # the markdown names the device and holds every case's table and the accuracy table
+    assert env["device"] in text and env["driver_version"] in text
+    for name in names:
+        assert f"## {name}" in text
+    assert text.count("| **device total** |") == 3 and "dL/dmeans" in text
+
+
+def test_compare_prints_ratios_line_by_line(quick_report, tmp_path, capsys):
+    path, report, _ = quick_report
+    slower = copy.deepcopy(report)
+    slower["environment"]["device"] = "a slower device"
+    for case in slower["cases"]:
+        for run in [case["forward"], *case["train"].values()]:
+            run["stages_ms"] = {s: 2 * v for s, v in run["stages_ms"].items()}
+            run["device_ms"] *= 2
+    other = tmp_path / "slower.json"
+    other.write_text(json.dumps(slower))
+    capsys.readouterr()
+    assert main(["bench", "--compare", str(path), str(other)]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert "a slower device" in lines[1]
+    rows = [line.split(" | ") for line in lines if line.startswith("| builtin 48x36 | forward | ")]
+    ratios = {r[2]: r[-1].rstrip(" |") for r in rows}
+    assert ratios["project ms"] == "2.00" and ratios["device ms"] == "2.00" and ratios["wall ms"] == "1.00"
+    assert any(line.startswith("| accuracy | loss | value |") and line.endswith("| 1.00 |") for line in lines)
+
+
+def test_compare_refuses_other_suites_and_files_that_are_not_reports(quick_report, tmp_path, capsys):
+    path, report, _ = quick_report
+    full = dict(report, suite="full")
+    other = tmp_path / "full.json"
+    other.write_text(json.dumps(full))
+    capsys.readouterr()
+    assert main(["bench", "--compare", str(path), str(other)]) == 2
+    assert "different suites" in capsys.readouterr().err
+    junk = tmp_path / "junk.json"
+    junk.write_text('{"hello": 1}')
+    assert main(["bench", "--compare", str(path), str(junk)]) == 2
+    err = capsys.readouterr().err
+    assert "junk.json" in err and "not a report" in err
+    assert main(["bench", "--compare", str(path), str(tmp_path / "missing.json")]) == 2
+    assert "missing.json" in capsys.readouterr().err
