@@ -10,6 +10,7 @@ high-water mark (`memory_peak`, restarted by `reset_memory_peak()`).
 """
 from __future__ import annotations
 
+import math
 import os
 import re
 import sys
@@ -226,6 +227,7 @@ class Runtime:
         self.profiling = profiling
         self.caps = Capabilities.of(self.device)
         self._programs: dict[tuple, cl.Program] = {}
+        self._kernel_limits: dict[cl.Kernel, tuple[int, int]] = {}
         self.events: dict[str, list[cl.Event]] = defaultdict(list)
         self.memory_in_use = 0   # bytes in device buffers made here and not yet released
         self.memory_peak = 0     # the most memory_in_use has been since the last reset_memory_peak()
@@ -252,20 +254,39 @@ class Runtime:
         return prg
 
     # launches and buffers -----------------------------------------------------------------------
+    def kernel_limits(self, kernel: cl.Kernel) -> tuple[int, int]:
+        """(the largest work-group, the local bytes it takes) of a built kernel on this device, as the driver
+        reports them (a kernel's work-group limit can be below the device's: registers on a GPU)."""
+        limits = self._kernel_limits.get(kernel)
+        if limits is None:
+            info = cl.kernel_work_group_info
+            limits = self._kernel_limits[kernel] = (
+                min(kernel.get_work_group_info(info.WORK_GROUP_SIZE, self.device), self.caps.max_work_group_size),
+                kernel.get_work_group_info(info.LOCAL_MEM_SIZE, self.device))
+        return limits
+
     def launch(self, stage: str, kernel: cl.Kernel, global_size, local_size, *args) -> cl.Event:
-        """Enqueue a kernel; with profiling on, its event is kept under `stage`."""
+        """Enqueue a kernel; with profiling on, its event is kept under `stage`. A work-group beyond the kernel's
+        limits is a DeviceError naming them (the stages choose shapes within them; this says which did not)."""
         if isinstance(global_size, int):
             global_size = (global_size,)
         if isinstance(local_size, int):
             local_size = (local_size,)
+        if local_size is not None:
+            items, (item_limit, local) = math.prod(local_size), self.kernel_limits(kernel)
+            if items > item_limit or local > self.caps.local_mem_size:
+                raise DeviceError(f"stage {stage}: kernel {kernel.function_name} launched in work-groups of {items} "
+                                  f"items taking {local:,} bytes of local memory; on {describe(self.device)} it "
+                                  f"allows {item_limit} items and {self.caps.local_mem_size:,} bytes")
         ev = kernel(self.queue, global_size, local_size, *args)
         if self.profiling:
             self.events[stage].append(ev)
         return ev
 
     def launch_items(self, stage: str, kernel: cl.Kernel, n: int, wg: int, *args) -> cl.Event:
-        """A 1D launch of n work-items (one per element) in work-groups of wg: the global size is n rounded
-        up, so the kernel must bound-check its index against n."""
+        """A 1D launch of n work-items (one per element) in work-groups of wg, or of the kernel's limit where
+        that is less: the global size is n rounded up, so the kernel must bound-check its index against n."""
+        wg = min(wg, self.kernel_limits(kernel)[0])
         return self.launch(stage, kernel, -(-n // wg) * wg, wg, *args)
 
     def stage_times(self, reset: bool = True) -> dict[str, float]:

@@ -8,26 +8,17 @@ import pyopencl as cl
 from ..constants import TILE_SIZE
 from ..render.rasterize import background_value, raster_defines
 from ..render.renderer import RenderResult
-from ..render.stage import PER_GAUSSIAN_WG, Stage, StageContext, halvings, visible_rows
+from ..render.stage import PER_GAUSSIAN_WG, Stage, visible_rows
 from .sums import SumsLayout
 
 
 class RasterizeBackward(Stage):
     FILE, KERNELS = "rasterize_backward.cl", ("rasterize_backward", "sum_pairs")
 
-    def __init__(self, ctx: StageContext):
-        super().__init__(ctx)
-        self._fitted: dict[tuple, dict[str, cl.Kernel]] = {}
-
     def fitted_kernels(self, variant: dict) -> dict[str, cl.Kernel]:
-        """A variant's kernels with the largest batch (the tuning's, halved as needed) whose local arrays (a
-        batch of Gaussians, their split geometry and, in the cooperative shapes, their sums: 62 KB with DC4GS'
-        split sums at the GPU shape's 256) fit the device's local memory."""
-        key = tuple(sorted(variant.items()))
-        if key not in self._fitted:
-            self._fitted[key] = self.fitting_kernels([{**variant, "BATCH": b} for b in halvings(self.ctx.tuning.batch)],
-                                                     "rasterize_backward")[1]
-        return self._fitted[key]
+        """A variant's kernels whose local arrays (a batch of Gaussians, their split geometry and, in the
+        cooperative shapes, their sums: 62 KB with DC4GS' split sums at the GPU shape's 256) fit the device."""
+        return self.batch_fitted_kernels(variant, "rasterize_backward")
 
     def defines(self) -> dict:
         # pair_sums: one slot per (tile, Gaussian) pair, summed per Gaussian in a fixed order (deterministic);

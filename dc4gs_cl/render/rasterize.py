@@ -45,7 +45,8 @@ class Rasterize(Stage):
                      final_T=ws.get("raster.final_T", 4 * width * height),
                      last_pair=ws.get("raster.last_pair", 4 * width * height))
         items = TILE_SIZE * TILE_SIZE // self.ctx.tuning.pixels_per_item
-        self.rt.launch("rasterize", self.kernels()["rasterize"], tiles_x * tiles_y * items, items, np.int32(width),
+        kernel = self.batch_fitted_kernels({}, "rasterize")["rasterize"]
+        self.rt.launch("rasterize", kernel, tiles_x * tiles_y * items, items, np.int32(width),
                        np.int32(height), np.int32(tiles_x), background_value(background), isect.ranges,
                        isect.gaussian_of_pair, proj.mean2d, proj.conic_opacity, proj.rgb, proj.alpha_extent,
                        out.image, out.final_T, out.last_pair)

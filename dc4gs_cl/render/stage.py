@@ -41,6 +41,7 @@ class Stage:
     def __init__(self, ctx: StageContext):
         self.ctx, self.rt, self.ws = ctx, ctx.rt, ctx.ws
         self._built: dict[tuple, dict[str, cl.Kernel]] = {}
+        self._batch_fitted: dict[tuple, dict[str, cl.Kernel]] = {}
 
     def defines(self) -> dict:
         """The -D options fixed for this stage's life (work shapes, switches); variants add to them."""
@@ -65,6 +66,15 @@ class Stage:
                 return variant, built
         raise DeviceError(f"kernels/{self.FILE}: {kernel} needs {local_bytes(built[kernel]):,} bytes of local "
                           f"memory even in its smallest shape; the device has {limit:,}")
+
+    def batch_fitted_kernels(self, variant: dict, kernel: str) -> dict[str, cl.Kernel]:
+        """The rasterizers' kernels for a variant with the largest BATCH (Gaussians held in local memory at a time:
+        the tuning's, halved as needed) whose `kernel` fits the device's local memory; kept per variant."""
+        key = tuple(sorted(variant.items()))
+        if key not in self._batch_fitted:
+            self._batch_fitted[key] = self.fitting_kernels(
+                [{**variant, "BATCH": b} for b in halvings(self.ctx.tuning.batch)], kernel)[1]
+        return self._batch_fitted[key]
 
     def check(self, arrays) -> None:
         """--check-finite: `arrays()` gives the host copies of this call's outputs; read only when on."""

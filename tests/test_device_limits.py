@@ -1,0 +1,92 @@
+"""Device limits: every launch of a whole training step fits a small device (32-item work-groups, 8 KiB of local
+memory, the kernels' own work-group limit at 32), and the step computes what it computes on this device's own
+shape. Runtime.launch refuses a work-group beyond a kernel's limits, so a stage that chose a shape outside them
+fails here by name."""
+from dataclasses import replace
+
+import numpy as np
+import pyopencl as cl
+import pytest
+
+from dc4gs_cl.bench import frozen_trainer
+from dc4gs_cl.config import TrainConfig
+from dc4gs_cl.errors import DeviceError
+from dc4gs_cl.host.densify import DC4GSConfig
+from dc4gs_cl.runtime import Capabilities, Runtime
+from dc4gs_cl.scene.builtin import builtin_scene
+from dc4gs_cl.train import Trainer
+
+SMALL = Capabilities(is_cpu=False, compute_units=1, max_work_group_size=32, local_mem_size=8 * 1024,
+                     float_atomic_add=False, fp64=False)
+STEPS = 6
+CONFIGS = {"3dgs": {"strategy": "3dgs"},
+           "absgs+DC4GS": {"strategy": "absgs", "dc4gs": DC4GSConfig(dcc=True, dcs=True)},
+           "pixelgs+DC4GS --low-memory": {"strategy": "pixelgs", "dc4gs": DC4GSConfig(dcc=True, dcs=True),
+                                          "low_memory": True}}
+
+
+@pytest.fixture(scope="module")
+def scene_and_state():
+    """The built-in scene at 48x36 and a model trained 60 iterations on it (this device, its own shape)."""
+    scene = builtin_scene(resolution=4)
+    warm = Trainer(TrainConfig(scene="builtin", iterations=600), scene, Runtime(), "/nonexistent")
+    for _ in range(60):
+        warm.step()
+    return scene, warm.model.download()
+
+
+def steps(rt: Runtime, scene, state, settings: dict) -> tuple[dict, dict]:
+    """STEPS statistics-gathering steps (no densification) from `state`: the parameters and window statistics."""
+    trainer = frozen_trainer(TrainConfig(scene="builtin", iterations=600, **settings), scene, rt, state, 100)
+    for _ in range(STEPS):
+        trainer.step()
+    return trainer.model.download().params, trainer.strategy.window.download()
+
+
+@pytest.mark.parametrize("config", CONFIGS)
+def test_a_training_step_fits_a_small_device_and_matches_the_full_shape(scene_and_state, config):
+    scene, state = scene_and_state
+    small = Runtime()
+    small.caps = SMALL                           # the limits every stage reads (shapes, fitting, launches)
+    launches = []
+    launch = small.launch
+
+    def recorded(stage, kernel, global_size, local_size, *args):
+        launches.append((stage, kernel.function_name, local_size, small.kernel_limits(kernel)[1]))
+        return launch(stage, kernel, global_size, local_size, *args)
+
+    small.launch = recorded
+    got_params, got_stats = steps(small, scene, state, CONFIGS[config])
+    want_params, want_stats = steps(Runtime(), scene, state, CONFIGS[config])
+
+    sized = [(s, k, l) for s, k, l, _ in launches if l is not None]
+    assert {k for _, k, _ in sized} >= {"project", "rasterize", "loss_ssim", "rasterize_backward", "project_backward"}
+    assert all(int(np.prod(l)) <= SMALL.max_work_group_size for _, _, l in sized), sized
+    assert all(local <= SMALL.local_mem_size for *_, local in launches)
+    for key, want in want_params.items():
+        got = got_params[key]
+        assert np.isfinite(got).all(), key
+        err = np.linalg.norm(got - want) / np.linalg.norm(want)
+        assert err < 1e-5, (key, err)           # other shapes sum in other orders: float32 rounding only
+    for key, want in want_stats.items():        # the densification window's statistics
+        got = got_stats[key]
+        assert np.isfinite(got).all(), key
+        err = np.linalg.norm(got - want) / max(np.linalg.norm(want), 1e-30)
+        assert err < 1e-3, (key, err)           # rare blend-threshold flips move whole pixels' statistics
+
+
+def test_a_launch_beyond_a_kernels_limits_is_refused_by_name(rt):
+    program = cl.Program(rt.context, "__kernel void add_one(__global float *a) { a[get_global_id(0)] += 1.f; }").build()
+    kernel = cl.Kernel(program, "add_one")
+    buf = rt.to_device(np.zeros(64, np.float32))
+    limit = rt.kernel_limits(kernel)[0]
+    with pytest.raises(DeviceError, match=rf"stage test: kernel add_one .* work-groups of {2 * limit} items.*allows {limit}"):
+        rt.launch("test", kernel, 2 * limit, 2 * limit, buf)
+    narrow = Runtime()
+    narrow.caps = replace(narrow.caps, max_work_group_size=8)
+    kernel = cl.Kernel(cl.Program(narrow.context, "__kernel void add_one(__global float *a) "
+                                                  "{ if (get_global_id(0) < 60) a[get_global_id(0)] += 1.f; }").build(),
+                       "add_one")
+    buf = narrow.to_device(np.zeros(64, np.float32))
+    narrow.launch_items("test", kernel, 60, 64, buf)   # asks 64 per group, gets the limit of 8
+    np.testing.assert_array_equal(narrow.to_host(buf, 64), np.r_[np.ones(60), np.zeros(4)])
