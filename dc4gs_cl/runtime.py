@@ -176,6 +176,21 @@ def choose_device(spec: str | None = None) -> tuple[str, cl.Device]:
     raise DeviceError(f"no OpenCL device matches '{spec}' (devices: {names})")
 
 
+# Drivers that end every loop of a work-item early once it has run this many loop iterations in all (over all
+# its loops), leaving results silently wrong: Mesa's llvmpipe (rusticl) before 25.0 keeps a loop limiter meant
+# for graphics shaders (gallivm's LP_MAX_TGSI_LOOP_ITERATIONS, removed in Mesa 25.0.0, "gallivm: Remove loop
+# limiting"). By (part of the platform name, first driver version without it, the limit).
+LOOP_LIMITED_DRIVERS = (("rusticl", (25, 0), 65_535),)
+
+
+def loop_limit(device: cl.Device) -> int | None:
+    """The loop iterations one work-item may run in all on this device's driver (LOOP_LIMITED_DRIVERS);
+    None where there is no such limit."""
+    platform = device.platform.name.lower()
+    version = tuple(int(v) for v in re.findall(r"\d+", device.driver_version)[:2])
+    return next((limit for name, fixed, limit in LOOP_LIMITED_DRIVERS if name in platform and version < fixed), None)
+
+
 @dataclass(frozen=True)
 class Capabilities:
     is_cpu: bool
@@ -185,6 +200,7 @@ class Capabilities:
     float_atomic_add: bool     # native float atomics (cl_ext_float_atomics); our kernels need none (see
                                # kernels/common.h), this is reported by `dc4gs-cl devices`
     fp64: bool
+    loop_limit: int | None = None   # a driver defect: see LOOP_LIMITED_DRIVERS
 
     @staticmethod
     def of(device: cl.Device) -> "Capabilities":
@@ -196,12 +212,16 @@ class Capabilities:
             local_mem_size=device.local_mem_size,
             float_atomic_add="cl_ext_float_atomics" in ext,
             fp64="cl_khr_fp64" in ext,
+            loop_limit=loop_limit(device),
         )
 
     def summary(self) -> str:
         return (f"work-groups up to {self.max_work_group_size}, {self.local_mem_size // 1024} KiB local memory, "
                 f"float atomics: {'native' if self.float_atomic_add else 'none (compare-and-swap emulation)'}, "
-                f"fp64: {'yes' if self.fp64 else 'no'}")
+                f"fp64: {'yes' if self.fp64 else 'no'}"
+                + (f", loops cut after {self.loop_limit:,} iterations per work-item (a driver defect, gone in "
+                   f"Mesa 25.0: renders take short-loop shapes; the backward of busy views stays wrong)"
+                   if self.loop_limit else ""))
 
 
 class _Buffer(cl.Buffer):

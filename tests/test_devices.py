@@ -1,13 +1,16 @@
 """Device choice: never a simulator by default, a GPU first, then the CPU implementation measured faster, with
 the reason `devices` shows; runtimes installed from PyPI with a placeholder .icd are registered by path."""
 import os
+from dataclasses import replace
 from types import SimpleNamespace
 
 import pyopencl as cl
 import pytest
 
 from dc4gs_cl import runtime
+from dc4gs_cl.render import Tuning
 from dc4gs_cl.runtime import choose_device, default_device, register_bundled_runtimes
+from helpers import NARROW_CAPS
 
 GPU, CPU = cl.device_type.GPU, cl.device_type.CPU
 ALL = cl.device_type.ALL
@@ -61,3 +64,17 @@ def test_a_bundled_runtime_is_registered_by_its_absolute_path(tmp_path, monkeypa
     assert register_bundled_runtimes(prefix, cache) is None and os.environ[runtime.ICD_VENDORS_ENV] == "/users/own"
     monkeypatch.delenv(runtime.ICD_VENDORS_ENV)
     assert register_bundled_runtimes(tmp_path / "plain", cache) is None     # nothing bundled: nothing set
+
+
+@pytest.mark.parametrize("platform, driver, limit", [
+    ("rusticl", "22.3.6", 65_535),                      # Debian 12's Mesa: loops cut short
+    ("rusticl", "25.0.7", None),                        # the limiter is gone since Mesa 25.0.0
+    ("Portable Computing Language", "3.0-rc2", None),
+])
+def test_drivers_that_cut_loops_short_get_short_loop_shapes(platform, driver, limit):
+    dev = SimpleNamespace(platform=SimpleNamespace(name=platform), driver_version=driver)
+    assert runtime.loop_limit(dev) == limit
+    caps = replace(NARROW_CAPS, is_cpu=True, max_work_group_size=1024, loop_limit=limit)
+    tuning = Tuning.for_device(caps)
+    assert (tuning.pixels_per_item, tuning.sort_blocks, tuning.scan_wg * tuning.scan_groups) == (
+        (1, 4096, 256 * 256) if limit else (256, 4, 4))

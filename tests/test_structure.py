@@ -41,10 +41,13 @@ def test_lower_layers_do_not_import_higher_ones(folder):
     assert not {m: i for m, i in bad.items() if i}
 
 
+REFERENCE_USERS = {"bench.py"}   # `dc4gs-cl bench` reports each stage's error against the references
+
+
 def test_production_code_does_not_import_the_references():
     users = {m for m, imports in modules().items()
              if not m.startswith("reference/") and any(i.startswith("dc4gs_cl.reference") for i in imports)}
-    assert not users
+    assert users == REFERENCE_USERS
 
 
 def test_the_import_reader_sees_imports():

@@ -21,12 +21,14 @@ class Tuning:
 
     @staticmethod
     def for_device(caps: Capabilities) -> "Tuning":
-        if caps.is_cpu:
+        if caps.is_cpu and not caps.loop_limit:
             # One work-item per tile vectorises across the tile's pixels; sequential runs for the
             # sort and scan keep each core streaming through memory.
             cores = max(1, caps.compute_units)
             return Tuning(pixels_per_item=256, batch=32, radix_bits=8, sort_blocks=4 * cores,
                           scan_wg=1, scan_groups=4 * cores, isect_wg=64).within(caps)
+        # GPUs, and drivers that cut a work-item's loops short (Capabilities.loop_limit): one pixel, and short
+        # runs of keys and of scan elements, per work-item.
         return Tuning(pixels_per_item=1, batch=256, radix_bits=4, sort_blocks=4096,
                       scan_wg=256, scan_groups=256, isect_wg=256).within(caps)
 
