@@ -78,3 +78,13 @@ def test_drivers_that_cut_loops_short_get_short_loop_shapes(platform, driver, li
     tuning = Tuning.for_device(caps)
     assert (tuning.pixels_per_item, tuning.sort_blocks, tuning.scan_wg * tuning.scan_groups) == (
         (1, 4096, 256 * 256) if limit else (256, 4, 4))
+
+
+def test_training_on_a_driver_that_cuts_loops_short_stops_with_the_reason(tmp_path, monkeypatch, capsys):
+    from dc4gs_cl.cli import main
+    monkeypatch.setattr(runtime, "loop_limit", lambda device: 65_535)
+    out = tmp_path / "run"
+    assert main(["train", "--iterations", "2", "-r", "4", "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "loops short after 65,535 iterations" in err and "Mesa 25" in err and "dc4gs-cl devices" in err
+    assert not out.exists()

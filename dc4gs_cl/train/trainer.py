@@ -20,14 +20,14 @@ from pathlib import Path
 import numpy as np
 
 from ..backward import ProjectBackward, RasterizeBackward
-from ..errors import InputError
+from ..errors import DeviceError, InputError
 from ..host.densify import GaussianSet, Strategy
 from ..host.trainable import TrainableGaussians
 from ..loss import STAT_KEYS, Loss
 from ..model import initial_model
 from ..render import DeviceGaussians, Renderer, Tuning
 from ..run_folder import Checkpoint, RunFolder
-from ..runtime import Runtime
+from ..runtime import Runtime, describe
 from ..scene.camera import Camera, Scene
 from ..config import TrainConfig
 from .log import DEFAULT_LINE_EVERY, SAMPLE_EVERY, TrainingLog
@@ -52,6 +52,11 @@ class Trainer:
         check_finite: every stage checks its outputs and the first NaN or Inf stops the run (finite.py)."""
         if not scene.train:
             raise InputError(scene.root, "the scene has no training cameras")
+        if rt.caps.loop_limit:   # runtime.LOOP_LIMITED_DRIVERS: its renders are right, its gradients of busy views not
+            raise DeviceError(f"{describe(rt.device)} cuts every work-item's loops short after {rt.caps.loop_limit:,} "
+                              "iterations (llvmpipe's loop limiter, removed in Mesa 25.0), which leaves the gradients "
+                              "of busy views wrong: train on another device (see `dc4gs-cl devices`; PoCL comes with "
+                              "dc4gs-cl) or with Mesa 25 or later. Rendering and eval work on it.")
         self.cfg, self.scene, self.rt = cfg, scene, rt
         self.run_folder = out if isinstance(out, RunFolder) else RunFolder(out)
         self.schedule = Schedule(cfg)
