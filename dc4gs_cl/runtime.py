@@ -127,7 +127,8 @@ SIMULATORS = ("oclgrind",)
 # CPU implementations in the order the default prefers them, each with why (measured on 2 AMD EPYC cores: the
 # built-in scene's and the garden's frames, issue #11; `dc4gs-cl devices` shows the reason).
 CPU_PREFERENCE = (
-    ("intel(r) opencl", "Intel's CPU runtime: the same frames 18-31% faster than PoCL's (projection 7x)"),
+    ("intel(r) opencl", "Intel's CPU runtime: frames 11-29% faster than PoCL's, the built-in 3DGS run's iterations 20% "
+                        "(`dc4gs-cl bench`; DC4GS iterations 3-46% slower)"),
     ("portable computing language", "PoCL"),
 )
 
