@@ -7,6 +7,7 @@ import pytest
 
 from dc4gs_cl.constants import TILE_SIZE
 from dc4gs_cl.reference import intersect_reference, rasterize_reference
+from dc4gs_cl.reference.project import tile_rect_reference
 from dc4gs_cl.render import DeviceGaussians, Renderer
 from dc4gs_cl.scene.camera import Camera
 from helpers import NARROW_CAPS, NARROW_SHAPE, SHAPES, random_camera, random_model
@@ -32,6 +33,37 @@ def render_and_download(rt, renderer, model, cam, background):
 
 
 TUNINGS = {**SHAPES, "gpu-within-64": NARROW_SHAPE}
+EDGE_ROUNDING = 1e-3   # px: a pair box's edge this close to a tile boundary may fall either side in float32
+
+
+def assert_pairs_match(got, tile_of_pair, gaussian_of_pair, ranges, tiles_x, tiles_y):
+    """The device's pairs are the reference's, in its order (tile, depth, index), except for the Gaussians with
+    an edge of their pair box within EDGE_ROUNDING of a tile boundary (float32 against float64 may differ by a
+    tile row or column there; seed 628167841 drew one): those get the reference's tiles of the box shrunk or
+    grown by that much, or any set in between."""
+    half = np.minimum(got["radius"].astype(np.float64)[:, None], got["alpha_extent"])
+    mean = got["mean2d"].astype(np.float64)
+    edges = np.concatenate([mean - half, mean + half], 1) / TILE_SIZE
+    undecided = (got["tiles_touched"] > 0) & (np.abs(edges - np.round(edges)) * TILE_SIZE < EDGE_ROUNDING).any(1)
+    assert undecided.mean() < 0.01
+    mine, theirs = ~undecided[got["gaussian_of_pair"]], ~undecided[gaussian_of_pair]
+    np.testing.assert_array_equal(got["tile_of_pair"][mine], tile_of_pair[theirs])
+    np.testing.assert_array_equal(got["gaussian_of_pair"][mine], gaussian_of_pair[theirs])
+    for g in np.flatnonzero(undecided):
+        tiles = set(got["tile_of_pair"][got["gaussian_of_pair"] == g].tolist())
+        inner, outer = (tile_rect_reference(mean[g:g + 1], half[g:g + 1] + d, tiles_x, tiles_y)[0]
+                        for d in (-EDGE_ROUNDING, EDGE_ROUNDING))
+        within = lambda r: {y * tiles_x + x for y in range(r[1], r[3]) for x in range(r[0], r[2])}
+        assert within(inner) <= tiles <= within(outer), g
+    # the device's own pairs in (tile, depth, index) order, and its ranges those of its pairs
+    order = np.lexsort((got["gaussian_of_pair"], got["depth"][got["gaussian_of_pair"]], got["tile_of_pair"]))
+    np.testing.assert_array_equal(order, np.arange(len(order)))
+    if not undecided.any():
+        np.testing.assert_array_equal(got["ranges"], ranges)
+    n_tiles = tiles_x * tiles_y
+    first = np.searchsorted(got["tile_of_pair"], np.arange(n_tiles), "left")
+    end = np.searchsorted(got["tile_of_pair"], np.arange(n_tiles), "right")
+    np.testing.assert_array_equal(got["ranges"], np.where((end > first)[:, None], np.stack([first, end], 1), 0))
 
 
 def test_a_shape_narrowed_to_the_work_group_limit():
@@ -51,9 +83,7 @@ def test_intersections_and_raster_match_reference(rt, rng, shape):
     tile_of_pair, gaussian_of_pair, ranges = intersect_reference(
         got["mean2d"], got["radius"], got["alpha_extent"], got["tiles_touched"], got["depth"], res.tiles_x, res.tiles_y)
     assert res.isect.n_visible == np.count_nonzero(got["tiles_touched"]) > 500
-    np.testing.assert_array_equal(got["tile_of_pair"], tile_of_pair)
-    np.testing.assert_array_equal(got["gaussian_of_pair"], gaussian_of_pair)
-    np.testing.assert_array_equal(got["ranges"], ranges)
+    assert_pairs_match(got, tile_of_pair, gaussian_of_pair, ranges, res.tiles_x, res.tiles_y)
 
     co = got["conic_opacity"].astype(np.float64)
     ref = rasterize_reference(got["mean2d"].astype(np.float64), co[:, :3], co[:, 3], got["rgb"].astype(np.float64),
@@ -65,13 +95,16 @@ def test_intersections_and_raster_match_reference(rt, rng, shape):
         diff = np.abs(got[key] - ref[key])
         assert np.mean(diff > 1e-5) < 1e-3 and diff.max() < 0.05, key
         assert np.linalg.norm(diff) / np.linalg.norm(ref[key]) < 1e-4, key
-    assert np.mean(got["last_pair"] != ref["last_pair"]) < 1e-3
+    # the last blended pair as the Gaussian it holds (an undecided box edge shifts the pair indices after it)
+    last = lambda pairs, of_pair: np.where(pairs >= 0, np.asarray(of_pair, np.int64)[np.maximum(pairs, 0)], -1)
+    assert np.mean(last(got["last_pair"], got["gaussian_of_pair"]) != last(ref["last_pair"], gaussian_of_pair)) < 1e-3
 
 
 def test_saturated_tiles_stop_early_and_empty_tiles_show_background(rt, rng):
     # A wall of opaque Gaussians on the left third of the view (world x < -0.6); nothing on the right. Dense
-    # enough that every draw saturates the wall (1,500 left 10% of it unsaturated in 1 draw of a few hundred).
-    n = 3000
+    # enough that every draw saturates the wall (1,500 left 10% of it unsaturated in 1 draw of a few hundred,
+    # 3,000 in 1 of about a thousand: seed 628167841).
+    n = 6000
     model = random_model(rng, n, spread=0.3, scale_range=(0.15, 0.25))
     model.means[:, 0] = rng.uniform(-2.2, -0.6, n)
     model.means[:, 2] = rng.uniform(-1.3, 1.3, n)
