@@ -294,15 +294,18 @@ class Runtime:
         if isinstance(local_size, int):
             local_size = (local_size,)
         if local_size is not None:
-            items, (item_limit, local) = math.prod(local_size), self.kernel_limits(kernel)
-            if items > item_limit or local > self.caps.local_mem_size:
-                raise DeviceError(f"stage {stage}: kernel {kernel.function_name} launched in work-groups of {items} "
-                                  f"items taking {local:,} bytes of local memory; on {describe(self.device)} it "
-                                  f"allows {item_limit} items and {self.caps.local_mem_size:,} bytes")
+            self.check_launch(stage, kernel, local_size)
         ev = kernel(self.queue, global_size, local_size, *args)
         if self.profiling:
             self.events[stage].append(ev)
         return ev
+
+    def check_launch(self, stage: str, kernel: cl.Kernel, local_size: tuple) -> None:
+        items, (item_limit, local) = math.prod(local_size), self.kernel_limits(kernel)
+        if items > item_limit or local > self.caps.local_mem_size:
+            raise DeviceError(f"stage {stage}: kernel {kernel.function_name} launched in work-groups of {items} "
+                              f"items taking {local:,} bytes of local memory; on {describe(self.device)} it "
+                              f"allows {item_limit} items and {self.caps.local_mem_size:,} bytes")
 
     def launch_items(self, stage: str, kernel: cl.Kernel, n: int, wg: int, *args) -> cl.Event:
         """A 1D launch of n work-items (one per element) in work-groups of wg, or of the kernel's limit where
