@@ -61,7 +61,7 @@ NEVER = 10 ** 9                       # a densification interval no run reaches
 @dataclass(frozen=True)
 class Suite:
     builtin_sizes: tuple[tuple[int, int], ...] = ((192, 144), (384, 288))
-    warm_iterations: int = 600        # of the built-in run's 5,000-iteration schedule: ~36k Gaussians
+    warm_iterations: int = 600        # of the built-in run's 5,000-iteration schedule: 27,960 Gaussians
     schedule: int = 5_000
     synthetic_gaussians: int = 1_000_000
     synthetic_size: tuple[int, int] = (1280, 720)
@@ -75,7 +75,8 @@ class Suite:
 
 FULL = Suite()
 QUICK = Suite(builtin_sizes=((48, 36), (96, 72)), warm_iterations=40, synthetic_gaussians=20_000,
-              synthetic_size=(160, 90), rounds=2, iterations=2, synthetic_iterations=1, forward_views=2, accuracy_case=(300, 48, 40))
+              synthetic_size=(160, 90), rounds=2, iterations=2, synthetic_iterations=1, forward_views=2,
+              accuracy_case=(300, 48, 40))
 TRAINING = {"3dgs": {"strategy": "3dgs"},
             "absgs+DC4GS": {"strategy": "absgs", "dc4gs": DC4GSConfig(dcc=True, dcs=True)}}
 
@@ -100,27 +101,31 @@ def frozen_trainer(cfg: TrainConfig, scene: Scene, rt: Runtime, state: GaussianS
     return trainer
 
 
-def stage_medians(rounds: list[dict[str, float]], per: int) -> dict[str, float]:
-    """Median ms per stage over rounds of summed seconds, each round covering `per` frames or iterations."""
-    stages = list(dict.fromkeys(s for r in rounds for s in r))
-    return {s: median([r.get(s, 0.0) for r in rounds]) * 1e3 / per for s in stages}
+def timed_rounds(rt: Runtime, rounds: int, per: int, work) -> dict:
+    """`work()` (per frames or iterations) run `rounds` times: per frame or iteration, the median device ms of
+    each stage and in all (OpenCL profiling events) and the median wall ms."""
+    rt.stage_times()
+    times, walls = [], []
+    for _ in range(rounds):
+        start = time.perf_counter()
+        work()
+        times.append(rt.stage_times())     # waits for the queue
+        walls.append(time.perf_counter() - start)
+    stages = list(dict.fromkeys(s for r in times for s in r))
+    return {"stages_ms": {s: median([r.get(s, 0.0) for r in times]) * 1e3 / per for s in stages},
+            "device_ms": median([sum(r.values()) for r in times]) * 1e3 / per, "wall_ms": median(walls) * 1e3 / per}
 
 
 def time_forward(rt: Runtime, model: GaussianModel, cams: list[Camera], background, suite: Suite) -> dict:
     renderer, g = Renderer(rt), DeviceGaussians(rt, model)
     for cam in cams:                       # builds kernels and sizes buffers outside the timing
-        renderer.render(g, cam, model.sh_degree, background)
-    rt.stage_times()
-    rounds, walls = [], []
-    for _ in range(suite.rounds):
-        start = time.perf_counter()
+        res = renderer.render(g, cam, model.sh_degree, background)
+
+    def frames():
         for cam in cams:
-            res = renderer.render(g, cam, model.sh_degree, background)
-        rounds.append(rt.stage_times())   # waits for the queue
-        walls.append(time.perf_counter() - start)
-    stages = stage_medians(rounds, len(cams))
-    return {"stages_ms": stages, "device_ms": median([sum(r.values()) for r in rounds]) * 1e3 / len(cams),
-            "wall_ms": median(walls) * 1e3 / len(cams), "pairs": int(res.isect.n_pairs)}
+            renderer.render(g, cam, model.sh_degree, background)
+
+    return {**timed_rounds(rt, suite.rounds, len(cams), frames), "pairs": int(res.isect.n_pairs)}
 
 
 def time_training(rt: Runtime, cfg: TrainConfig, scene: Scene, state: GaussianSet, iteration: int,
@@ -130,19 +135,14 @@ def time_training(rt: Runtime, cfg: TrainConfig, scene: Scene, state: GaussianSe
     rt.reset_memory_peak()
     trainer = frozen_trainer(cfg, scene, rt, state, iteration)
     trainer.step()                         # builds kernels and sizes buffers outside the timing
-    rt.stage_times()
-    rounds, walls = [], []
-    for _ in range(suite.rounds):
-        start = time.perf_counter()
+
+    def steps():
         for _ in range(iterations):
             trainer.step()
-        rounds.append(rt.stage_times())
-        walls.append(time.perf_counter() - start)
+
+    out = timed_rounds(rt, suite.rounds, iterations, steps)
     peak = rt.memory_peak - before
-    return {"stages_ms": stage_medians(rounds, iterations),
-            "device_ms": median([sum(r.values()) for r in rounds]) * 1e3 / iterations,
-            "wall_ms": median(walls) * 1e3 / iterations, "peak_bytes": int(peak),
-            "bytes_per_gaussian": peak / state.n}
+    return {**out, "peak_bytes": int(peak), "bytes_per_gaussian": peak / state.n}
 
 
 def training_config(name: str, scene: str, iterations: int) -> TrainConfig:
@@ -305,12 +305,16 @@ def run_suite(rt: Runtime, suite: Suite, say=lambda line: None) -> dict:
 
 
 # reports --------------------------------------------------------------------------------------------------
+def case_runs(case: dict) -> dict[str, dict]:
+    """A case's measured runs by name: "forward", then "train <configuration>" for each of TRAINING."""
+    return {"forward": case["forward"], **{f"train {t}": v for t, v in case["train"].items()}}
+
+
 def measurements(report: dict) -> dict[tuple[str, str, str], float]:
     """(case, run, quantity) -> value: every number two reports of one suite can be compared on."""
     out = {}
     for case in report["cases"]:
-        runs = {"forward": case["forward"], **{f"train {t}": v for t, v in case["train"].items()}}
-        for run, m in runs.items():
+        for run, m in case_runs(case).items():
             for stage, ms in m["stages_ms"].items():
                 out[(case["name"], run, f"{stage} ms")] = ms
             out[(case["name"], run, "device ms")] = m["device_ms"]
@@ -333,7 +337,7 @@ def markdown(report: dict) -> str:
              f"- {report['created']}, {report['seconds']} s; medians of {report['settings']['rounds']} rounds "
              "(device ms from OpenCL profiling events)", ""]
     for case in report["cases"]:
-        runs = {"forward": case["forward"], **{f"train {t}": v for t, v in case["train"].items()}}
+        runs = case_runs(case)
         stages = list(dict.fromkeys(s for m in runs.values() for s in m["stages_ms"]))
         lines += [f"## {case['name']}: {case['gaussians']:,} Gaussians, {case['forward']['pairs']:,} pairs", "",
                   "| stage (ms) | " + " | ".join(runs) + " |", "|---|" + "---:|" * len(runs)]
@@ -370,14 +374,18 @@ def compare(a: dict, b: dict) -> list[str]:
     return lines
 
 
+REPORT_KEYS = {"suite_version", "suite", "environment", "cases", "accuracy"}   # what compare reads
+
+
 def read_report(path: Path) -> dict:
     try:
         report = json.loads(path.read_text())
-        report["suite_version"], report["cases"], report["accuracy"]   # noqa: B018 (the keys compare needs)
     except OSError as e:
         raise InputError(path, f"cannot be read ({e.strerror})") from e
-    except (ValueError, KeyError, TypeError) as e:
-        raise InputError(path, "is not a report written by `dc4gs-cl bench`") from e
+    except ValueError:
+        report = None
+    if not isinstance(report, dict) or not REPORT_KEYS <= report.keys():
+        raise InputError(path, "is not a report written by `dc4gs-cl bench`")
     return report
 
 

@@ -19,6 +19,7 @@ from collections import defaultdict
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 import pyopencl as cl
@@ -221,8 +222,13 @@ class Capabilities:
                 f"float atomics: {'native' if self.float_atomic_add else 'none (compare-and-swap emulation)'}, "
                 f"fp64: {'yes' if self.fp64 else 'no'}"
                 + (f", loops cut after {self.loop_limit:,} iterations per work-item (a driver defect, gone in "
-                   f"Mesa 25.0: renders take short-loop shapes; the backward of busy views stays wrong)"
+                   f"Mesa 25.0: renders take short-loop shapes; training is refused, its backward would be wrong)"
                    if self.loop_limit else ""))
+
+
+class KernelLimits(NamedTuple):
+    work_group: int    # work-items per group
+    local_bytes: int   # local memory the built kernel takes (its __local arrays)
 
 
 class _Buffer(cl.Buffer):
@@ -248,7 +254,7 @@ class Runtime:
         self.profiling = profiling
         self.caps = Capabilities.of(self.device)
         self._programs: dict[tuple, cl.Program] = {}
-        self._kernel_limits: dict[cl.Kernel, tuple[int, int]] = {}
+        self._kernel_limits: dict[cl.Kernel, KernelLimits] = {}   # as the driver reports them
         self.events: dict[str, list[cl.Event]] = defaultdict(list)
         self.memory_in_use = 0   # bytes in device buffers made here and not yet released
         self.memory_peak = 0     # the most memory_in_use has been since the last reset_memory_peak()
@@ -275,16 +281,16 @@ class Runtime:
         return prg
 
     # launches and buffers -----------------------------------------------------------------------
-    def kernel_limits(self, kernel: cl.Kernel) -> tuple[int, int]:
-        """(the largest work-group, the local bytes it takes) of a built kernel on this device, as the driver
-        reports them (a kernel's work-group limit can be below the device's: registers on a GPU)."""
-        limits = self._kernel_limits.get(kernel)
-        if limits is None:
+    def kernel_limits(self, kernel: cl.Kernel) -> KernelLimits:
+        """A built kernel's limits on this device as its driver reports them, asked once per kernel: the largest
+        work-group within the device's (a kernel's can be below it: registers on a GPU), and its local bytes."""
+        driver = self._kernel_limits.get(kernel)
+        if driver is None:
             info = cl.kernel_work_group_info
-            limits = self._kernel_limits[kernel] = (
-                min(kernel.get_work_group_info(info.WORK_GROUP_SIZE, self.device), self.caps.max_work_group_size),
+            driver = self._kernel_limits[kernel] = KernelLimits(
+                kernel.get_work_group_info(info.WORK_GROUP_SIZE, self.device),
                 kernel.get_work_group_info(info.LOCAL_MEM_SIZE, self.device))
-        return limits
+        return driver._replace(work_group=min(driver.work_group, self.caps.max_work_group_size))
 
     def launch(self, stage: str, kernel: cl.Kernel, global_size, local_size, *args) -> cl.Event:
         """Enqueue a kernel; with profiling on, its event is kept under `stage`. A work-group beyond the kernel's
@@ -310,7 +316,7 @@ class Runtime:
     def launch_items(self, stage: str, kernel: cl.Kernel, n: int, wg: int, *args) -> cl.Event:
         """A 1D launch of n work-items (one per element) in work-groups of wg, or of the kernel's limit where
         that is less: the global size is n rounded up, so the kernel must bound-check its index against n."""
-        wg = min(wg, self.kernel_limits(kernel)[0])
+        wg = min(wg, self.kernel_limits(kernel).work_group)
         return self.launch(stage, kernel, -(-n // wg) * wg, wg, *args)
 
     def stage_times(self, reset: bool = True) -> dict[str, float]:

@@ -270,7 +270,6 @@ def test_rasterize_backward_fits_a_small_local_memory(rt, rng, monkeypatch, shap
     more local memory than that. The backward halves its batch until the built kernel fits, and still matches
     the reference."""
     from dataclasses import replace
-    from dc4gs_cl.render.stage import local_bytes
     limit = 12 * 1024
     monkeypatch.setattr(rt, "caps", replace(rt.caps, local_mem_size=limit))
     tuning = NARROW_SHAPE if shape == "gpu-within-64" else SHAPES[shape]
@@ -279,6 +278,7 @@ def test_rasterize_backward_fits_a_small_local_memory(rt, rng, monkeypatch, shap
     backward = RasterizeBackward(renderer.context)
     sums = backward(res, rt.to_device(dL_dimage), bg, layout)
     variant = {**layout.defines(), "PIXEL_MASK": 0}
-    assert local_bytes(backward.kernels({**variant, "BATCH": 256})["rasterize_backward"]) > limit   # needs fitting
-    assert local_bytes(backward.fitted_kernels(variant)["rasterize_backward"]) <= limit
+    needed = lambda kernels: rt.kernel_limits(kernels["rasterize_backward"]).local_bytes
+    assert needed(backward.kernels({**variant, "BATCH": 256})) > limit   # needs fitting
+    assert needed(backward.fitted_kernels(variant)) <= limit
     assert_sums_match(rt, sums, layout, res.proj.n, backward_reference(rt, res, cam, bg, dL_dimage))

@@ -52,7 +52,7 @@ def test_a_training_step_fits_a_small_device_and_matches_the_full_shape(scene_an
     launch = small.launch
 
     def recorded(stage, kernel, global_size, local_size, *args):
-        launches.append((stage, kernel.function_name, local_size, small.kernel_limits(kernel)[1]))
+        launches.append((stage, kernel.function_name, local_size, small.kernel_limits(kernel).local_bytes))
         return launch(stage, kernel, global_size, local_size, *args)
 
     small.launch = recorded
@@ -79,7 +79,7 @@ def test_a_launch_beyond_a_kernels_limits_is_refused_by_name(rt):
     program = cl.Program(rt.context, "__kernel void add_one(__global float *a) { a[get_global_id(0)] += 1.f; }").build()
     kernel = cl.Kernel(program, "add_one")
     buf = rt.to_device(np.zeros(64, np.float32))
-    limit = rt.kernel_limits(kernel)[0]
+    limit = rt.kernel_limits(kernel).work_group
     with pytest.raises(DeviceError, match=rf"stage test: kernel add_one .* work-groups of {2 * limit} items.*allows {limit}"):
         rt.launch("test", kernel, 2 * limit, 2 * limit, buf)
     narrow = Runtime()

@@ -8,6 +8,7 @@ import pyopencl as cl
 import pytest
 
 from dc4gs_cl import runtime
+from dc4gs_cl.cli import main
 from dc4gs_cl.render import Tuning
 from dc4gs_cl.runtime import choose_device, default_device, register_bundled_runtimes
 from helpers import NARROW_CAPS
@@ -81,7 +82,6 @@ def test_drivers_that_cut_loops_short_get_short_loop_shapes(platform, driver, li
 
 
 def test_training_on_a_driver_that_cuts_loops_short_stops_with_the_reason(tmp_path, monkeypatch, capsys):
-    from dc4gs_cl.cli import main
     monkeypatch.setattr(runtime, "loop_limit", lambda device: 65_535)
     out = tmp_path / "run"
     assert main(["train", "--iterations", "2", "-r", "4", "--out", str(out)]) == 2

@@ -161,12 +161,12 @@ def test_the_shape_fits_a_device_with_little_local_memory(rt, rng, monkeypatch, 
     """The CPU shape takes 46,680 bytes of local memory; on a device with less (or a smaller work-group limit)
     the loss narrows its shape, and still matches the reference."""
     from dataclasses import replace
-    from dc4gs_cl.render.stage import local_bytes
-    full = {shape: local_bytes(Loss(StageContext(rt), *shape).k_ssim) for shape in [(2304, 1), (1, 256)]}
+    full = {shape: rt.kernel_limits(Loss(StageContext(rt), *shape).k_ssim).local_bytes
+            for shape in [(2304, 1), (1, 256)]}
     monkeypatch.setattr(rt, "caps", replace(rt.caps, local_mem_size=local_mem, max_work_group_size=max_wg))
     for (seg, wg), needed in full.items():
         loss = Loss(StageContext(rt, poison=True), seg, wg)   # narrowed to the device by the constructor
-        used = local_bytes(loss.k_ssim)                       # what the driver reports for the built kernel
+        used = rt.kernel_limits(loss.k_ssim).local_bytes    # what the driver reports for the built kernel
         assert used <= local_mem and loss.wg <= max_wg, (seg, wg, used)
         assert (loss.seg, loss.wg) != (seg, wg) or (needed <= local_mem and wg <= max_wg)   # narrowed where needed
         y = rng.uniform(0, 1, (45, 61, 3)).astype(np.float32)

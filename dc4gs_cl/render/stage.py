@@ -62,10 +62,11 @@ class Stage:
         limit = self.rt.caps.local_mem_size
         for variant in variants:
             built = self.kernels(variant)
-            if local_bytes(built[kernel]) <= limit:
+            needed = self.rt.kernel_limits(built[kernel]).local_bytes
+            if needed <= limit:
                 return variant, built
-        raise DeviceError(f"kernels/{self.FILE}: {kernel} needs {local_bytes(built[kernel]):,} bytes of local "
-                          f"memory even in its smallest shape; the device has {limit:,}")
+        raise DeviceError(f"kernels/{self.FILE}: {kernel} needs {needed:,} bytes of local memory even in its "
+                          f"smallest shape; the device has {limit:,}")
 
     def batch_fitted_kernels(self, variant: dict, kernel: str) -> dict[str, cl.Kernel]:
         """The rasterizers' kernels for a variant with the largest BATCH (Gaussians held in local memory at a time:
@@ -80,11 +81,6 @@ class Stage:
         """--check-finite: `arrays()` gives the host copies of this call's outputs; read only when on."""
         if self.ctx.check.enabled:
             self.ctx.check(self.FILE.removesuffix(".cl"), arrays())
-
-
-def local_bytes(kernel: cl.Kernel) -> int:
-    """Local memory a built kernel takes, as its driver reports it (for the kernel's only device)."""
-    return kernel.get_work_group_info(cl.kernel_work_group_info.LOCAL_MEM_SIZE, kernel.context.devices[0])
 
 
 def halvings(size: int) -> list[int]:
