@@ -1,6 +1,6 @@
 // densify_stats.cl: fold one view's per-Gaussian sums into the densification window's statistics.
 //
-// One work-item per Gaussian; nothing happens for a Gaussian not visible in the view (radius 0).
+// One work-item per Gaussian; a Gaussian not visible in the view (radius 0) changes nothing.
 //   in  radius [N] int px, depth [N] view z: from project.cl
 //   in  sums   [N*SUM_WIDTH]: from rasterize_backward.cl (SUM_MEAN2D in px; SUM_ABS in NDC units,
 //              SUM_PIXELS; with DC4GS SUM_DC and SUM_SPLIT; see that file)
@@ -41,59 +41,62 @@ REQUIRE_DEFINED(SPLIT_CANDIDATES);
 
 // (1 - |(ux, uy)| / n) |(ax, ay)|: the cost of one side; 0 for an empty side.
 inline float side_cost(float ux, float uy, float n, float ax, float ay) {
-    float kappa = n > 0.f ? sqrt(ux * ux + uy * uy) / n : 0.f;
-    return (1.f - kappa) * sqrt(ax * ax + ay * ay);
+    float kappa = n > 0.f ? sqrt_nocall(ux * ux + uy * uy) / n : 0.f;
+    return (1.f - kappa) * sqrt_nocall(ax * ax + ay * ay);
 }
 
+// Branch-free past the bound check, and no builtin calls, so the compiler vectorises across work-items: a
+// Gaussian not visible in the view (seen = 0) adds zeros (its sums are zero too) and keeps its largest radius.
 __kernel void densify_stats(const uint n, const float ndc_x, const float ndc_y, const float depth_scale,
                             const float track_threshold,
                             __global const int *radius, __global const float *depth,
                             __global const float *sums, __global const float *split_geometry,
                             __global float *window) {
     uint i = get_global_id(0);
-    if (i >= n || radius[i] <= 0) return;
+    if (i >= n) return;
+    const float seen = radius[i] > 0 ? 1.f : 0.f;
     __global const float *s = sums + (size_t)i * SUM_WIDTH;
     __global float *w = window + (size_t)i * WIN_WIDTH;
     float gx = s[SUM_MEAN2D] * ndc_x, gy = s[SUM_MEAN2D + 1] * ndc_y;
-    float g = sqrt(gx * gx + gy * gy);
-    float a = sqrt(s[SUM_ABS] * s[SUM_ABS] + s[SUM_ABS + 1] * s[SUM_ABS + 1]);
+    float g = sqrt_nocall(gx * gx + gy * gy);
+    float a = sqrt_nocall(s[SUM_ABS] * s[SUM_ABS] + s[SUM_ABS + 1] * s[SUM_ABS + 1]);
     float pixels = s[SUM_PIXELS];
     float f = MINF(1.f, (depth[i] / depth_scale) * (depth[i] / depth_scale));
-    w[WIN_GRAD] += g;
-    w[WIN_ABS] += a;
-    w[WIN_VIEWS] += 1.f;
-    w[WIN_PIX_GRAD] += f * g * pixels;
-    w[WIN_PIX] += pixels;
-    w[WIN_MAX_RADIUS] = MAXF(w[WIN_MAX_RADIUS], (float)radius[i]);
+    w[WIN_GRAD] += seen * g;
+    w[WIN_ABS] += seen * a;
+    w[WIN_VIEWS] += seen;
+    w[WIN_PIX_GRAD] += seen * (f * g * pixels);
+    w[WIN_PIX] += seen * pixels;
+    w[WIN_MAX_RADIUS] = MAXF(w[WIN_MAX_RADIUS], seen * (float)radius[i]);
 #if DC_STATS
     float ux = s[SUM_DC], uy = s[SUM_DC + 1], count = s[SUM_DC + 2];
 #if DC_WINDOW
-    ux = w[WIN_DC_UX] += ux;
-    uy = w[WIN_DC_UY] += uy;
-    count = w[WIN_DC_N] += count;
+    ux = w[WIN_DC_UX] += seen * ux;
+    uy = w[WIN_DC_UY] += seen * uy;
+    count = w[WIN_DC_N] += seen * count;
 #endif
-    float weight = count > 0.f ? 1.f - sqrt(ux * ux + uy * uy) / count : 0.f;   // 1 - kappa; 0 where no pixel had a gradient
-    w[WIN_DCC_ABS] += weight * a;
-    w[WIN_DCC_GRAD] += weight * g;
-    w[WIN_DCC_PIX] += weight * f * g * pixels;
+    // 1 - kappa; 0 where no pixel had a gradient
+    float weight = count > 0.f ? 1.f - sqrt_nocall(ux * ux + uy * uy) / count : 0.f;
+    w[WIN_DCC_ABS] += seen * (weight * a);
+    w[WIN_DCC_GRAD] += seen * (weight * g);
+    w[WIN_DCC_PIX] += seen * (weight * f * g * pixels);
 #endif
 #if SPLIT_CANDIDATES
     __global const float *geo = split_geometry + (size_t)i * GEO_WIDTH;
-    int line = HAS_SPLIT_LINE(geo);
+    float line = seen * (HAS_SPLIT_LINE(geo) ? 1.f : 0.f);
     float total[5] = {s[SUM_DC], s[SUM_DC + 1], s[SUM_DC + 2], s[SUM_ABS], s[SUM_ABS + 1]};
     __global const float *left = s + SUM_SPLIT;
 #if DC_WINDOW
-    for (int v = 0; v < 5; ++v) total[v] = w[WIN_SIDE_TOTAL + v] += line ? total[v] : 0.f;
-    for (int k = 0; k < 5 * SPLIT_CANDIDATES; ++k) w[WIN_SIDE_LEFT + k] += line ? left[k] : 0.f;
+    for (int v = 0; v < 5; ++v) total[v] = w[WIN_SIDE_TOTAL + v] += line * total[v];
+    for (int k = 0; k < 5 * SPLIT_CANDIDATES; ++k) w[WIN_SIDE_LEFT + k] += line * left[k];
     left = w + WIN_SIDE_LEFT;
-    line = 1;                        // the accumulated sums are costed at every visible view
+    line = seen;                     // the accumulated sums are costed at every visible view
 #endif
-    if (line)
-        for (int k = 0; k < SPLIT_CANDIDATES; ++k) {
-            __global const float *l = left + 5 * k;
-            w[WIN_SPLIT_COSTS + k] += side_cost(l[0], l[1], l[2], l[3], l[4])
-                          + side_cost(total[0] - l[0], total[1] - l[1], total[2] - l[2], total[3] - l[3], total[4] - l[4]);
-        }
+    for (int k = 0; k < SPLIT_CANDIDATES; ++k) {
+        __global const float *l = left + 5 * k;
+        w[WIN_SPLIT_COSTS + k] += line * (side_cost(l[0], l[1], l[2], l[3], l[4])
+            + side_cost(total[0] - l[0], total[1] - l[1], total[2] - l[2], total[3] - l[3], total[4] - l[4]));
+    }
     w[WIN_SKIP_SPLIT] = (w[WIN_VIEWS] >= (float)TRACK_MIN_VIEWS
                          && w[TRACK_TOTAL] < track_threshold * w[TRACK_COUNT]) ? 1.f : 0.f;
 #endif
