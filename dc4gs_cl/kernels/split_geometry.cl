@@ -19,11 +19,6 @@
 
 #include "project.h"
 
-// The point mu + f * axis (mx .. az below) in camera space, and its pixel.
-#define PROJECT_ALONG(f, pc, px)                                                                        \
-    const float3 pc = world_to_camera(&cam, (float3)(mx + (f) * ax, my + (f) * ay, mz + (f) * az));     \
-    const float2 px = project_point(&cam, pc)
-
 // Branch-free past the bound check: every work-item computes a line and the tests (`line`) only choose what it
 // writes (zeros where there is no line), so the compiler vectorises across work-items (2x faster on PoCL than
 // returning early).
@@ -38,26 +33,27 @@ __kernel void split_geometry(const int n, const Camera cam, const float min_scal
     float Rq[9];
     quat_to_rotmat(normalized_quat(load_quat(quats, i)), Rq);
     // sigma p: column a of R (selects, not Rq[a]: an index known only at run time keeps Rq in memory)
-    float ax = sigma * (a == 0 ? Rq[0] : (a == 1 ? Rq[1] : Rq[2]));
-    float ay = sigma * (a == 0 ? Rq[3] : (a == 1 ? Rq[4] : Rq[5]));
-    float az = sigma * (a == 0 ? Rq[6] : (a == 1 ? Rq[7] : Rq[8]));
-    float mx = means[3 * i], my = means[3 * i + 1], mz = means[3 * i + 2];
+    float3 axis = sigma * (float3)(a == 0 ? Rq[0] : (a == 1 ? Rq[1] : Rq[2]), a == 0 ? Rq[3] : (a == 1 ? Rq[4] : Rq[5]),
+                                   a == 0 ? Rq[6] : (a == 1 ? Rq[7] : Rq[8]));
+    float3 mu = LOAD3(means, i);
     float step = 6.f / (float)(SPLIT_CANDIDATES + 1);
-    PROJECT_ALONG(3.f, end, e);
-    PROJECT_ALONG(-step * (float)(SPLIT_CANDIDATES / 2), first, c0);
-    float dx = e.x - c0.x, dy = e.y - c0.y, len2 = dx * dx + dy * dy;
+    float3 end = world_to_camera(&cam, mu + 3.f * axis);
+    float3 first = world_to_camera(&cam, mu - step * (float)(SPLIT_CANDIDATES / 2) * axis);
+    float2 c0 = project_point(&cam, first);
+    float2 d = project_point(&cam, end) - c0;
+    float len2 = d.x * d.x + d.y * d.y;
     // The middle candidates lie between the first and the end, so these two decide the near plane.
     // (& rather than &&: no branch, so the loads are not conditional either)
     int line = (radius[i] > 0) & (window[(size_t)i * WIN_WIDTH + WIN_SKIP_SPLIT] == 0.f) & (sigma > min_scale)
                & (end.z > NEAR_PLANE) & (first.z > NEAR_PLANE) & (len2 > MIN_SPLIT_LINE_PX * MIN_SPLIT_LINE_PX)
                & IS_FINITE(len2);
-    float r = rsqrt_nocall(line ? len2 : 1.f);
-    dx *= r; dy *= r;
+    float2 dir = d * rsqrt_nocall(line ? len2 : 1.f);
     __global float *out = geometry + (size_t)i * GEO_WIDTH;
     for (int k = 1; k < SPLIT_CANDIDATES; ++k) {
-        PROJECT_ALONG(step * (float)(k - SPLIT_CANDIDATES / 2), ck, q);
-        out[GEO_T + k - 1] = line ? (q.x - c0.x) * dx + (q.y - c0.y) * dy : 0.f;
+        float3 ck = world_to_camera(&cam, mu + step * (float)(k - SPLIT_CANDIDATES / 2) * axis);
+        float2 q = project_point(&cam, ck) - c0;
+        out[GEO_T + k - 1] = line ? q.x * dir.x + q.y * dir.y : 0.f;
     }
     out[GEO_ORIGIN] = line ? c0.x : 0.f; out[GEO_ORIGIN + 1] = line ? c0.y : 0.f;
-    out[GEO_DIR] = line ? dx : 0.f; out[GEO_DIR + 1] = line ? dy : 0.f;
+    out[GEO_DIR] = line ? dir.x : 0.f; out[GEO_DIR + 1] = line ? dir.y : 0.f;
 }
