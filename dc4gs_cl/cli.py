@@ -22,6 +22,7 @@ from .finite import NonFiniteError
 from .host.densify import STRATEGIES as STRATEGY_NAMES
 from .host.densify.dc4gs import DCC_READINGS, DENSE_CANDIDATES, POOLINGS, SPLIT_PICKS
 from .scene.builtin import BUILTIN_SCENE
+from .scene.camera import TEST_SPLITS
 from .train.log import DEFAULT_LINE_EVERY
 from .viewer import DEFAULT_PORT
 
@@ -92,6 +93,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-r", "--resolution", type=_resolution, default=None,
                    help="downscale images by this factor (default: widths above 1600 px scaled to 1600)")
     p.add_argument("--test-every", type=int, default=None, help="every N-th image (by name) is a test image (8; 0: none)")
+    p.add_argument("--test-split", choices=TEST_SPLITS, default=None,
+                   help="which images are held out, by name: llff (default) from the first, so the path's first view "
+                        "is a test view (an extrapolation); interpolated: as many, spread inside the path, each with "
+                        "training views on both sides")
     p.add_argument("--save-at", type=int, nargs="*", default=None, help="also write the PLY at these iterations")
     p.add_argument("--eval-at", type=int, nargs="*", default=None,
                    help="evaluate the test views after these iterations too, into metrics.jsonl (default: 7,000 "
@@ -104,6 +109,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--alpha-mask", action="store_true", default=None,
                    help="images' alpha channel masks pixels out (no loss, no densification statistics) instead of "
                         "being composited onto the background; a masks/ folder beside images/ is always used")
+    p.add_argument("--split-threshold", type=float, default=None,
+                   help="split Gaussians whose split criterion reaches this (default: the strategy's, 2e-4 for 3dgs "
+                        "and pixelgs, 4e-4 for absgs); a higher one splits less. With DCC the criterion is DC-weighted "
+                        "and the threshold the same")
     p.add_argument("--max-gaussians", type=int, default=None,
                    help="a cap, not a target: densification never grows the model past N Gaussians. A step that "
                         "would takes its clone and split candidates by their criterion over its threshold, highest "
@@ -205,6 +214,7 @@ def cmd_render(args) -> int:
     out = args.out
     scene = load_scene(scene_name, resolution=args.resolution or (cfg.resolution if cfg else None),
                        cache_dir=(out or run.path) / "undistorted", test_every=cfg.test_every if cfg else 8,
+                       test_split=cfg.test_split if cfg else "llff",
                        white_background=args.white_background or (cfg is not None and cfg.white_background))
     if run is not None:
         iteration, model = run.load_model(args.iteration)
@@ -297,6 +307,7 @@ def train_config(args, run):
 
 def cmd_train(args) -> int:
     import time
+    from .evaluate import per_view_lines
     from .run_folder import RunFolder
     from .runtime import Runtime, describe
     from .scene import load_scene
@@ -319,7 +330,8 @@ def cmd_train(args) -> int:
         raise InputError(run.path, "holds another run: continue it with --resume, or replace it with --force")
     cfg = train_config(args, run)
     scene = load_scene(cfg.scene, resolution=cfg.resolution, cache_dir=run.path / "undistorted",
-                       test_every=cfg.test_every, white_background=cfg.white_background, alpha_mask=cfg.alpha_mask)
+                       test_every=cfg.test_every, test_split=cfg.test_split, white_background=cfg.white_background,
+                       alpha_mask=cfg.alpha_mask)
     scene.read_all_images()
     rt = Runtime(args.device, profiling=True)   # stage times go to metrics.jsonl; no measurable cost on PoCL
     trainer = Trainer(cfg, scene, rt, run, check_finite=args.check_finite)
@@ -363,12 +375,13 @@ def cmd_train(args) -> int:
         run.write_results(trainer.iteration, result)
         print(f"test views: PSNR {result['mean']['PSNR']:.2f} dB, SSIM {result['mean']['SSIM']:.4f} "
               f"({result['views']} views; LPIPS skipped: {result['lpips']})")
+        print("\n".join(per_view_lines(result)))
     print(f"model: {run.model_path(trainer.iteration)}")
     return 0
 
 
 def cmd_eval(args) -> int:
-    from .evaluate import evaluate
+    from .evaluate import evaluate, per_view_lines
     from .render import DeviceGaussians, Renderer
     from .run_folder import RunFolder
     from .runtime import Runtime
@@ -378,7 +391,8 @@ def cmd_eval(args) -> int:
     cfg = run.read_config()
     iteration, model = run.load_model(args.iteration)
     scene = load_scene(cfg.scene, resolution=cfg.resolution, cache_dir=run.path / "undistorted",
-                       test_every=cfg.test_every, white_background=cfg.white_background, alpha_mask=cfg.alpha_mask)
+                       test_every=cfg.test_every, test_split=cfg.test_split, white_background=cfg.white_background,
+                       alpha_mask=cfg.alpha_mask)
     if not scene.test:
         raise InputError(run.config_path, "the run has no test views (test_every = 0)")
     rt = Runtime(args.device)
@@ -387,6 +401,7 @@ def cmd_eval(args) -> int:
     run.write_results(iteration, result)
     print(f"iteration {iteration}: PSNR {result['mean']['PSNR']:.2f} dB, SSIM {result['mean']['SSIM']:.4f} over "
           f"{result['views']} test views (LPIPS skipped: {result['lpips']}); written to {run.path / 'results.json'}")
+    print("\n".join(per_view_lines(result)))
     return 0
 
 

@@ -10,6 +10,7 @@ from .constants import SH_MAX_DEGREE
 from .errors import InputError
 from .host.densify import STRATEGIES
 from .host.densify.dc4gs import DC4GSConfig
+from .scene.camera import TEST_SPLITS
 
 RECIPE_ITERATIONS = 30_000   # the 3DGS schedule is written for this many iterations; shorter runs scale it
 OUTPUT_SETTINGS = ("save_at", "checkpoint_every", "eval_at")   # settings that do not change the trained model
@@ -25,6 +26,7 @@ class TrainConfig:
     strategy: str = "3dgs"
     resolution: int | None = None
     test_every: int = 8
+    test_split: str = "llff"              # which images are held out (scene.camera.split_train_test)
     white_background: bool = False
     alpha_mask: bool = False               # images' alpha masks pixels out instead of being composited
     seed: int = 0
@@ -41,6 +43,7 @@ class TrainConfig:
     lr_scales: float = 5e-3
     lr_quats: float = 1e-3
     densify_until: int | None = None       # override the strategy's (scaled) window end; 0 disables densification
+    split_threshold: float | None = None   # override the strategy's split threshold (its criterion's units)
     max_gaussians: int | None = None       # densification never grows the model past this many Gaussians
     low_memory: bool = False               # backward sums with float atomics, no per-pair slots (not bit-reproducible)
     dc4gs: DC4GSConfig = DC4GSConfig()     # off unless dcc or dcs
@@ -57,6 +60,10 @@ class TrainConfig:
             problems.append(f"--eval-at {list(self.eval_at)} must lie in 1..{self.iterations}")
         if self.test_every < 0:
             problems.append(f"--test-every {self.test_every} must be 0 (no test views) or positive")
+        if self.test_split not in TEST_SPLITS:
+            problems.append(f"--test-split {self.test_split!r} is not one of {', '.join(TEST_SPLITS)}")
+        if self.split_threshold is not None and not (math.isfinite(self.split_threshold) and self.split_threshold > 0):
+            problems.append(f"--split-threshold {self.split_threshold} must be a positive number")
         if self.checkpoint_every < 1:
             problems.append(f"--checkpoint-every {self.checkpoint_every} must be at least 1")
         if self.densify_until is not None and self.densify_until < 0:

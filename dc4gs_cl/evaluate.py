@@ -39,3 +39,12 @@ def evaluate(rt: Runtime, renderer: Renderer, gaussians: DeviceGaussians, scene:
     means = {k: float(np.mean(list(v.values()))) if v else float("nan") for k, v in per_view.items()}
     _, why = lpips_available()
     return {"mean": means, "per_view": per_view, "views": len(cams), "lpips": why}
+
+
+def per_view_lines(result: dict) -> list[str]:
+    """One line per test view of an evaluate() result, worst PSNR first (a few bad views, such as extrapolated
+    ones full of floaters, move the mean by dBs)."""
+    psnrs, ssims = result["per_view"]["PSNR"], result["per_view"]["SSIM"]
+    width = max((len(name) for name in psnrs), default=0)
+    return [f"  {name:<{width}}  PSNR {psnrs[name]:6.2f} dB  SSIM {ssims[name]:.4f}"
+            for name in sorted(psnrs, key=psnrs.get)]

@@ -429,13 +429,14 @@ def cmd_view(args) -> int:
         cfg = run.read_config()
         iteration, model = run.load_model(args.iteration)
         scene_name, cache_dir = args.scene or cfg.scene, run.path / "undistorted"
-        resolution, test_every, white = cfg.resolution, cfg.test_every, white or cfg.white_background
+        resolution, white = cfg.resolution, white or cfg.white_background
+        test_every, test_split = cfg.test_every, cfg.test_split
     else:
         if args.iteration is not None:
             raise InputError(None, "--iteration needs a training output folder")
         iteration, model = None, read_ply(source)
-        scene_name, cache_dir, resolution, test_every = args.scene, None, None, 8
-    scene = (load_scene(scene_name, resolution=resolution, cache_dir=cache_dir, test_every=test_every,
+        scene_name, cache_dir, resolution, test_every, test_split = args.scene, None, None, 8, "llff"
+    scene = (load_scene(scene_name, resolution=resolution, cache_dir=cache_dir, test_every=test_every, test_split=test_split,
                         white_background=white) if scene_name else None)
     background = scene.background if scene else np.full(3, 1.0 if white else 0.0, np.float32)
     rt = Runtime(args.device)

@@ -7,7 +7,7 @@ import pytest
 from dc4gs_cl.errors import InputError
 from dc4gs_cl.scene import load_scene
 from dc4gs_cl.scene.builtin import BUILTIN_SCENE, _cast, builtin_scene
-from dc4gs_cl.scene.camera import split_train_test
+from dc4gs_cl.scene.camera import Camera, split_train_test
 
 
 @pytest.fixture(scope="module")
@@ -107,6 +107,26 @@ def test_split(scene):
     assert np.diff(azimuths).min() > 60                # spread around the ring
     assert len(builtin_scene(test_every=4).test) == 8
     assert builtin_scene(test_every=0).test == []
+
+
+def test_interpolated_split_holds_out_views_inside_the_path():
+    """As many test views as the llff rule, spread evenly, none at either end of the path and none beside
+    another (each has a training view on both sides), on fresh random path lengths."""
+    rng = np.random.default_rng()
+    for every, n in zip(rng.integers(3, 12, 40), rng.integers(30, 200, 40)):
+        n = max(int(n), 2 * int(every))
+        cams = [Camera(name=f"{i:05d}", width=8, height=8, fx=8, fy=8, cx=4, cy=4, R=np.eye(3), t=np.zeros(3))
+                for i in rng.permutation(n)]
+        train, test = split_train_test(cams, int(every), "interpolated")
+        held = sorted(int(c.name) for c in test)
+        assert len(held) == len(split_train_test(cams, int(every))[1]) == -(-n // every)
+        assert sorted(int(c.name) for c in train + test) == list(range(n))
+        assert 0 < held[0] and held[-1] < n - 1 and min(np.diff(held), default=2) >= 2
+        assert np.ptp(np.diff([0, *held, n - 1])) <= every       # spread evenly along the path
+    scene = builtin_scene(test_split="interpolated")
+    assert [c.name for c in scene.test] == ["view_004", "view_012", "view_020", "view_028"]
+    with pytest.raises(ValueError, match="test split 'middle'"):
+        split_train_test(cams, 8, "middle")
 
 
 def test_load_scene_dispatch(scene):

@@ -6,6 +6,7 @@ import signal
 import subprocess
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -15,8 +16,10 @@ from dc4gs_cl.cli import main
 from dc4gs_cl.metrics import psnr
 from dc4gs_cl.scene import load_scene
 from dc4gs_cl.config import TrainConfig
+from dc4gs_cl.host.densify import DC4GSConfig
 from dc4gs_cl.run_folder import CHECKPOINT, RunFolder
 from dc4gs_cl.train import Trainer
+from dc4gs_cl.train.schedule import Schedule
 
 SMALL = ["--scene", "builtin", "-r", "2", "--no-progress"]
 
@@ -173,6 +176,8 @@ def test_corrupt_and_mismatched_checkpoints(finished_run, tmp_path, capsys):
     (["--iterations", "100", "--save-at", "50", "500"], "--save-at"),
     (["--densify-until", "-5"], "--densify-until"),
     (["--test-every", "-1"], "--test-every"),
+    (["--split-threshold", "0"], "--split-threshold 0.0 must be a positive number"),
+    (["--split-threshold", "nan"], "--split-threshold nan must be"),
     (["--checkpoint-every", "0"], "--checkpoint-every"),
     (["--resume"], "--resume needs --out"),
     (["--dc4gs", "--split-candidates", "4"], "--split-candidates 4"),
@@ -199,6 +204,46 @@ def test_max_gaussians_caps_every_densification_step(rt, tmp_path):
         trainer.step()
         peak = max(peak, trainer.model.n)
     assert cap - 20 <= peak <= cap           # it grows to the cap (pruning may take a few) and never past it
+
+
+def test_interpolated_test_views_and_per_view_results(tmp_path, capsys):
+    """--test-split is saved with the run, so eval scores the same held-out views; train and eval print every
+    view's PSNR and SSIM (worst first) beside the means."""
+    out = tmp_path / "run"
+    assert main(["train", *SMALL, "-r", "4", "--iterations", "20", "--test-split", "interpolated",
+                 "--out", str(out)]) == 0
+    trained = capsys.readouterr().out
+    assert main(["eval", "--model", str(out)]) == 0
+    evaluated = capsys.readouterr().out
+    psnrs = json.loads((out / "per_view.json").read_text())["ours_20"]["PSNR"]
+    assert sorted(psnrs) == ["view_004.png", "view_012.png", "view_020.png", "view_028.png"]
+    for printed in (trained, evaluated):
+        rows = [line.split() for line in printed.splitlines() if line.startswith("  view_")]
+        assert [r[0] for r in rows] == sorted(psnrs, key=psnrs.get)
+        assert [float(r[2]) for r in rows] == [round(psnrs[r[0]], 2) for r in rows]
+
+
+def test_split_threshold_replaces_the_strategys(rt, tmp_path):
+    """--split-threshold is the threshold the strategy splits on (DCS' tracking threshold follows it); a run
+    whose threshold no criterion reaches splits nothing where the default splits, and clones as before."""
+    cfg = TrainConfig(scene="builtin", strategy="absgs", split_threshold=1e-3,
+                      dc4gs=DC4GSConfig(dcc=True, dcs=True, track=0.5))
+    strategy = Schedule(cfg).strategy()
+    assert strategy.config.split_threshold == 1e-3 and strategy.track_threshold == 5e-4
+    assert Schedule(replace(cfg, split_threshold=None)).strategy().config.split_threshold == 4e-4
+    scene = load_scene("builtin", resolution=4)
+    reports = {}
+    for threshold in (None, 1e6):
+        trainer = Trainer(TrainConfig(scene="builtin", iterations=300, resolution=4, split_threshold=threshold),
+                          scene, rt, tmp_path / str(threshold))
+        apply, reports[threshold] = trainer.strategy.apply, []
+        trainer.strategy.apply = lambda *a, apply=apply, into=reports[threshold]: into.append(apply(*a)) or into[-1]
+        while trainer.iteration < 300:
+            trainer.step()
+    done = {t: [r for r in rs if r is not None] for t, rs in reports.items()}
+    assert len(done[None]) == len(done[1e6]) > 3
+    assert sum(r.split for r in done[None]) > 0 and sum(r.split for r in done[1e6]) == 0
+    assert sum(r.cloned for r in done[1e6]) > 0
 
 
 def test_a_saved_iteration_precedes_its_opacity_reset(rt, tmp_path):

@@ -47,6 +47,7 @@ from dc4gs_cl.host.densify import STRATEGIES, DC4GSConfig
 from dc4gs_cl.run_folder import RunFolder
 from dc4gs_cl.runtime import Runtime, describe
 from dc4gs_cl.scene import Scene, load_scene
+from dc4gs_cl.scene.builtin import BUILTIN_SCENE
 from dc4gs_cl.scene.colmap import model_dir
 from dc4gs_cl.train import Trainer
 
@@ -77,15 +78,15 @@ def host_peak_bytes() -> int:
     return peak if sys.platform == "darwin" else peak * 1024   # bytes on macOS, kilobytes elsewhere
 
 
-def load(name: str, resolution: int | None, cache: Path) -> tuple[Scene, int]:
-    """The scene at -r `resolution` (default: at most MAX_WIDTH wide) with every image decoded."""
-    path = DATA / name
+def load(name: str, resolution: int | None, cache: Path, test_split: str = "llff") -> tuple[Scene, int]:
+    """The scene (a folder of DATA, or "builtin") at -r `resolution` (default: at most MAX_WIDTH wide) with
+    every image decoded."""
+    path = BUILTIN_SCENE if name == BUILTIN_SCENE else DATA / name
     if resolution is None:
         full = load_scene(path, resolution=1)
         resolution = math.ceil(max(c.width for c in full.train + full.test) / MAX_WIDTH)
-    scene = load_scene(path, resolution=resolution, cache_dir=cache / "undistorted" / name)
-    for cam in scene.train + scene.test:
-        scene.image(cam)
+    scene = load_scene(path, resolution=resolution, cache_dir=cache / "undistorted" / name, test_split=test_split)
+    scene.read_all_images()
     return scene, resolution
 
 
@@ -115,10 +116,11 @@ def variant(spec: str) -> dict:
     return settings
 
 
-def config(scene: Scene, strategy: str, iterations: int, resolution: int) -> TrainConfig:
-    settings = variant(strategy)
+def config(scene: Scene, strategy: str, iterations: int, resolution: int, **settings) -> TrainConfig:
+    """The run's settings: the strategy spec's, then `settings` (TrainConfig fields, e.g. split_threshold)."""
+    dc4gs = variant(strategy)
     return TrainConfig(scene=str(scene.root), iterations=iterations, resolution=resolution,
-                       strategy=settings.pop("strategy"), dc4gs=DC4GSConfig(**settings))
+                       strategy=dc4gs.pop("strategy"), dc4gs=DC4GSConfig(**dc4gs), **settings)
 
 
 def dc4gs_summary(runs: list[dict]) -> list[str]:
@@ -182,6 +184,7 @@ def train_one(rt: Runtime, scene: Scene, cfg: TrainConfig, out: Path) -> dict:
     run.write_results(cfg.iterations, result)
     per_it = 1e3 / cfg.iterations
     return {"psnr": result["mean"]["PSNR"], "ssim": result["mean"]["SSIM"], "test_views": result["views"],
+            "per_view_psnr": result["per_view"]["PSNR"],
             "gaussians_initial": initial, "gaussians_final": trainer.params.n, "gaussians_peak": peak,
             "wall_ms_per_it": wall * per_it, "device_ms_per_it": {s: t * per_it for s, t in stages.items()},
             "device_peak_bytes": device_peak, "device_bytes_at_start": at_start,

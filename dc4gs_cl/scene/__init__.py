@@ -28,13 +28,15 @@ DEFAULT_MAX_WIDTH = 1600  # the Inria default: wider images train at this width 
 
 
 def load_scene(path: str | os.PathLike, resolution: int | None = None, cache_dir: str | os.PathLike | None = None,
-               test_every: int = 8, white_background: bool = False, alpha_mask: bool = False) -> Scene:
+               test_every: int = 8, white_background: bool = False, alpha_mask: bool = False,
+               test_split: str = "llff") -> Scene:
     """Load a COLMAP scene (sparse/0/ + images/) or a NeRF scene (transforms.json or
     transforms_train.json [+ transforms_test.json]; `path` may also be one of these files).
 
     resolution: the CLI's -r: None = full size but at most DEFAULT_MAX_WIDTH wide, r = 1/r of the size.
     cache_dir: where undistorted images are cached (None: a temporary folder removed at exit).
-    test_every: COLMAP and transforms.json scenes hold out every test_every-th image by name (0: none).
+    test_every, test_split: COLMAP and transforms.json scenes hold out every test_every-th image by name (0: none),
+      from the first (llff) or from the middle of the path (interpolated; camera.split_train_test).
     alpha_mask: an image's alpha channel masks pixels out (scene/masks.py) instead of being composited.
     """
     if str(path) == BUILTIN_SCENE:
@@ -42,16 +44,16 @@ def load_scene(path: str | os.PathLike, resolution: int | None = None, cache_dir
             raise InputError(None, "--white-background: the built-in scene has its own sky colour as background")
         if alpha_mask:
             raise InputError(None, "--alpha-mask: the built-in scene's images have no alpha channel")
-        return builtin_scene(resolution=resolution, test_every=test_every)
+        return builtin_scene(resolution=resolution, test_every=test_every, test_split=test_split)
     path = Path(path)
     if not path.exists():
         raise InputError(path, "scene folder not found")
     points = colors = None
     if path.is_dir() and colmap.model_dir(path) is not None:
         cameras, distorted, points, colors = colmap.read_colmap(path)
-        train, test = split_train_test(cameras, test_every)
+        train, test = split_train_test(cameras, test_every, test_split)
     elif files := nerf.transforms_files(path):
-        train, test, distorted = nerf.read_nerf(files, test_every)
+        train, test, distorted = nerf.read_nerf(files, test_every, test_split)
     else:
         raise InputError(path, "not a COLMAP or NeRF scene: expected sparse/0/ or transforms*.json")
     root = path if path.is_dir() else path.parent

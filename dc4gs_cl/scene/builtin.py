@@ -258,9 +258,9 @@ class _Renderer:
 
 
 def builtin_scene(resolution: int | None = None, test_every: int = 8, n_views: int = 32,
-                  base_size: tuple[int, int] = (192, 144)) -> Scene:
+                  base_size: tuple[int, int] = (192, 144), test_split: str = "llff") -> Scene:
     """The built-in scene at base_size (resolution None or 1) or 1/resolution of it (the CLI's -r)."""
-    train, test = split_train_test(_cameras(n_views, base_size), test_every)
+    train, test = split_train_test(_cameras(n_views, base_size), test_every, test_split)
     scene = Scene(root=Path(BUILTIN_SCENE), train=[c.at_resolution(resolution) for c in train],
                   test=[c.at_resolution(resolution) for c in test], points=None, colors=None,
                   background=SKY.copy(), read_image=_Renderer())

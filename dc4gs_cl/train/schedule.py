@@ -37,6 +37,8 @@ class Schedule:
                     max_gaussians=self.cfg.max_gaussians)
         if self.cfg.densify_until is not None:
             c = replace(c, densify_until=self.cfg.densify_until)
+        if self.cfg.split_threshold is not None:
+            c = replace(c, split_threshold=self.cfg.split_threshold)
         return cls(c, self.cfg.dc4gs)
 
     def evaluations(self) -> list[int]:

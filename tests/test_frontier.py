@@ -1,0 +1,47 @@
+"""tools/frontier.py, the DC4GS frontier study: each (method, threshold scale) is a real run with the threshold it
+names, a rerun adds only the runs its results file lacks, and "vs base at equal Gaussians" interpolates the base's
+curve in log Gaussians."""
+import json
+import math
+
+import pytest
+
+from helpers import load_tool
+
+frontier = load_tool("frontier")
+
+
+def point(gaussians, psnr):
+    return {"gaussians_final": gaussians, "psnr": psnr}
+
+
+def test_psnr_against_the_base_at_equal_gaussians():
+    base = [point(4000, 22.0), point(1000, 20.0), point(16000, 23.0)]
+    assert frontier.at_equal_gaussians(point(2000, 21.5), base) == pytest.approx(0.5)     # halfway in log G
+    assert frontier.at_equal_gaussians(point(8000, 22.0), base) == pytest.approx(-0.5)
+    assert frontier.at_equal_gaussians(point(4000, 22.0), base) == pytest.approx(0.0)
+    assert frontier.at_equal_gaussians(point(999, 30.0), base) is None                    # outside the base's range
+    assert frontier.at_equal_gaussians(point(20000, 30.0), base) is None
+    assert frontier.at_equal_gaussians(point(2000, 21.0), base[:1]) is None
+
+
+def test_sweep_runs_each_point_once_and_reports_it(tmp_path):
+    args = ["--scenes", "builtin", "--bases", "absgs", "--methods", "base", "dcc", "--iterations", "40", "-r", "4",
+            "--out", str(tmp_path)]
+    assert frontier.main([*args, "--scales", "1", "3"]) == 0
+    first = json.loads((tmp_path / "frontier.json").read_text())["runs"]
+    assert [(r["method"], r["scale"]) for r in first] == [("base", 1), ("dcc", 1), ("base", 3), ("dcc", 3)]
+    for r in first:
+        assert r["split_threshold"] == pytest.approx(4e-4 * r["scale"])
+        saved = json.loads((tmp_path / "runs" / r["key"].replace("|", "-") / "config.json").read_text())
+        assert saved["split_threshold"] == pytest.approx(r["split_threshold"]) and saved["dc4gs"]["dcc"] == (r["method"] == "dcc")
+        assert math.isfinite(r["psnr"]) and r["gaussians_final"] > 0 and r["wall_s"] > 0
+        assert sorted(r["per_view_psnr"]) == ["view_000.png", "view_008.png", "view_016.png", "view_024.png"]
+    by = {(r["method"], r["scale"]): r for r in first}
+    assert by["base", 3]["gaussians_final"] < by["base", 1]["gaussians_final"]   # a higher threshold splits less
+    assert frontier.main([*args, "--scales", "1", "3", "2"]) == 0                 # only the new scale runs
+    runs = json.loads((tmp_path / "frontier.json").read_text())["runs"]
+    assert runs[:4] == first and [(r["method"], r["scale"]) for r in runs[4:]] == [("base", 2), ("dcc", 2)]
+    text = (tmp_path / "frontier.md").read_text()
+    assert text.count("\n| dcc |") == 3 and "| builtin | 48x36 | absgs | 40 | llff | dcc |" in text
+    assert (tmp_path / "builtin-absgs-40.png").stat().st_size > 10_000

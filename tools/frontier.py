@@ -1,0 +1,225 @@
+"""DC4GS frontier study: test PSNR against final Gaussians and against training time, one curve per method, each
+curve the base's split threshold swept. One point per method cannot tell better allocation from less densification
+(any higher threshold gives fewer Gaussians at lower PSNR); a curve can.
+
+    python tools/frontier.py [--scenes builtin temple_sparse_ring ...] [--bases absgs 3dgs]
+                             [--methods base dc4gs dcc dcs] [--scales 0.5 1 1.5 2 4] [--iterations 3000]
+                             [--test-split llff|interpolated] [-r K] [--out DIR] [--device D] [--report-only]
+
+A method is the base alone or with DC4GS (dc4gs: DCC and DCS), DCC alone or DCS alone; a scale multiplies the
+base's split threshold (--split-threshold; the clone threshold stays). Every (scene, base, method, scale) is one
+training run measured as tools/bench_train.py measures it (test PSNR and SSIM per view, final and peak Gaussians,
+wall and device time), its folder kept under DIR. Each result is added to DIR/frontier.json when its run ends and a
+rerun skips the runs that file holds, so a sweep that is interrupted, or spread over sessions, goes on where it
+stopped. After each run DIR/frontier.md (tables) and DIR/<scene>-<base>-<iterations>[-interpolated].png (the
+`report` extra's matplotlib; skipped with a note without it) are rewritten. Runs go scale by scale, every method
+at a scale back to back, so slow phases of a shared machine spread over all methods.
+
+Reading it: a method helps where its curve lies above its base's, more PSNR at the same number of Gaussians. For
+each point of a method, "vs base at equal Gaussians" is its PSNR minus the base's interpolated at its Gaussian count
+(linear in log Gaussians between the base's runs that bracket it; none outside the base's range).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import bench_train  # noqa: E402 (a module of tools/, found through the line above)
+
+from dc4gs_cl.errors import InputError  # noqa: E402
+from dc4gs_cl.files import write_atomic, write_json  # noqa: E402
+from dc4gs_cl.host.densify import STRATEGIES  # noqa: E402
+from dc4gs_cl.runtime import Runtime, describe  # noqa: E402
+from dc4gs_cl.scene.builtin import BUILTIN_SCENE  # noqa: E402
+from dc4gs_cl.scene.camera import TEST_SPLITS  # noqa: E402
+
+METHODS = {"base": "", "dc4gs": "+dc4gs", "dcc": "+dcc", "dcs": "+dcs"}   # method -> bench_train strategy suffix
+SCALES = (0.5, 1.0, 1.5, 2.0, 4.0)
+COLOURS = {"base": "black", "dc4gs": "tab:red", "dcc": "tab:blue", "dcs": "tab:green"}
+
+
+def run_key(scene: str, base: str, method: str, scale: float, iterations: int, test_split: str) -> str:
+    return f"{scene}|{base}|{method}|{scale:g}|{iterations}|{test_split}"
+
+
+def at_equal_gaussians(point: dict, base_points: list[dict]) -> float | None:
+    """point's PSNR minus the base curve's at point's Gaussian count (linear in log Gaussians); None outside the
+    base's range."""
+    pts = sorted(base_points, key=lambda r: r["gaussians_final"])
+    g = [math.log(r["gaussians_final"]) for r in pts]
+    x = math.log(point["gaussians_final"])
+    if len(pts) < 2 or not g[0] <= x <= g[-1]:
+        return None
+    return point["psnr"] - float(np.interp(x, g, [r["psnr"] for r in pts]))
+
+
+def curves(runs: list[dict]) -> dict[tuple, dict[str, list[dict]]]:
+    """(scene, base, iterations, test_split) -> method -> its runs by scale."""
+    out: dict[tuple, dict[str, list[dict]]] = {}
+    for r in runs:
+        key = (r["scene"], r["base"], r["iterations"], r["test_split"])
+        out.setdefault(key, {}).setdefault(r["method"], []).append(r)
+    for methods in out.values():
+        for pts in methods.values():
+            pts.sort(key=lambda r: r["scale"])
+    return out
+
+
+def markdown(report: dict) -> str:
+    lines = [f"# DC4GS frontiers ({report['device']})", "",
+             "PSNR on the test views against final Gaussians, the base's split threshold scaled; \"vs base\" is the "
+             "PSNR minus the base curve's at the same Gaussian count (log-linear between its runs; - outside them).",
+             ""]
+    summary = ["## Summary: mean PSNR vs base at equal Gaussians", "",
+               "| scene | size | base | iterations | test split | method | points in base's range | mean vs base | "
+               "range |", "|---|---|---|---:|---|---|---:|---:|---|"]
+    tables = []
+    for (scene, base, iterations, split), methods in curves(report["runs"]).items():
+        base_pts = methods.get("base", [])
+        size = next(iter(methods.values()))[0]["size"]
+        tables += [f"## {scene} ({size}), {base}, {iterations:,} iterations, {split} test views", "",
+                   "| method | scale | split threshold | Gaussians | PSNR | SSIM | vs base at equal G | wall s | "
+                   "per view PSNR (worst first) |", "|---|---:|---:|---:|---:|---:|---:|---:|---|"]
+        for method in METHODS:
+            for r in methods.get(method, []):
+                d = at_equal_gaussians(r, base_pts) if method != "base" else None
+                views = sorted(r["per_view_psnr"].items(), key=lambda kv: kv[1])
+                tables.append(
+                    f"| {method} | {r['scale']:g} | {r['split_threshold']:.2e} | {r['gaussians_final']:,} | "
+                    f"{r['psnr']:.2f} | {r['ssim']:.4f} | {'-' if d is None else f'{d:+.2f}'} | "
+                    f"{r['wall_s']:.0f} | {', '.join(f'{Path(n).stem} {p:.2f}' for n, p in views)} |")
+            if method != "base" and methods.get(method):
+                ds = [d for r in methods[method] if (d := at_equal_gaussians(r, base_pts)) is not None]
+                mean = f"{np.mean(ds):+.2f} dB" if ds else "-"
+                spread = f"{min(ds):+.2f} to {max(ds):+.2f}" if ds else "-"
+                summary.append(f"| {scene} | {size} | {base} | {iterations:,} | {split} | {method} | "
+                               f"{len(ds)} of {len(methods[method])} | {mean} | {spread} |")
+        tables.append("")
+    return "\n".join(lines + summary + [""] + tables)
+
+
+def plot(report: dict, out: Path) -> list[Path]:
+    """One PNG per (scene, base, iterations, test split); [] without matplotlib."""
+    try:
+        import matplotlib
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        return []
+    written = []
+    for (scene, base, iterations, split), methods in curves(report["runs"]).items():
+        fig, (by_count, by_time) = plt.subplots(1, 2, figsize=(11, 4.2))
+        for method, pts in methods.items():
+            label = base if method == "base" else f"{base}+{method}"
+            for ax, x in ((by_count, [r["gaussians_final"] for r in pts]), (by_time, [r["wall_s"] for r in pts])):
+                ax.plot(x, [r["psnr"] for r in pts], "o-", color=COLOURS[method], label=label)
+                for xi, r in zip(x, pts):
+                    ax.annotate(f"{r['scale']:g}x", (xi, r["psnr"]), textcoords="offset points", xytext=(3, 3),
+                                fontsize=7, color=COLOURS[method])
+        by_count.set_xscale("log")
+        by_count.set_xlabel("final Gaussians")
+        by_time.set_xlabel("training wall time, s")
+        by_count.set_ylabel("test PSNR, dB")
+        by_count.legend(fontsize=8)
+        size = next(iter(methods.values()))[0]["size"]
+        fig.suptitle(f"{scene} {size}, {base}, {iterations:,} iterations, {split} test views: "
+                     f"split threshold x scale (labels)", fontsize=10)
+        fig.tight_layout()
+        path = out / f"{scene}-{base}-{iterations}{'' if split == 'llff' else '-' + split}.png"
+        fig.savefig(path, dpi=110)
+        plt.close(fig)
+        written.append(path)
+    return written
+
+
+def write_reports(report: dict, out: Path) -> None:
+    write_json(out / "frontier.json", report)
+    text = markdown(report)
+    write_atomic(out / "frontier.md", lambda tmp: tmp.write_text(text))
+    if not plot(report, out):
+        print("matplotlib not installed (pip install -e '.[report]'): no plots", file=sys.stderr)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--scenes", nargs="+", default=None,
+                    help=f"\"{BUILTIN_SCENE}\" and / or COLMAP scene folders of ../shared/data (default: all of them)")
+    ap.add_argument("--bases", nargs="+", default=["absgs", "3dgs"], choices=sorted(STRATEGIES))
+    ap.add_argument("--methods", nargs="+", default=list(METHODS), choices=list(METHODS))
+    ap.add_argument("--scales", nargs="+", type=float, default=list(SCALES),
+                    help="multiples of the base's split threshold (default: %(default)s)")
+    ap.add_argument("--iterations", type=int, default=3000)
+    ap.add_argument("--test-split", choices=TEST_SPLITS, default="llff")
+    ap.add_argument("-r", "--resolution", type=int, default=None,
+                    help=f"downscale factor (default: per scene, at most {bench_train.MAX_WIDTH} px wide)")
+    ap.add_argument("--out", type=Path, default=Path("frontier"), help="results and run folders (default: %(default)s)")
+    ap.add_argument("--device", default=None)
+    ap.add_argument("--report-only", action="store_true", help="rewrite the tables and plots from DIR/frontier.json")
+    args = ap.parse_args(argv)
+    if any(not (s > 0 and math.isfinite(s)) for s in args.scales):
+        ap.error("--scales must be positive")
+    args.out.mkdir(parents=True, exist_ok=True)
+    path = args.out / "frontier.json"
+    report = json.loads(path.read_text()) if path.is_file() else {"device": None, "runs": []}
+    if args.report_only:
+        write_reports(report, args.out)
+        return 0
+    available = bench_train.colmap_scenes() if bench_train.DATA.is_dir() else []
+    scenes = args.scenes or [BUILTIN_SCENE, *available]
+    unknown = [s for s in scenes if s != BUILTIN_SCENE and s not in available]
+    if unknown:
+        ap.error(f"not COLMAP scenes of {bench_train.DATA}: {', '.join(unknown)} "
+                 f"(there are: {', '.join(available) or 'none'})")
+
+    rt = Runtime(args.device, profiling=True)
+    report["device"] = report["device"] or describe(rt.device)
+    if report["device"] != describe(rt.device):
+        ap.error(f"{path} holds runs on {report['device']}, this is {describe(rt.device)}: use another --out")
+    done = {r["key"] for r in report["runs"]}
+    with tempfile.TemporaryDirectory(prefix="frontier-") as tmp:
+        for name in scenes:
+            for base in args.bases:
+                todo = [(scale, method) for scale in args.scales for method in args.methods
+                        if run_key(name, base, method, scale, args.iterations, args.test_split) not in done]
+                if not todo:
+                    continue
+                try:
+                    scene, r = bench_train.load(name, args.resolution, args.out, args.test_split)
+                except InputError as e:
+                    print(f"{name}: skipped, the scene does not load: {e}", file=sys.stderr)
+                    break
+                cam = scene.train[0]
+                strategies = [base + METHODS[m] for m in args.methods]
+                bench_train.warm_up(rt, scene, strategies, r, Path(tmp) / "warm-up")
+                threshold = STRATEGIES[base].default_config().split_threshold
+                for scale, method in todo:
+                    key = run_key(name, base, method, scale, args.iterations, args.test_split)
+                    cfg = bench_train.config(scene, base + METHODS[method], args.iterations, r,
+                                             split_threshold=threshold * scale, test_split=args.test_split)
+                    folder = args.out / "runs" / key.replace("|", "-")
+                    run = bench_train.train_one(rt, scene, cfg, folder)
+                    report["runs"].append({
+                        "key": key, "scene": name, "base": base, "method": method, "scale": scale,
+                        "split_threshold": threshold * scale, "iterations": args.iterations,
+                        "test_split": args.test_split, "resolution": r, "size": f"{cam.width}x{cam.height}",
+                        "psnr": run["psnr"], "ssim": run["ssim"], "per_view_psnr": run["per_view_psnr"],
+                        "gaussians_final": run["gaussians_final"], "gaussians_peak": run["gaussians_peak"],
+                        "wall_s": run["wall_ms_per_it"] * args.iterations / 1e3,
+                        "device_ms_per_it": sum(run["device_ms_per_it"].values()), "output": str(folder)})
+                    done.add(key)
+                    write_reports(report, args.out)
+                    print(f"{key}: {run['gaussians_final']:,} Gaussians, PSNR {run['psnr']:.2f} dB, "
+                          f"{report['runs'][-1]['wall_s']:.0f} s", flush=True)
+    write_reports(report, args.out)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
