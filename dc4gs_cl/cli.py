@@ -128,7 +128,8 @@ def build_parser() -> argparse.ArgumentParser:
                         "window (window: the authors' release)")
     g.add_argument("--split-pick", choices=SPLIT_PICKS, default=None,
                    help="split position: minimum of the polynomial through the candidates' costs (poly, default), "
-                        f"the best candidate (argmin), or the best of many candidates (dense: {DENSE_CANDIDATES})")
+                        f"the best candidate (argmin), the best of many candidates (dense: {DENSE_CANDIDATES}), or "
+                        "the middle, no costs gathered (middle: an ablation, DCS' split without its placement)")
     g.add_argument("--split-candidates", type=int, default=None, help="candidate split positions (odd; default 5)")
     g.add_argument("--dcs-track", type=float, default=None,
                    help="gather split costs for a Gaussian only in its first views of a window and while its running "

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from dc4gs_cl.geometry import quat_to_rotmat
-from dc4gs_cl.host.densify import AbsGS, DensifyConfig, GaussianSet, PixelGS, Strategy, ops
+from dc4gs_cl.host.densify import AbsGS, DC4GSConfig, DensifyConfig, GaussianSet, PixelGS, Strategy, ops
 from dc4gs_cl.host.densify.statistics import ABS_PER_VIEW, BASE_COLUMNS, GRAD_PER_PIXEL, VIEWS
 
 EXTENT = 2.0
@@ -73,6 +73,26 @@ def test_densify_clones_small_splits_large_and_never_splits_clones(rng):
     assert (report.cloned, report.split, report.pruned) == (2, 2, 0)       # >= threshold, as the release
     # kept 0, 1, 2, 4; clones of 0, 2; children of 3, 5
     np.testing.assert_array_equal(gs.params["sh"][:, 0], [0, 1, 2, 4, 0, 2, 3, 3, 5, 5])
+
+
+def test_dcs_middle_splits_at_the_middle_without_costs(rng):
+    """--split-pick middle (an ablation): DCS' deterministic split at x = 0.5 (children at mu -/+ 1.5 sigma p,
+    half the scale along the axis and half the opacity), no split costs gathered nor needed in the window."""
+    s = AbsGS(DensifyConfig(split_threshold=4e-4, percent_dense=0.01), DC4GSConfig(dcs=True, split_pick="middle"))
+    assert s.split_candidates == 0 and s.statistics.split_candidates == 0
+    gs = hand_built(rng)
+    gs.params["log_scales"][3] = np.log([0.02, 0.3, 0.1])         # large; its principal axis is y
+    gs.params["opacity_logits"][:] = 2.0
+    parent = {k: v[3].astype(np.float64) for k, v in gs.params.items()}
+    stats = window(6)
+    stats["abs"][3] = 10 * 5e-4
+    report = s.densify(gs, stats, it=1000, extent=EXTENT, rng=rng)
+    assert report.split == 1 and gs.n == 7
+    p = quat_to_rotmat(parent["quats"][None])[0][:, 1]
+    np.testing.assert_allclose(gs.params["means"][5:], parent["means"] + np.outer([-1.5, 1.5], 0.3 * p), atol=1e-6)
+    np.testing.assert_allclose(np.exp(gs.params["log_scales"][5:]), [[0.02, 0.15, 0.1]] * 2, rtol=1e-6)
+    opacity = 1 / (1 + np.exp(-gs.params["opacity_logits"][5:, 0]))
+    np.testing.assert_allclose(opacity, [0.5 / (1 + np.exp(-2.0))] * 2, rtol=1e-6)
 
 
 def test_prune_rules(rng):
@@ -193,19 +213,19 @@ def test_a_new_base_strategy_is_a_subclass(rng):
     assert ToyBase(dc4gs=DC4GSConfig(dcc=True)).split_criterion.total == DCC_ABS   # DCC weights its own term
 
 
-@pytest.mark.parametrize("dc4gs", [False, True], ids=["toy", "toy+DC4GS"])
-def test_a_new_base_strategy_trains(rt, tmp_path, dc4gs):
+@pytest.mark.parametrize("settings, label", [
+    (DC4GSConfig(), "toy"), (DC4GSConfig(dcc=True, dcs=True), "toy+DC4GS"),
+    (DC4GSConfig(dcs=True, split_pick="middle"), "toy+DCS")], ids=["toy", "toy+DC4GS", "toy+DCS-middle"])
+def test_a_new_base_strategy_trains(rt, tmp_path, settings, label):
     """The trainer takes the subclass as it is: its window on the device, its hooks, its densification."""
     from dc4gs_cl.config import TrainConfig
-    from dc4gs_cl.host.densify import DC4GSConfig
     from dc4gs_cl.scene import load_scene
     from dc4gs_cl.train import Trainer
     scene = load_scene("builtin", resolution=4)
-    settings = DC4GSConfig(dcc=dc4gs, dcs=dc4gs)
     strategy = ToyBase(dc4gs=settings)
     trainer = Trainer(TrainConfig(scene="builtin", iterations=80, resolution=4, dc4gs=settings), scene, rt, tmp_path,
                       strategy=strategy)
-    assert trainer.strategy is strategy and strategy.label == ("toy+DC4GS" if dc4gs else "toy")
+    assert trainer.strategy is strategy and strategy.label == label
     start = trainer.model.n
     trainer.run(progress="none")
     assert trainer.model.n != start and np.isfinite(trainer.params.download()["means"]).all()

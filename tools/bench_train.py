@@ -93,8 +93,8 @@ def load(name: str, resolution: int | None, cache: Path, test_split: str = "llff
 DC4GS_TABLE = ("3dgs", "3dgs+dc4gs", "absgs", "absgs+dcc", "absgs+dcs", "absgs+dc4gs", "pixelgs", "pixelgs+dc4gs")
 PARTS = {"dc4gs": {"dcc": True, "dcs": True}, "dcc": {"dcc": True}, "dcs": {"dcs": True}}
 OPTIONS = {"view": ("pooling", "view"), "window": ("pooling", "window"), "poly": ("split_pick", "poly"),
-           "argmin": ("split_pick", "argmin"), "dense": ("split_pick", "dense"), "abs": ("dcc_reading", "abs"),
-           "base": ("dcc_reading", "base")}
+           "argmin": ("split_pick", "argmin"), "dense": ("split_pick", "dense"), "middle": ("split_pick", "middle"),
+           "abs": ("dcc_reading", "abs"), "base": ("dcc_reading", "base")}
 
 
 def variant(spec: str) -> dict:

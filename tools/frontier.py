@@ -6,7 +6,8 @@ curve the base's split threshold swept. One point per method cannot tell better 
                              [--methods base dc4gs dcc dcs] [--scales 0.5 1 1.5 2 4] [--iterations 3000]
                              [--test-split llff|interpolated] [-r K] [--out DIR] [--device D] [--report-only]
 
-A method is the base alone or with DC4GS (dc4gs: DCC and DCS), DCC alone or DCS alone; a scale multiplies the
+A method is the base alone or with DC4GS (dc4gs: DCC and DCS), DCC alone or DCS alone (and, asked for,
+dcs-middle: DCS' deterministic split at the middle, no costs, which tells its placement from its split); a scale multiplies the
 base's split threshold (--split-threshold; the clone threshold stays). Every (scene, base, method, scale) is one
 training run measured as tools/bench_train.py measures it (test PSNR and SSIM per view, final and peak Gaussians,
 wall and device time), its folder kept under DIR. Each result is added to DIR/frontier.json when its run ends and a
@@ -40,9 +41,11 @@ from dc4gs_cl.runtime import Runtime, describe  # noqa: E402
 from dc4gs_cl.scene.builtin import BUILTIN_SCENE  # noqa: E402
 from dc4gs_cl.scene.camera import TEST_SPLITS  # noqa: E402
 
-METHODS = {"base": "", "dc4gs": "+dc4gs", "dcc": "+dcc", "dcs": "+dcs"}   # method -> bench_train strategy suffix
+# method -> bench_train strategy suffix; dcs-middle (not run by default): DCS' split at the middle, no costs
+METHODS = {"base": "", "dc4gs": "+dc4gs", "dcc": "+dcc", "dcs": "+dcs", "dcs-middle": "+dcs:middle"}
+DEFAULT_METHODS = ("base", "dc4gs", "dcc", "dcs")
 SCALES = (0.5, 1.0, 1.5, 2.0, 4.0)
-COLOURS = {"base": "black", "dc4gs": "tab:red", "dcc": "tab:blue", "dcs": "tab:green"}
+COLOURS = {"base": "black", "dc4gs": "tab:red", "dcc": "tab:blue", "dcs": "tab:green", "dcs-middle": "tab:olive"}
 
 
 def run_key(scene: str, base: str, method: str, scale: float, iterations: int, test_split: str) -> str:
@@ -152,7 +155,7 @@ def main(argv=None) -> int:
     ap.add_argument("--scenes", nargs="+", default=None,
                     help=f"\"{BUILTIN_SCENE}\" and / or COLMAP scene folders of ../shared/data (default: all of them)")
     ap.add_argument("--bases", nargs="+", default=["absgs", "3dgs"], choices=sorted(STRATEGIES))
-    ap.add_argument("--methods", nargs="+", default=list(METHODS), choices=list(METHODS))
+    ap.add_argument("--methods", nargs="+", default=list(DEFAULT_METHODS), choices=list(METHODS))
     ap.add_argument("--scales", nargs="+", type=float, default=list(SCALES),
                     help="multiples of the base's split threshold (default: %(default)s)")
     ap.add_argument("--iterations", type=int, default=3000)

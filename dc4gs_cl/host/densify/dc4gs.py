@@ -13,7 +13,7 @@ import numpy as np
 from .statistics import DC_WEIGHTED, DCC_ABS, VIEWS, Criterion
 
 POOLINGS = ("view", "window")       # per view (the paper) or over the window (the authors' release)
-SPLIT_PICKS = ("poly", "argmin", "dense")
+SPLIT_PICKS = ("poly", "argmin", "dense", "middle")   # middle: DCS' split at x = 0.5, no costs (an ablation)
 DCC_READINGS = ("abs", "base")
 FIVE_CANDIDATES = 5                 # the paper's candidate count
 DENSE_CANDIDATES = 59               # --split-pick dense without --split-candidates
@@ -40,6 +40,11 @@ class DC4GSConfig:
     @property
     def enabled(self) -> bool:
         return self.dcc or self.dcs
+
+    @property
+    def costs_pick(self) -> bool:
+        """Whether DCS' split position comes from the candidates' costs (not with split_pick middle)."""
+        return self.dcs and self.split_pick != "middle"
 
     @property
     def candidate_count(self) -> int:

@@ -119,7 +119,8 @@ class Strategy:
 
     @property
     def split_candidates(self) -> int:
-        return self.dc4gs.candidate_count if self.dc4gs is not None and self.dc4gs.dcs else 0
+        """Candidate split positions whose costs the device gathers (0: none)."""
+        return self.dc4gs.candidate_count if self.dc4gs is not None and self.dc4gs.costs_pick else 0
 
     @cached_property
     def statistics(self) -> StatisticsSpec:
@@ -201,9 +202,11 @@ class Strategy:
 
     # the step --------------------------------------------------------------------------------------------
     def split(self, gs: GaussianSet, mask: np.ndarray, rng: np.random.Generator, window: dict[str, np.ndarray]) -> int:
-        if not self.split_candidates:
+        if self.dc4gs is None or not self.dc4gs.dcs:
             return ops.split_random(gs, mask, rng)
         idx = np.flatnonzero(mask)
+        if not self.split_candidates:   # split_pick middle: DCS' split without its costs
+            return ops.split_at(gs, idx, np.full(len(idx), 0.5))
         return ops.split_at(gs, idx, split_positions(window[SPLIT_COSTS][idx], self.dc4gs.split_pick))
 
     def densify(self, gs: GaussianSet, window: dict[str, np.ndarray], it: int, extent: float,
