@@ -8,7 +8,6 @@ import pytest
 
 from dc4gs_cl.cli import main
 from dc4gs_cl.config import TrainConfig
-from dc4gs_cl.errors import InputError
 from dc4gs_cl.metrics import psnr
 from dc4gs_cl.scene import load_scene
 from dc4gs_cl.train import Trainer

@@ -4,7 +4,7 @@ whose surfaces are known, also whether those Gaussians straddle true colour edge
 the edge.
 
     python tools/dc4gs_decisions.py [--scene builtin|FOLDER] [--base absgs] [--iterations 3000] [-r K]
-                                    [--out DIR] [--device D]
+                                    [--test-split llff|interpolated] [--out DIR] [--device D]
 
 Per densification step (tables in DIR/decisions.md, every number in DIR/decisions.json):
 - candidates: large Gaussians (max scale > percent_dense x extent) whose base split criterion reaches the
@@ -18,7 +18,7 @@ Per densification step (tables in DIR/decisions.md, every number in DIR/decision
   DCS' cut of a Gaussian split at x lies at (6x - 3) sigma; its distance from the nearest edge against the
   middle's (a cut at 0, where a split without DCS centres its children) and a cut drawn uniformly over DCS'
   search interval's (what a pick that knew nothing would give).
-- DIR/withheld-<iteration>.png at the middle densification step: a test view rendered from the model, from the
+- DIR/withheld-<iteration>.jpg at the middle densification step: a test view rendered from the model, from the
   withheld Gaussians alone, from those DCC splits alone, and the model's error.
 """
 from __future__ import annotations
@@ -40,6 +40,7 @@ from dc4gs_cl.model import GaussianModel
 from dc4gs_cl.render import DeviceGaussians
 from dc4gs_cl.runtime import Runtime, describe
 from dc4gs_cl.scene import builtin, load_scene
+from dc4gs_cl.scene.camera import TEST_SPLITS
 from dc4gs_cl.train import Trainer
 
 SAMPLES = 61          # points along a candidate's axis, -3 to 3 sigma
@@ -157,7 +158,7 @@ def render_panels(rt: Runtime, trainer: Trainer, sh_degree: int, params: dict, w
         ax.set_title(title, fontsize=8)
         ax.axis("off")
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    fig.savefig(path, dpi=110, pil_kwargs={"quality": 88})   # a JPEG: the panels are photographs
     plt.close(fig)
     return True
 
@@ -207,15 +208,17 @@ def main(argv=None) -> int:
     ap.add_argument("--base", default="absgs", choices=sorted(STRATEGIES))
     ap.add_argument("--iterations", type=int, default=3000)
     ap.add_argument("-r", "--resolution", type=int, default=None)
+    ap.add_argument("--test-split", choices=TEST_SPLITS, default="llff", help="the held-out views (the panels show the first)")
     ap.add_argument("--out", type=Path, default=Path("decisions"))
     ap.add_argument("--device", default=None)
     args = ap.parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)
-    scene = load_scene(args.scene, resolution=args.resolution, cache_dir=args.out / "undistorted")
+    scene = load_scene(args.scene, resolution=args.resolution, cache_dir=args.out / "undistorted",
+                       test_split=args.test_split)
     scene.read_all_images()
     rt = Runtime(args.device)
     cfg = TrainConfig(scene=args.scene, iterations=args.iterations, resolution=args.resolution, strategy=args.base,
-                      dc4gs=DC4GSConfig(dcc=True, dcs=True))
+                      test_split=args.test_split, dc4gs=DC4GSConfig(dcc=True, dcs=True))
     with tempfile.TemporaryDirectory(prefix="decisions-") as tmp:
         trainer = Trainer(cfg, scene, rt, Path(tmp))
         recorder = Recorder(trainer, known_geometry=args.scene == builtin.BUILTIN_SCENE)
@@ -227,8 +230,8 @@ def main(argv=None) -> int:
               "threshold": trainer.strategy.config.split_threshold, "steps": recorder.steps}
     if recorder.snapshot is not None:
         at, *snapshot = recorder.snapshot
-        if render_panels(rt, trainer, *snapshot, args.out / f"withheld-{at}.png"):
-            report["panels"] = f"withheld-{at}.png"
+        if render_panels(rt, trainer, *snapshot, args.out / f"withheld-{at}.jpg"):
+            report["panels"] = f"withheld-{at}.jpg"
     write_json(args.out / "decisions.json", report)
     text = markdown(report)
     write_atomic(args.out / "decisions.md", lambda tmp: tmp.write_text(text))
