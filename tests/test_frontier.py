@@ -45,3 +45,20 @@ def test_sweep_runs_each_point_once_and_reports_it(tmp_path):
     text = (tmp_path / "frontier.md").read_text()
     assert text.count("\n| dcc |") == 3 and "| builtin | 48x36 | absgs | 40 | llff | dcc |" in text
     assert (tmp_path / "builtin-absgs-40.png").stat().st_size > 10_000
+
+
+def test_side_by_side_sweeps_keep_each_others_runs(tmp_path):
+    """Two sweeps into one folder each hold the report as it was when they started; each finished run is added to
+    the file as it is now, so neither drops the other's (and a rerun of a key replaces it, once)."""
+    path = tmp_path / "frontier.json"
+    entry = lambda key, psnr: {"key": key, "scene": "builtin", "base": "absgs", "method": "base", "scale": 1.0,
+                               "split_threshold": 4e-4, "iterations": 40, "test_split": "llff", "size": "48x36",
+                               "psnr": psnr, "ssim": 0.5, "per_view_psnr": {"view_000.png": psnr},
+                               "gaussians_final": 100, "gaussians_peak": 120, "wall_s": 1.0, "output": "-"}
+    frontier.record(path, "device A", entry("a", 20.0))          # sweep 1's first run
+    frontier.record(path, "device A", entry("b", 21.0))          # sweep 2, started before it
+    report = frontier.record(path, "device A", entry("a", 22.0))
+    runs = json.loads(path.read_text())["runs"]
+    assert report["runs"] == runs and report["device"] == "device A"
+    assert [(r["key"], r["psnr"]) for r in runs] == [("b", 21.0), ("a", 22.0)]
+    assert "| base | 1 |" in (tmp_path / "frontier.md").read_text()

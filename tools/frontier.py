@@ -7,7 +7,8 @@ curve the base's split threshold swept. One point per method cannot tell better 
                              [--test-split llff|interpolated] [-r K] [--out DIR] [--device D] [--report-only]
 
 A method is the base alone or with DC4GS (dc4gs: DCC and DCS), DCC alone or DCS alone (and, asked for,
-dcs-middle: DCS' deterministic split at the middle, no costs, which tells its placement from its split); a scale multiplies the
+dcs-middle: DCS' deterministic split at the middle, no costs, which tells its placement from its split, and
+dc4gs-middle: DCC with that split, DC4GS without split costs); a scale multiplies the
 base's split threshold (--split-threshold; the clone threshold stays). Every (scene, base, method, scale) is one
 training run measured as tools/bench_train.py measures it (test PSNR and SSIM per view, final and peak Gaussians,
 wall and device time), its folder kept under DIR. Each result is added to DIR/frontier.json when its run ends and a
@@ -23,6 +24,7 @@ each point of a method, "vs base at equal Gaussians" is its PSNR minus the base'
 from __future__ import annotations
 
 import argparse
+import fcntl
 import json
 import math
 import sys
@@ -41,11 +43,13 @@ from dc4gs_cl.runtime import Runtime, describe  # noqa: E402
 from dc4gs_cl.scene.builtin import BUILTIN_SCENE  # noqa: E402
 from dc4gs_cl.scene.camera import TEST_SPLITS  # noqa: E402
 
-# method -> bench_train strategy suffix; dcs-middle (not run by default): DCS' split at the middle, no costs
-METHODS = {"base": "", "dc4gs": "+dc4gs", "dcc": "+dcc", "dcs": "+dcs", "dcs-middle": "+dcs:middle"}
+# method -> bench_train strategy suffix; the *-middle ones (not run by default): DCS' split at the middle, no costs
+METHODS = {"base": "", "dc4gs": "+dc4gs", "dcc": "+dcc", "dcs": "+dcs", "dcs-middle": "+dcs:middle",
+           "dc4gs-middle": "+dc4gs:middle"}
 DEFAULT_METHODS = ("base", "dc4gs", "dcc", "dcs")
 SCALES = (0.5, 1.0, 1.5, 2.0, 4.0)
-COLOURS = {"base": "black", "dc4gs": "tab:red", "dcc": "tab:blue", "dcs": "tab:green", "dcs-middle": "tab:olive"}
+COLOURS = {"base": "black", "dc4gs": "tab:red", "dcc": "tab:blue", "dcs": "tab:green", "dcs-middle": "tab:olive",
+           "dc4gs-middle": "tab:purple"}
 
 
 def run_key(scene: str, base: str, method: str, scale: float, iterations: int, test_split: str) -> str:
@@ -150,6 +154,17 @@ def write_reports(report: dict, out: Path) -> None:
         print("matplotlib not installed (pip install -e '.[report]'): no plots", file=sys.stderr)
 
 
+def record(path: Path, device: str, entry: dict) -> dict:
+    """Add one finished run to the report at `path` and rewrite its tables and plots. The file is read again
+    under a lock, so sweeps running side by side into one folder (e.g. a scene each) keep each other's runs."""
+    with open(path.with_suffix(".lock"), "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        report = json.loads(path.read_text()) if path.is_file() else {"device": device, "runs": []}
+        report["runs"] = [r for r in report["runs"] if r["key"] != entry["key"]] + [entry]
+        write_reports(report, path.parent)
+    return report
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--scenes", nargs="+", default=None,
@@ -208,18 +223,18 @@ def main(argv=None) -> int:
                                              split_threshold=threshold * scale, test_split=args.test_split)
                     folder = args.out / "runs" / key.replace("|", "-")
                     run = bench_train.train_one(rt, scene, cfg, folder)
-                    report["runs"].append({
+                    entry = {
                         "key": key, "scene": name, "base": base, "method": method, "scale": scale,
                         "split_threshold": threshold * scale, "iterations": args.iterations,
                         "test_split": args.test_split, "resolution": r, "size": f"{cam.width}x{cam.height}",
                         "psnr": run["psnr"], "ssim": run["ssim"], "per_view_psnr": run["per_view_psnr"],
                         "gaussians_final": run["gaussians_final"], "gaussians_peak": run["gaussians_peak"],
                         "wall_s": run["wall_ms_per_it"] * args.iterations / 1e3,
-                        "device_ms_per_it": sum(run["device_ms_per_it"].values()), "output": str(folder)})
+                        "device_ms_per_it": sum(run["device_ms_per_it"].values()), "output": str(folder)}
+                    report = record(path, report["device"], entry)
                     done.add(key)
-                    write_reports(report, args.out)
                     print(f"{key}: {run['gaussians_final']:,} Gaussians, PSNR {run['psnr']:.2f} dB, "
-                          f"{report['runs'][-1]['wall_s']:.0f} s", flush=True)
+                          f"{entry['wall_s']:.0f} s", flush=True)
     write_reports(report, args.out)
     return 0
 
