@@ -135,6 +135,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="gather split costs for a Gaussian only in its first views of a window and while its running "
                         "split criterion is at least this fraction of the threshold (0: every Gaussian that can be "
                         "split, exact; see the README)")
+    g.add_argument("--dcs-other-scale", type=float, default=None,
+                   help="DCS' children's two other axes times this (1: kept, the paper's, default; 0.625 shrinks them "
+                        "as the 3DGS split does: see the README on regions of large Gaussians)")
     g.add_argument("--dcc-reading", choices=DCC_READINGS, default=None,
                    help="what DCC weights on the 3DGS and Pixel-GS bases: the base's own term (base, the paper's "
                         "literal reading; default) or the homodirectional gradient (abs)")
@@ -266,7 +269,8 @@ def print_stage_table(timings: list[dict[str, float]], width: int, height: int) 
 
 
 DC4GS_FLAGS = {"dcc": "dcc", "dcs": "dcs", "dc_pooling": "pooling", "split_pick": "split_pick",
-               "split_candidates": "candidates", "dcc_reading": "dcc_reading", "dcs_track": "track"}
+               "split_candidates": "candidates", "dcc_reading": "dcc_reading", "dcs_track": "track",
+               "dcs_other_scale": "other_scale"}
 
 
 def train_config(args, run):

@@ -236,7 +236,10 @@ def test_argmin_dense_and_constant_costs():
     np.testing.assert_allclose(split_positions(costs[1:3], "poly"), 0.5)
 
 
-def test_dc_guided_split_children(rng):
+@pytest.mark.parametrize("shrink_others", [False, True])
+def test_dc_guided_split_children(rng, shrink_others):
+    """Children per the spec (section 5); with --dcs-other-scale F (drawn here) the other two axes are the
+    parent's times F, the rest unchanged."""
     from dc4gs_cl.geometry import quat_to_rotmat
     from dc4gs_cl.host.densify.ops import GaussianSet, split_at
     n = 3
@@ -247,7 +250,8 @@ def test_dc_guided_split_children(rng):
     gs = GaussianSet(dict(params), {k: np.ones_like(v) for k, v in params.items()},
                      {k: np.ones_like(v) for k, v in params.items()})
     x = np.array([0.3, 0.6])
-    assert split_at(gs, np.array([0, 1]), x) == 2
+    other_scale = rng.uniform(0.3, 0.9) if shrink_others else 1.0
+    assert split_at(gs, np.array([0, 1]), x, other_scale) == 2
     assert gs.n == 5
     np.testing.assert_array_equal(gs.params["sh"][0], params["sh"][2])          # the unsplit one stays first
     for parent, xi, (left, right), axis in ((0, 0.3, (1, 2), 1), (1, 0.6, (3, 4), 0)):   # isotropic: first axis
@@ -258,7 +262,7 @@ def test_dc_guided_split_children(rng):
         np.testing.assert_allclose(gs.params["means"][left], mu - 3 * sigma * (1 - xi) * p, rtol=1e-5, atol=1e-6)
         np.testing.assert_allclose(gs.params["means"][right], mu + 3 * sigma * xi * p, rtol=1e-5, atol=1e-6)
         for child, fraction in ((left, xi), (right, 1 - xi)):
-            want = s.copy()
+            want = s * other_scale
             want[axis] = sigma * fraction
             np.testing.assert_allclose(np.exp(gs.params["log_scales"][child]), want, rtol=1e-5)
             o = 1 / (1 + np.exp(-params["opacity_logits"][parent, 0]))

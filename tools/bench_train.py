@@ -6,7 +6,7 @@ markdown table row per (scene, strategy).
 
 A strategy is a base (3dgs, absgs, pixelgs) with optional DC4GS parts and settings: "absgs+dc4gs" (DCC and
 DCS), "absgs+dcc", "absgs+dcs", and ":" options, e.g. "absgs+dc4gs:window:argmin" (pooling, split pick,
-"abs" / "base" for the DCC reading, or "track=F" for --dcs-track). --dc4gs runs the DC4GS results table: each base with and without
+"abs" / "base" for the DCC reading, "track=F" for --dcs-track, "shrink" for --dcs-other-scale 0.625). --dc4gs runs the DC4GS results table: each base with and without
 DC4GS and the AbsGS ablation (base, +DCC, +DCS, +both), then prints each DC4GS row against its base.
 
 Per run, measured in this process through the library (one Runtime, profiling on):
@@ -44,6 +44,7 @@ from dc4gs_cl.errors import InputError
 from dc4gs_cl.evaluate import evaluate
 from dc4gs_cl.files import write_json
 from dc4gs_cl.host.densify import STRATEGIES, DC4GSConfig
+from dc4gs_cl.host.densify.ops import SPLIT_SCALE_DIVISOR
 from dc4gs_cl.run_folder import RunFolder
 from dc4gs_cl.runtime import Runtime, describe
 from dc4gs_cl.scene import Scene, load_scene
@@ -94,6 +95,7 @@ DC4GS_TABLE = ("3dgs", "3dgs+dc4gs", "absgs", "absgs+dcc", "absgs+dcs", "absgs+d
 PARTS = {"dc4gs": {"dcc": True, "dcs": True}, "dcc": {"dcc": True}, "dcs": {"dcs": True}}
 OPTIONS = {"view": ("pooling", "view"), "window": ("pooling", "window"), "poly": ("split_pick", "poly"),
            "argmin": ("split_pick", "argmin"), "dense": ("split_pick", "dense"), "middle": ("split_pick", "middle"),
+           "shrink": ("other_scale", 1 / SPLIT_SCALE_DIVISOR),
            "abs": ("dcc_reading", "abs"), "base": ("dcc_reading", "base")}
 
 

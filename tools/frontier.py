@@ -8,7 +8,8 @@ curve the base's split threshold swept. One point per method cannot tell better 
 
 A method is the base alone or with DC4GS (dc4gs: DCC and DCS), DCC alone or DCS alone (and, asked for,
 dcs-middle: DCS' deterministic split at the middle, no costs, which tells its placement from its split, and
-dc4gs-middle: DCC with that split, DC4GS without split costs); a scale multiplies the
+dc4gs-middle: DCC with that split, DC4GS without split costs, and dc4gs-shrink: DC4GS whose children's other
+two axes shrink as 3DGS' children do, --dcs-other-scale 0.625); a scale multiplies the
 base's split threshold (--split-threshold; the clone threshold stays). Every (scene, base, method, scale) is one
 training run measured as tools/bench_train.py measures it (test PSNR and SSIM per view, final and peak Gaussians,
 wall and device time), its folder kept under DIR. Each result is added to DIR/frontier.json when its run ends and a
@@ -43,13 +44,13 @@ from dc4gs_cl.runtime import Runtime, describe  # noqa: E402
 from dc4gs_cl.scene.builtin import BUILTIN_SCENE  # noqa: E402
 from dc4gs_cl.scene.camera import TEST_SPLITS  # noqa: E402
 
-# method -> bench_train strategy suffix; the *-middle ones (not run by default): DCS' split at the middle, no costs
+# method -> bench_train strategy suffix; the last three are not run by default (see the docstring)
 METHODS = {"base": "", "dc4gs": "+dc4gs", "dcc": "+dcc", "dcs": "+dcs", "dcs-middle": "+dcs:middle",
-           "dc4gs-middle": "+dc4gs:middle"}
+           "dc4gs-middle": "+dc4gs:middle", "dc4gs-shrink": "+dc4gs:shrink"}
 DEFAULT_METHODS = ("base", "dc4gs", "dcc", "dcs")
 SCALES = (0.5, 1.0, 1.5, 2.0, 4.0)
 COLOURS = {"base": "black", "dc4gs": "tab:red", "dcc": "tab:blue", "dcs": "tab:green", "dcs-middle": "tab:olive",
-           "dc4gs-middle": "tab:purple"}
+           "dc4gs-middle": "tab:purple", "dc4gs-shrink": "tab:orange"}
 
 
 def run_key(scene: str, base: str, method: str, scale: float, iterations: int, test_split: str) -> str:

@@ -32,6 +32,7 @@ class DC4GSConfig:
     candidates: int | None = None   # odd; None: FIVE_CANDIDATES, or DENSE_CANDIDATES with split_pick "dense"
     dcc_reading: str = "base"       # base: (1 - kappa) x the base's own per-view term; abs: (1 - kappa) |ghat|
     track: float = 0.0              # split costs only while the running split criterion >= track x threshold (0: exact)
+    other_scale: float = 1.0        # DCS children's other two axes x this (1: the paper's, kept; the release's const_scale)
 
     def __post_init__(self):
         if problems := self.problems():
@@ -68,6 +69,8 @@ class DC4GSConfig:
             out.append(f"--split-candidates {self.candidate_count} must be odd and at least 3")
         if not 0 <= self.track <= 1:
             out.append(f"--dcs-track {self.track} must lie in [0, 1]")
+        if not 0 < self.other_scale <= 1:
+            out.append(f"--dcs-other-scale {self.other_scale} must lie in (0, 1]")
         return out
 
 

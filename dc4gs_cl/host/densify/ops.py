@@ -93,11 +93,12 @@ def split_random(gs: GaussianSet, mask: np.ndarray, rng: np.random.Generator) ->
     return len(idx)
 
 
-def split_at(gs: GaussianSet, idx: np.ndarray, x: np.ndarray) -> int:
+def split_at(gs: GaussianSet, idx: np.ndarray, x: np.ndarray, other_scale: float = 1.0) -> int:
     """The DC-guided split: each Gaussian idx[i] becomes two children on its principal axis, cut at
     normalised position x[i] (spec section 5): centres mu - 3 sigma (1 - x) p and mu + 3 sigma x p, scales
-    along the axis sigma x and sigma (1 - x), opacities o x and o (1 - x), rotation and colour copied; the
-    children's Adam moments start at zero."""
+    along the axis sigma x and sigma (1 - x) and along the other two axes the parent's times other_scale (1 in
+    the paper), opacities o x and o (1 - x), rotation and colour copied; the children's Adam moments start at
+    zero."""
     if len(idx) == 0:
         return 0
     p = {k: v[idx].astype(np.float64) for k, v in gs.params.items()}
@@ -107,8 +108,9 @@ def split_at(gs: GaussianSet, idx: np.ndarray, x: np.ndarray) -> int:
     fractions = [x, 1 - x]
     opacity = sigmoid(p["opacity_logits"][:, 0])
     children = {k: [] for k in p}
+    others = p["log_scales"] + math.log(other_scale)
     for offset, fraction in zip(offsets, fractions):
-        log_scales = p["log_scales"].copy()
+        log_scales = others.copy()
         log_scales[np.arange(len(idx)), axis] = np.log(sigma * fraction)
         children["means"].append(p["means"] + offset[:, None] * direction)
         children["log_scales"].append(log_scales)

@@ -206,8 +206,9 @@ class Strategy:
             return ops.split_random(gs, mask, rng)
         idx = np.flatnonzero(mask)
         if not self.split_candidates:   # split_pick middle: DCS' split without its costs
-            return ops.split_at(gs, idx, np.full(len(idx), 0.5))
-        return ops.split_at(gs, idx, split_positions(window[SPLIT_COSTS][idx], self.dc4gs.split_pick))
+            return ops.split_at(gs, idx, np.full(len(idx), 0.5), self.dc4gs.other_scale)
+        return ops.split_at(gs, idx, split_positions(window[SPLIT_COSTS][idx], self.dc4gs.split_pick),
+                            self.dc4gs.other_scale)
 
     def densify(self, gs: GaussianSet, window: dict[str, np.ndarray], it: int, extent: float,
                 rng: np.random.Generator) -> DensifyReport:
