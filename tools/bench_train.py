@@ -6,8 +6,9 @@ markdown table row per (scene, strategy).
 
 A strategy is a base (3dgs, absgs, pixelgs) with optional DC4GS parts and settings: "absgs+dc4gs" (DCC and
 DCS), "absgs+dcc", "absgs+dcs", and ":" options, e.g. "absgs+dc4gs:window:argmin" (pooling, split pick,
-"abs" / "base" for the DCC reading, "track=F" for --dcs-track, "shrink" for --dcs-other-scale 0.625). --dc4gs runs the DC4GS results table: each base with and without
-DC4GS and the AbsGS ablation (base, +DCC, +DCS, +both), then prints each DC4GS row against its base.
+"abs" / "base" for the DCC reading, "track=F" for --dcs-track, "shrink" for --dcs-other-scale 0.625). --dc4gs
+runs the DC4GS results table: each base with and without DC4GS and the AbsGS ablation (base, +DCC, +DCS, +both),
+then prints each DC4GS row against its base.
 
 Per run, measured in this process through the library (one Runtime, profiling on):
 - test-view PSNR and SSIM (dc4gs_cl.evaluate; every 8th image by name is a test view);

@@ -220,6 +220,8 @@ def main(argv=None) -> int:
                 threshold = STRATEGIES[base].default_config().split_threshold
                 for scale, method in todo:
                     key = run_key(name, base, method, scale, args.iterations, args.test_split)
+                    if key in done:          # a sweep running beside this one has recorded it meanwhile
+                        continue
                     cfg = bench_train.config(scene, base + METHODS[method], args.iterations, r,
                                              split_threshold=threshold * scale, test_split=args.test_split)
                     folder = args.out / "runs" / key.replace("|", "-")
@@ -233,7 +235,7 @@ def main(argv=None) -> int:
                         "wall_s": run["wall_ms_per_it"] * args.iterations / 1e3,
                         "device_ms_per_it": sum(run["device_ms_per_it"].values()), "output": str(folder)}
                     report = record(path, report["device"], entry)
-                    done.add(key)
+                    done = {r["key"] for r in report["runs"]}
                     print(f"{key}: {run['gaussians_final']:,} Gaussians, PSNR {run['psnr']:.2f} dB, "
                           f"{entry['wall_s']:.0f} s", flush=True)
     write_reports(report, args.out)

@@ -32,7 +32,7 @@ class DC4GSConfig:
     candidates: int | None = None   # odd; None: FIVE_CANDIDATES, or DENSE_CANDIDATES with split_pick "dense"
     dcc_reading: str = "base"       # base: (1 - kappa) x the base's own per-view term; abs: (1 - kappa) |ghat|
     track: float = 0.0              # split costs only while the running split criterion >= track x threshold (0: exact)
-    other_scale: float = 1.0        # DCS children's other two axes x this (1: the paper's, kept; the release's const_scale)
+    other_scale: float = 1.0        # DCS children's other two axes x this (1, the paper's: kept; release: const_scale)
 
     def __post_init__(self):
         if problems := self.problems():
