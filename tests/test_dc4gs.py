@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from dc4gs_cl.backward import RasterizeBackward, SplitGeometry, SumsLayout, geometry_record
+from dc4gs_cl.backward.rasterize_backward import tile_runs
 from dc4gs_cl.host.densify import AbsGS, DC4GSConfig
 from dc4gs_cl.host.densify.statistics import SPLIT_COSTS
 from dc4gs_cl.reference.dc4gs import split_costs_from_sums, split_geometry_reference
@@ -65,6 +66,50 @@ def test_split_sums_match_the_papers_algorithm(rt, rng, shape, pair_sums, candid
     sel = valid & (ref["dc"][:, 2] > 0)
     assert np.linalg.norm(J_device[sel] - J_reference[sel]) / np.linalg.norm(J_reference[sel]) < 5e-3
 
+
+
+@pytest.mark.parametrize("shape", SHAPES)
+def test_backward_in_runs_of_tiles_sums_exactly_as_in_one(rt, rng, shape):
+    """The per-pair slots held at once bounded (Tuning.pair_chunk): the frame's tiles are walked in runs, each
+    run's slots summed onto the sums; a Gaussian's pairs are added in the same order, so the sums (gradients,
+    statistics and split sums, the widest layout) equal the one-run backward's bit for bit."""
+    model = random_model(rng, 900, spread=1.0, scale_range=(0.01, 0.12))
+    cam = random_camera(rng, int(rng.integers(80, 130)), int(rng.integers(60, 100)))
+    bg = rng.uniform(0, 1, 3)
+    dL_dimage = rng.normal(size=(cam.height, cam.width, 3)).astype(np.float32)
+    layout = SumsLayout(stats=True, dc_stats=True, split_candidates=5)
+    got = {}
+    for name, tuning in (("one run", SHAPES[shape]),
+                         ("runs", replace(SHAPES[shape], pair_chunk=0.1, min_run_tiles=1))):
+        renderer = Renderer(rt, tuning, poison=True)
+        g = DeviceGaussians(rt, model)
+        res = renderer.render(g, cam, 3, bg)
+        geometry = SplitGeometry(renderer.context)(g, cam, res, 5)
+        sums = RasterizeBackward(renderer.context)(res, rt.to_device(dL_dimage), bg, layout, geometry)
+        got[name] = rt.to_host(sums, (len(model), layout.width))
+        ranges = rt.to_host(res.isect.ranges, (res.tiles_x * res.tiles_y, 2), np.uint32)
+    assert len(tile_runs(ranges, max(int(np.ceil(0.1 * len(model))), 1))) >= 4
+    assert np.isfinite(got["runs"]).all() and np.count_nonzero(got["runs"][:, -5:]) > 100
+    assert np.array_equal(got["runs"], got["one run"])
+
+
+def test_tile_runs_cut_the_frame_into_runs_within_the_budget(rng):
+    counts = rng.integers(0, 40, 300)
+    counts[rng.choice(300, 60, replace=False)] = 0            # empty tiles: ranges (0, 0)
+    counts[17] = 500                                         # more than the budget: a run of its own
+    ends = np.cumsum(counts)
+    ranges = np.stack([ends - counts, ends], 1).astype(np.uint32)
+    ranges[counts == 0] = 0
+    budget = 100
+    for min_tiles in (1, 7):
+        runs = tile_runs(ranges, budget, min_tiles)
+        assert runs[0][0] == 0 and runs[-1][1] == 300 and runs[-1][3] == ends[-1]
+        for (t0, t1, p0, p1), nxt in zip(runs, runs[1:] + [None]):
+            assert p0 == ends[t0] - counts[t0] and p1 == ends[t1 - 1]
+            assert t1 - t0 >= min_tiles or nxt is None
+            assert p1 - p0 <= budget or t1 - t0 <= min_tiles
+            if nxt is not None:             # greedy: the next tile would not fit
+                assert nxt[0] == t1 and p1 - p0 + counts[t1] > budget
 
 def one_view_window(rt, model, cam, target, background, strategy):
     """The window statistics of one view for a hand-built model, through the strategy's hooks (the device

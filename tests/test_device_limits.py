@@ -90,3 +90,19 @@ def test_a_launch_beyond_a_kernels_limits_is_refused_by_name(rt):
     buf = narrow.to_device(np.zeros(64, np.float32))
     narrow.launch_items("test", kernel, 60, 64, buf)   # asks 64 per group, gets the limit of 8
     np.testing.assert_array_equal(narrow.to_host(buf, 64), np.r_[np.ones(60), np.zeros(4)])
+
+
+def test_a_growing_scratch_buffer_is_never_held_twice(rt):
+    """Growing keeps no contents, so the old buffer is released before the larger one is made: the peak
+    is the larger one alone (holding both was the peak of a DC4GS training step)."""
+    import gc
+    from dc4gs_cl.render.workspace import Workspace
+    ws = Workspace(rt, poison=True)
+    small = ws.get("slots", 40_000).size
+    gc.collect()
+    rt.reset_memory_peak()
+    before = rt.memory_in_use
+    grown = ws.get("slots", 100_000)
+    assert grown.size >= 100_000 and ws.get("slots", 90_000) is grown      # kept while it is large enough
+    assert rt.memory_in_use == before - small + grown.size
+    assert rt.memory_peak == rt.memory_in_use

@@ -1,9 +1,9 @@
 """Peak device memory per Gaussian while training, at model sizes where the Gaussians (not the images)
 dominate.
 
-    python tools/bench_memory.py [--gaussians 100000 400000] [--iterations 5] [--device D]
+    python tools/bench_memory.py [--gaussians 100000 400000] [--iterations 5] [--size 192x144] [--device D]
 
-The built-in scene's trainer gets N random Gaussians (SH degree 3) in place of its initial model and
+The built-in scene's trainer (its views rendered at --size) gets N random Gaussians (SH degree 3) in place of its initial model and
 runs --iterations training steps with the densification statistics on (the most memory an iteration
 uses), for the base strategy and with DC4GS (view and window pooling), and the base and DC4GS again with
 --low-memory (float-atomic backward, no per-pair slots); the peak of the bytes held in device buffers
@@ -21,7 +21,7 @@ import numpy as np
 from dc4gs_cl.config import TrainConfig
 from dc4gs_cl.host.densify import DC4GSConfig, GaussianSet
 from dc4gs_cl.runtime import Runtime, describe
-from dc4gs_cl.scene import load_scene
+from dc4gs_cl.scene.builtin import builtin_scene
 from dc4gs_cl.testing import random_model
 from dc4gs_cl.train import Trainer
 
@@ -53,10 +53,12 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--gaussians", type=int, nargs="+", default=[100_000, 400_000])
     ap.add_argument("--iterations", type=int, default=5)
+    ap.add_argument("--size", default="192x144", help="the views' width x height in pixels (the per-pair buffers "
+                    "grow with the frame: the backward's per-pair slots are held for runs of tiles on large frames)")
     ap.add_argument("--device", default=None)
     args = ap.parse_args(argv)
     rt = Runtime(args.device)
-    scene = load_scene("builtin")
+    scene = builtin_scene(base_size=tuple(int(v) for v in args.size.split("x")))
     cam = scene.train[0]
     print(f"device: {describe(rt.device)}; built-in scene {cam.width}x{cam.height}, {args.iterations} iterations")
     print("| strategy | Gaussians | peak device MB | bytes per Gaussian |")

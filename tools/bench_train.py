@@ -56,8 +56,8 @@ from dc4gs_cl.train import Trainer
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 MAX_WIDTH = 400                # default -r: images at most this wide
 QUICK_SCENES = ("temple_sparse_ring", "fountain_p11")
-STAGES = ("project", "isect", "sort", "rasterize", "loss", "split_geometry", "rasterize_backward", "project_backward",
-          "densify_stats")
+STAGES = ("project", "isect", "sort", "rasterize", "loss", "split_geometry", "rasterize_backward", "sum_pairs",
+          "project_backward", "densify_stats")
 EVENTS_EVERY = 100             # iterations between collections of the profiling events (bounds how many are held)
 MB = 2 ** 20
 

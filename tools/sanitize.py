@@ -241,18 +241,21 @@ class Recording(Runtime):
 class Backward:
     """The rest of a training iteration after a forward, in one variant: the sums per pair or by float
     atomics, a pixel mask or none, the strategy whose statistics it gathers (None: the window has closed,
-    the gradients alone, written out rather than stepped by Adam)."""
+    the gradients alone, written out rather than stepped by Adam); runs: the per-pair slots held for one
+    tile at a time (the backward walked in runs of tiles, each summed onto the sums)."""
     pair_sums: bool
     masked: bool
     strategy: str | None
+    runs: bool = False
 
 
 # Each forward (its switches; off, they change the backward's build too) and the backward variants run on
 # it: together every kernel, and every variant training builds: the statistics of 3DGS, of AbsGS with
 # DC4GS' split sums and of Pixel-GS with DCS pooled over the window and tracked, the masked loss and
-# backward, both sums modes, Adam's fused step and the plain gradients.
+# backward, both sums modes (the slots in one run of tiles and in runs of one tile), Adam's fused step and the
+# plain gradients.
 FORWARDS = (
-    ({}, (Backward(True, False, "absgs+dc4gs"), Backward(True, True, "pixelgs+dcs"),
+    ({}, (Backward(True, False, "absgs+dc4gs", runs=True), Backward(True, True, "pixelgs+dcs"),
           Backward(False, True, "absgs+dc4gs"), Backward(True, False, None))),
     ({"fast_exp": False, "alpha_cut": False, "early_stop": False}, (Backward(False, False, "3dgs"),)),
 )
@@ -285,7 +288,8 @@ def workload(shape: str) -> dict:
         for b in backwards:
             # Fresh stages and buffers per variant, each sized to it exactly (no capacity to spare, no scratch
             # left larger by another variant), so that an access past the data is one past its buffer.
-            ctx = StageContext(rt, replace(tuning, pair_sums=b.pair_sums), options)
+            runs = {"pair_chunk": 0.0, "min_run_tiles": 1} if b.runs else {}
+            ctx = StageContext(rt, replace(tuning, pair_sums=b.pair_sums, **runs), options)
             gaussians = TrainableGaussians(rt, model)
             keep_buf = rt.to_device(keep.astype(np.uint8)) if b.masked else None
             target_buf = rt.to_device(target * keep[..., None] if b.masked else target)

@@ -2,6 +2,8 @@
 and of the densification statistics the layout asks for (backward/sums.py)."""
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pyopencl as cl
 
@@ -31,24 +33,44 @@ class RasterizeBackward(Stage):
         view's mask (H x W uint8, 0 = masked out), whose masked pixels add nothing."""
         if layout.split_candidates and geometry is None:
             raise ValueError("split costs need the split geometry of the view")
-        rt, pair_sums = self.rt, self.ctx.tuning.pair_sums
-        n, p = res.proj.n, res.isect.n_pairs
+        rt, tuning = self.rt, self.ctx.tuning
+        n, p, tiles = res.proj.n, res.isect.n_pairs, res.tiles_x * res.tiles_y
         sums = self.ws.get("backward.sums", 4 * layout.width * max(n, 1))
-        if pair_sums:
-            target = self.ws.get("backward.pair_sums", 4 * layout.width * max(p, 1))
+        if tuning.pair_sums:
+            budget = max(math.ceil(tuning.pair_chunk * n), 1)
+            runs = [(0, tiles, 0, p)] if p <= budget or tiles < 2 * tuning.min_run_tiles else tile_runs(
+                rt.to_host(res.isect.ranges, (tiles, 2), np.uint32), budget, tuning.min_run_tiles)
+            target = self.ws.get("backward.pair_sums", 4 * layout.width * max(max(r[3] - r[2] for r in runs), 1))
         else:
-            target = sums
+            runs, target = [(0, tiles, 0, p)], sums
             rt.fill(sums, np.float32(0), 4 * layout.width * n)
         k = self.fitted_kernels({**layout.defines(), "PIXEL_MASK": int(keep is not None)})
-        items = TILE_SIZE * TILE_SIZE // self.ctx.tuning.pixels_per_item
-        rt.launch("rasterize_backward", k["rasterize_backward"], res.tiles_x * res.tiles_y * items, items,
-                  np.int32(res.width), np.int32(res.height), np.int32(res.tiles_x), background_value(background),
-                  res.isect.ranges, res.isect.gaussian_of_pair, res.proj.mean2d, res.proj.conic_opacity,
-                  res.proj.rgb, res.proj.alpha_extent, res.raster.final_T, res.raster.last_pair, dL_dimage,
-                  geometry if geometry is not None else sums, *([keep] if keep is not None else []), target)
-        if pair_sums and n:
-            rt.launch_items("rasterize_backward", k["sum_pairs"], n, PER_GAUSSIAN_WG, np.uint32(n),
-                            res.proj.tiles_touched, res.isect.pair_first, res.isect.pair_of_emission, target,
-                            geometry if geometry is not None else sums, sums)
+        items = TILE_SIZE * TILE_SIZE // tuning.pixels_per_item
+        split_geometry = geometry if geometry is not None else sums
+        for t0, t1, p0, p1 in runs:
+            rt.launch("rasterize_backward", k["rasterize_backward"], (t1 - t0) * items, items,
+                      np.int32(res.width), np.int32(res.height), np.int32(res.tiles_x), np.int32(t0), np.uint32(p0),
+                      background_value(background), res.isect.ranges, res.isect.gaussian_of_pair, res.proj.mean2d,
+                      res.proj.conic_opacity, res.proj.rgb, res.proj.alpha_extent, res.raster.final_T,
+                      res.raster.last_pair, dL_dimage, split_geometry, *([keep] if keep is not None else []), target)
+            if tuning.pair_sums and n:
+                rt.launch_items("sum_pairs", k["sum_pairs"], n, PER_GAUSSIAN_WG, np.uint32(n),
+                                np.uint32(p0), np.uint32(p1), np.int32(p0 > 0), res.proj.tiles_touched,
+                                res.isect.pair_first, res.isect.pair_of_emission, target, split_geometry, sums)
         self.check(lambda: {"sums": visible_rows(rt, sums, rt.to_host(res.proj.radius, n, np.int32), layout.width)})
         return sums
+
+
+def tile_runs(ranges: np.ndarray, budget: int, min_tiles: int = 1) -> list[tuple[int, int, int, int]]:
+    """The frame's tiles cut into runs of consecutive tiles with at most `budget` pairs each, except that a run
+    holds at least min_tiles tiles (the last one: what is left): (first tile, end tile, first pair, end pair)
+    per run. ranges: (tiles, 2), each tile's (first pair, end pair), (0, 0) when empty; a tile's pairs follow
+    the previous tile's."""
+    ends = np.cumsum(ranges[:, 1].astype(np.int64) - ranges[:, 0])   # pairs up to and including each tile
+    runs, t0, tiles = [], 0, len(ranges)
+    while t0 < tiles:
+        p0 = int(ends[t0 - 1]) if t0 else 0
+        t1 = min(max(int(np.searchsorted(ends, p0 + budget, side="right")), t0 + min_tiles), tiles)
+        runs.append((t0, t1, p0, int(ends[t1 - 1])))
+        t0 = t1
+    return runs

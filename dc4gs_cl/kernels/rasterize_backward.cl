@@ -7,9 +7,12 @@
 //       offsets SUM_<FIELD> and SUM_WIDTH are -D options from dc4gs_cl/backward/rasterize_backward.py,
 //       SumsLayout). Two designs (-D PAIR_SUMS):
 //         0: sums [N*SUM_WIDTH], added to with float atomics (the host zeroes it first);
-//         1: sums [P*SUM_WIDTH], one slot per pair, written in full (zeros for pairs past the walk)
-//            except the split sums of a Gaussian with no split line, which sum_pairs skips; no atomics;
-//            sum_pairs then adds each Gaussian's slots in a fixed order: deterministic.
+//         1: sums [(pair_end - pair0)*SUM_WIDTH], one slot per pair of this launch's tiles (pair p at slot
+//            p - pair0), written in full (zeros for pairs past the walk) except the split sums of a Gaussian
+//            with no split line, which sum_pairs skips; no atomics; sum_pairs then adds each Gaussian's slots
+//            in a fixed order: deterministic.
+//       A launch walks the tiles tile0 .. tile0 + groups - 1; the host cuts a frame with many pairs into
+//       such runs (dc4gs_cl/backward/rasterize_backward.py, tile_runs) so fewer slots are held at once.
 //       The terms:
 //         SUM_MEAN2D +0,1   dL/dmean2d, px
 //         SUM_CONIC  +0,1,2 dL/d(a, b, c) of conic_opacity
@@ -105,7 +108,8 @@ ALWAYS_INLINE void backward_pair(const float2 m, const float4 co, const float3 c
 }
 
 __kernel __attribute__((reqd_work_group_size(ITEMS_PER_TILE, 1, 1)))
-void rasterize_backward(const int width, const int height, const int tiles_x, const float4 background,
+void rasterize_backward(const int width, const int height, const int tiles_x, const int tile0, const uint pair0,
+                        const float4 background,
                         __global const uint *ranges, __global const uint *gaussian_of_pair,
                         __global const float *mean2d, __global const float *conic_opacity, __global const float *rgb,
                         __global const float *alpha_extent, __global const float *final_T,
@@ -115,7 +119,7 @@ void rasterize_backward(const int width, const int height, const int tiles_x, co
                         __global const uchar *keep,
 #endif
                         __global float *sums) {
-    const int tile = get_group_id(0), lid = get_local_id(0);
+    const int tile = tile0 + (int)get_group_id(0), lid = get_local_id(0);
     const int x0 = (tile % tiles_x) * TILE_SIZE, y0 = (tile / tiles_x) * TILE_SIZE;
     const int first = ranges[2 * tile];
     const float ndc_x = 0.5f * (float)width, ndc_y = 0.5f * (float)height;
@@ -174,7 +178,7 @@ void rasterize_backward(const int width, const int height, const int tiles_x, co
     // Pairs no pixel reached still own a slot: zero it.
     const int range_end = ranges[2 * tile + 1];
     for (int k = lid; k < (range_end - end) * SUM_WIDTH; k += ITEMS_PER_TILE)
-        sums[(size_t)end * SUM_WIDTH + k] = 0.f;
+        sums[(size_t)(end - pair0) * SUM_WIDTH + k] = 0.f;
 #endif
 
     for (int top = end; top > first; top -= BATCH) {
@@ -242,7 +246,7 @@ void rasterize_backward(const int width, const int height, const int tiles_x, co
             for (int k = 0; k < used; ++k)
                 if (acc[k] != 0.f) local_add_float(&l_sums[j * SUM_WIDTH + k], acc[k]);
 #elif PAIR_SUMS
-            for (int k = 0; k < used; ++k) sums[(size_t)(base + j) * SUM_WIDTH + k] = acc[k];
+            for (int k = 0; k < used; ++k) sums[(size_t)(base + j - pair0) * SUM_WIDTH + k] = acc[k];
 #else
             __global float *dst = sums + (size_t)l_gaussian[j] * SUM_WIDTH;
             for (int k = 0; k < used; ++k)
@@ -254,7 +258,7 @@ void rasterize_backward(const int width, const int height, const int tiles_x, co
         for (int k = lid; k < count * SUM_WIDTH; k += ITEMS_PER_TILE) {
             float v = l_sums[k];
 #if PAIR_SUMS
-            sums[(size_t)base * SUM_WIDTH + k] = v;
+            sums[(size_t)(base - pair0) * SUM_WIDTH + k] = v;
 #else
             if (v != 0.f) atomic_add_float(sums + (size_t)l_gaussian[k / SUM_WIDTH] * SUM_WIDTH
                                            + k % SUM_WIDTH, v);
@@ -264,12 +268,15 @@ void rasterize_backward(const int width, const int height, const int tiles_x, co
     }
 }
 
-// PAIR_SUMS: each Gaussian's slots added in emission order (the split sums only where it had a line:
-// elsewhere the backward left them unwritten).
-//   in  tiles_touched [N], pair_first [N], pair_of_emission [P]: from isect.cl; pair_sums [P*SUM_WIDTH];
-//       split_geometry [N*GEO_WIDTH] with SPLIT_CANDIDATES
-//   out sums [N*SUM_WIDTH]
-__kernel void sum_pairs(const uint n, __global const uint *tiles_touched, __global const uint *pair_first,
+// PAIR_SUMS: each Gaussian's slots of the pairs pair0 .. pair_end - 1 (one run of tiles) added in emission
+// order (the split sums only where it had a line: elsewhere the backward left them unwritten). A Gaussian's
+// emissions go through its tiles in increasing tile id, so its pairs' indices increase too: the runs, summed
+// one after another onto the sums (accumulate = 1 past the first), add in the same order as one run.
+//   in  tiles_touched [N], pair_first [N], pair_of_emission [P]: from isect.cl;
+//       pair_sums [(pair_end - pair0)*SUM_WIDTH]; split_geometry [N*GEO_WIDTH] with SPLIT_CANDIDATES
+//   out sums [N*SUM_WIDTH] (in and out with accumulate)
+__kernel void sum_pairs(const uint n, const uint pair0, const uint pair_end, const int accumulate,
+                        __global const uint *tiles_touched, __global const uint *pair_first,
                         __global const uint *pair_of_emission, __global const float *pair_sums,
                         __global const float *split_geometry, __global float *sums) {
     uint g = get_global_id(0);
@@ -280,11 +287,16 @@ __kernel void sum_pairs(const uint n, __global const uint *tiles_touched, __glob
 #else
     const int used = SUM_WIDTH;
 #endif
-    float acc[SUM_WIDTH];
-    for (int k = 0; k < SUM_WIDTH; ++k) acc[k] = 0.f;
     uint count = tiles_touched[g], first = count ? pair_first[g] : 0;
+    // Past the first run, a Gaussian with no pair in this one keeps its sums untouched (most of them).
+    if (accumulate && (count == 0 || pair_of_emission[first + count - 1] < pair0 || pair_of_emission[first] >= pair_end))
+        return;
+    float acc[SUM_WIDTH];
+    for (int k = 0; k < SUM_WIDTH; ++k) acc[k] = accumulate ? sums[(size_t)g * SUM_WIDTH + k] : 0.f;
     for (uint e = first; e < first + count; ++e) {
-        __global const float *slot = pair_sums + (size_t)pair_of_emission[e] * SUM_WIDTH;
+        uint pair = pair_of_emission[e];
+        if (pair < pair0 || pair >= pair_end) continue;
+        __global const float *slot = pair_sums + (size_t)(pair - pair0) * SUM_WIDTH;
         for (int k = 0; k < used; ++k) acc[k] += slot[k];
     }
     for (int k = 0; k < SUM_WIDTH; ++k) sums[(size_t)g * SUM_WIDTH + k] = acc[k];

@@ -21,8 +21,10 @@ class Workspace:
         """The buffer `name`, at least nbytes; its contents are whatever the last user left (or POISON)."""
         buf = self._buffers.get(name)
         if buf is None or buf.size < nbytes:
-            buf = self._buffers[name] = self.rt.buffer(grown_size(max(int(nbytes), MIN_BYTES),
-                                                                  buf.size if buf is not None else 0))
+            have = buf.size if buf is not None else 0
+            # Growing keeps no contents, so the old buffer goes first: the two are never held together.
+            buf = self._buffers[name] = None
+            buf = self._buffers[name] = self.rt.buffer(grown_size(max(int(nbytes), MIN_BYTES), have))
             if self.poison:
                 self.rt.fill(buf, POISON, buf.size)
         return buf
