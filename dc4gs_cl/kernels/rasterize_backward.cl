@@ -289,7 +289,8 @@ __kernel void sum_pairs(const uint n, const uint pair0, const uint pair_end, con
 #endif
     uint count = tiles_touched[g], first = count ? pair_first[g] : 0;
     // Past the first run, a Gaussian with no pair in this one keeps its sums untouched (most of them).
-    if (accumulate && (count == 0 || pair_of_emission[first + count - 1] < pair0 || pair_of_emission[first] >= pair_end))
+    if (accumulate && (count == 0 || pair_of_emission[first + count - 1] < pair0
+                       || pair_of_emission[first] >= pair_end))
         return;
     float acc[SUM_WIDTH];
     for (int k = 0; k < SUM_WIDTH; ++k) acc[k] = accumulate ? sums[(size_t)g * SUM_WIDTH + k] : 0.f;
