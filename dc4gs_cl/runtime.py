@@ -30,7 +30,8 @@ from .records import records_header
 
 DEVICE_ENV = "DC4GS_DEVICE"   # same forms as --device: "P:D", "gpu", "cpu" or part of the name
 RELAXED_MATH = "RELAXED_MATH"  # a define that, set to 1, also builds the program with -cl-fast-relaxed-math
-BUFFER_GROWTH = 1.5           # a buffer that must grow gets this much more than it had: fewer reallocations
+BUFFER_HEADROOM = 0.125       # a buffer that must grow gets this much more than it needs: fewer reallocations
+BUFFER_GROWTH = 1.5           # but at most this much more than it had
 
 _INCLUDE = re.compile(r'^\s*#\s*include\s+"([\w.]+)"\s*$', re.M)
 
@@ -59,9 +60,12 @@ def kernel_source(name: str) -> str:
 
 
 def grown_size(want: int, have: int) -> int:
-    """What a buffer (or array capacity) that holds `have` and must hold `want` grows to: at least
-    BUFFER_GROWTH x what it had, so that a growing model reallocates rarely. The one growth rule."""
-    return want if want <= have else max(want, int(have * BUFFER_GROWTH))
+    """What a buffer (or array capacity) that holds `have` and must hold `want` grows to: `want` and
+    BUFFER_HEADROOM of it more, so that a growing model or a busier view reallocates only after growing by that
+    much, but never more than BUFFER_GROWTH x what it had, so that a jump (a model loaded into a trainer, a
+    first frame) is met exactly. Headroom counts in the peak memory (the per-pair slots of DC4GS' backward are
+    160 bytes a pair). The one growth rule."""
+    return want if want <= have else min(int(want * (1 + BUFFER_HEADROOM)), max(want, int(have * BUFFER_GROWTH)))
 
 
 ICD_VENDORS_ENV = "OCL_ICD_VENDORS"   # the ICD loader's folder of .icd files (default /etc/OpenCL/vendors)

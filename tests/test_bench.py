@@ -31,7 +31,7 @@ def test_quick_suite_measures_every_stage_and_writes_both_reports(quick_report):
         assert set(case["forward"]["stages_ms"]) == {"project", "isect", "sort", "rasterize"}
         for name, run in case["train"].items():
             stages = run["stages_ms"]
-            assert {"loss", "rasterize_backward", "project_backward", "densify_stats"} <= set(stages), name
+            assert {"loss", "rasterize_backward", "sum_pairs", "project_backward"} <= set(stages), name
             assert ("split_geometry" in stages) == ("DC4GS" in name)
             assert all(math.isfinite(v) and v > 0 for v in stages.values()), (name, stages)
             assert run["device_ms"] >= max(stages.values())

@@ -93,6 +93,49 @@ def test_backward_in_runs_of_tiles_sums_exactly_as_in_one(rt, rng, shape):
     assert np.array_equal(got["runs"], got["one run"])
 
 
+@pytest.mark.parametrize("base", ["3dgs", "absgs", "pixelgs"])
+@pytest.mark.parametrize("pooling", ["view", "window"])
+def test_sum_pairs_folds_the_window_as_the_window_kernel_does(rt, rng, base, pooling):
+    """A frame walked in one run has its statistics folded into the window by sum_pairs (window_fold.h), and
+    only its gradients reach memory; walked in runs (or given full sums), the window's own kernel folds them.
+    Over two views (the second adds to a window holding the first), both give the same window and gradients,
+    bit for bit, as the full sums folded by the window's kernel."""
+    from dc4gs_cl.backward import GRADIENTS
+    from dc4gs_cl.host.densify import STRATEGIES
+    model = random_model(rng, 700, spread=1.0, scale_range=(0.01, 0.12))
+    g = DeviceGaussians(rt, model)
+    bg = rng.uniform(0, 1, 3)
+    paths = {"fused": SHAPES["cpu"], "runs": replace(SHAPES["cpu"], pair_chunk=0.1, min_run_tiles=1),
+             "window kernel": SHAPES["cpu"]}
+    renderers = {name: Renderer(rt, tuning, poison=True) for name, tuning in paths.items()}
+    backwards = {name: RasterizeBackward(r.context) for name, r in renderers.items()}
+    strategies = {name: STRATEGIES[base](dc4gs=DC4GSConfig(dcc=True, dcs=True, pooling=pooling)) for name in paths}
+    for name, s in strategies.items():
+        s.attach(renderers[name].context, 1.0, len(model))
+    for _ in range(2):
+        cam = random_camera(rng, int(rng.integers(80, 130)), int(rng.integers(60, 100)))
+        dL_dimage = rng.normal(size=(cam.height, cam.width, 3)).astype(np.float32)
+        grads = {}
+        for name in paths:
+            res = renderers[name].render(g, cam, 3, bg)
+            gathering = strategies[name].gather(1, g, cam, res)
+            args = (res, rt.to_device(dL_dimage), bg, gathering.layout, gathering.geometry)
+            if name == "window kernel":
+                sums, layout = backwards[name](*args), gathering.layout
+                gathering.window.fold(res, sums, gathering.geometry)
+            else:
+                sums, layout = backwards[name].folding(*args, window=gathering.window)
+            assert layout == (GRADIENTS if name == "fused" else gathering.layout)
+            grads[name] = rt.to_host(sums, (len(model), layout.width))[:, :GRADIENTS.width]
+        assert np.isfinite(grads["fused"]).all() and np.count_nonzero(grads["fused"]) > 1000
+        assert np.array_equal(grads["fused"], grads["window kernel"]) and np.array_equal(grads["runs"], grads["fused"])
+    windows = {name: s.window.download() for name, s in strategies.items()}
+    assert np.count_nonzero(windows["fused"][SPLIT_COSTS]) > 50
+    for column, expected in windows["window kernel"].items():
+        assert np.array_equal(windows["fused"][column], expected), column
+        assert np.array_equal(windows["runs"][column], expected), column
+
+
 def test_tile_runs_cut_the_frame_into_runs_within_the_budget(rng):
     counts = rng.integers(0, 40, 300)
     counts[rng.choice(300, 60, replace=False)] = 0            # empty tiles: ranges (0, 0)
@@ -124,7 +167,7 @@ def one_view_window(rt, model, cam, target, background, strategy):
     strategy.attach(renderer.context, 1.0, len(model))
     gathering = strategy.gather(1, g, cam, res)
     sums = RasterizeBackward(renderer.context)(res, grad, background, gathering.layout, gathering.geometry)
-    strategy.fold(gathering, res, sums)
+    gathering.window.fold(res, sums, gathering.geometry)
     return strategy.window.download(), gathering.layout.views(rt.to_host(sums, (len(model), gathering.layout.width)))
 
 

@@ -92,6 +92,20 @@ def test_a_launch_beyond_a_kernels_limits_is_refused_by_name(rt):
     np.testing.assert_array_equal(narrow.to_host(buf, 64), np.r_[np.ones(60), np.zeros(4)])
 
 
+def test_growth_leaves_little_headroom_and_meets_a_jump_exactly():
+    """A buffer that grows a little gets an eighth more than it needs (not half more than it had: headroom is
+    peak memory, 160 bytes a pair in DC4GS' per-pair slots); a jump, and a first allocation, get what they ask."""
+    from dc4gs_cl.runtime import BUFFER_HEADROOM, grown_size
+    assert grown_size(1_000, 0) == 1_000
+    assert grown_size(1_010, 1_000) == int(1_010 * (1 + BUFFER_HEADROOM)) < 1_500
+    assert grown_size(1_400, 1_000) == 1_500                   # never more than 1.5 x what it had
+    assert grown_size(4_000, 1_000) == 4_000                   # a jump: exactly what it asks
+    rng = np.random.default_rng()
+    for have, want in rng.integers(1, 10**9, (1000, 2)):
+        if want > have:
+            assert want <= grown_size(int(want), int(have)) <= max(want, min(1.125 * want, 1.5 * have))
+
+
 def test_a_growing_scratch_buffer_is_never_held_twice(rt):
     """Growing keeps no contents, so the old buffer is released before the larger one is made: the peak
     is the larger one alone (holding both was the peak of a DC4GS training step)."""

@@ -301,17 +301,16 @@ def workload(shape: str) -> dict:
                 Loss(ctx, *LOSS_SHAPES[shape])(res.raster.image, target_buf, WIDTH, HEIGHT, dL_dimage,
                                                keep=keep_buf, kept=int(keep.sum()) if b.masked else 0)
                 gathering = strategy.gather(iteration, gaussians.params, cam, res)
-                sums = RasterizeBackward(ctx)(res, dL_dimage, background, gathering.layout, gathering.geometry,
-                                              keep_buf)
-                strategy.fold(gathering, res, sums)
+                sums, layout = RasterizeBackward(ctx).folding(res, dL_dimage, background, gathering.layout,
+                                                              gathering.geometry, keep_buf, gathering.window)
                 project_backward = ProjectBackward(ctx)
                 if b.strategy:
-                    project_backward.step(gaussians.params, cam, model.sh_degree, res, sums, gathering.layout,
+                    project_backward.step(gaussians.params, cam, model.sh_degree, res, sums, layout,
                                           gaussians.adam.step_value(lrs), gaussians.adam.m, gaussians.adam.v)
                 else:
                     widths = group_widths(gaussians.params.sh_coeffs)
                     grads = {k: rt.buffer(4 * w * gaussians.n) for k, w in widths.items()}
-                    project_backward.gradients(gaussians.params, cam, model.sh_degree, res, sums, gathering.layout,
+                    project_backward.gradients(gaussians.params, cam, model.sh_degree, res, sums, layout,
                                                grads)
                 rt.queue.finish()
             except Refused:

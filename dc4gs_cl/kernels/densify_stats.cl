@@ -33,21 +33,8 @@
 //                        track_threshold: split_geometry.cl then gives it no line, so no split costs are
 //                        gathered for it (0, every Gaussian that can be split, is exact)
 
-#include "common.h"
+#include "window_fold.h"
 
-REQUIRE_DEFINED(DC_STATS);
-REQUIRE_DEFINED(DC_WINDOW);
-REQUIRE_DEFINED(SPLIT_CANDIDATES);
-
-// (1 - |(ux, uy)| / n) |(ax, ay)|: the cost of one side; 0 for an empty side.
-inline float side_cost(float ux, float uy, float n, float ax, float ay) {
-    float kappa = n > 0.f ? sqrt_nocall(ux * ux + uy * uy) / n : 0.f;
-    return (1.f - kappa) * sqrt_nocall(ax * ax + ay * ay);
-}
-
-// Branch-free past the bound check (with view pooling), and no builtin calls, so the compiler vectorises across
-// work-items: a Gaussian not visible in the view (seen = 0) adds zeros (its sums are zero too) and keeps its
-// largest radius.
 __kernel void densify_stats(const uint n, const float ndc_x, const float ndc_y, const float depth_scale,
                             const float track_threshold,
                             __global const int *radius, __global const float *depth,
@@ -55,55 +42,7 @@ __kernel void densify_stats(const uint n, const float ndc_x, const float ndc_y, 
                             __global float *window) {
     uint i = get_global_id(0);
     if (i >= n) return;
-#if DC_WINDOW
-    // Window pooling rewrites 5 x (SPLIT_CANDIDATES + 1) more running sums per Gaussian: for an unseen one that
-    // costs more than vectorising saves (2.1 against 1.6 ms at 48k Gaussians), so it returns here.
-    if (radius[i] <= 0) return;
-#endif
-    const float seen = radius[i] > 0 ? 1.f : 0.f;
-    __global const float *s = sums + (size_t)i * SUM_WIDTH;
-    __global float *w = window + (size_t)i * WIN_WIDTH;
-    float gx = s[SUM_MEAN2D] * ndc_x, gy = s[SUM_MEAN2D + 1] * ndc_y;
-    float g = sqrt_nocall(gx * gx + gy * gy);
-    float a = sqrt_nocall(s[SUM_ABS] * s[SUM_ABS] + s[SUM_ABS + 1] * s[SUM_ABS + 1]);
-    float pixels = s[SUM_PIXELS];
-    float f = MINF(1.f, (depth[i] / depth_scale) * (depth[i] / depth_scale));
-    w[WIN_GRAD] += seen * g;
-    w[WIN_ABS] += seen * a;
-    w[WIN_VIEWS] += seen;
-    w[WIN_PIX_GRAD] += seen * (f * g * pixels);
-    w[WIN_PIX] += seen * pixels;
-    w[WIN_MAX_RADIUS] = MAXF(w[WIN_MAX_RADIUS], seen * (float)radius[i]);
-#if DC_STATS
-    float ux = s[SUM_DC], uy = s[SUM_DC + 1], count = s[SUM_DC + 2];
-#if DC_WINDOW
-    ux = w[WIN_DC_UX] += seen * ux;
-    uy = w[WIN_DC_UY] += seen * uy;
-    count = w[WIN_DC_N] += seen * count;
-#endif
-    // 1 - kappa; 0 where no pixel had a gradient
-    float weight = count > 0.f ? 1.f - sqrt_nocall(ux * ux + uy * uy) / count : 0.f;
-    w[WIN_DCC_ABS] += seen * (weight * a);
-    w[WIN_DCC_GRAD] += seen * (weight * g);
-    w[WIN_DCC_PIX] += seen * (weight * f * g * pixels);
-#endif
-#if SPLIT_CANDIDATES
-    __global const float *geo = split_geometry + (size_t)i * GEO_WIDTH;
-    float line = seen * (HAS_SPLIT_LINE(geo) ? 1.f : 0.f);
-    float total[5] = {s[SUM_DC], s[SUM_DC + 1], s[SUM_DC + 2], s[SUM_ABS], s[SUM_ABS + 1]};
-    __global const float *left = s + SUM_SPLIT;
-#if DC_WINDOW
-    for (int v = 0; v < 5; ++v) total[v] = w[WIN_SIDE_TOTAL + v] += line * total[v];
-    for (int k = 0; k < 5 * SPLIT_CANDIDATES; ++k) w[WIN_SIDE_LEFT + k] += line * left[k];
-    left = w + WIN_SIDE_LEFT;
-    line = seen;                     // the accumulated sums are costed at every visible view
-#endif
-    for (int k = 0; k < SPLIT_CANDIDATES; ++k) {
-        __global const float *l = left + 5 * k;
-        w[WIN_SPLIT_COSTS + k] += line * (side_cost(l[0], l[1], l[2], l[3], l[4])
-            + side_cost(total[0] - l[0], total[1] - l[1], total[2] - l[2], total[3] - l[3], total[4] - l[4]));
-    }
-    w[WIN_SKIP_SPLIT] = (w[WIN_VIEWS] >= (float)TRACK_MIN_VIEWS
-                         && w[TRACK_TOTAL] < track_threshold * w[TRACK_COUNT]) ? 1.f : 0.f;
-#endif
+    float s[SUM_WIDTH];
+    for (int k = 0; k < SUM_WIDTH; ++k) s[k] = sums[(size_t)i * SUM_WIDTH + k];
+    fold_view_sums(i, s, ndc_x, ndc_y, depth_scale, track_threshold, radius, depth, split_geometry, window);
 }

@@ -9,8 +9,8 @@
 //         0: sums [N*SUM_WIDTH], added to with float atomics (the host zeroes it first);
 //         1: sums [(pair_end - pair0)*SUM_WIDTH], one slot per pair of this launch's tiles (pair p at slot
 //            p - pair0), written in full (zeros for pairs past the walk) except the split sums of a Gaussian
-//            with no split line, which sum_pairs skips; no atomics; sum_pairs then adds each Gaussian's slots
-//            in a fixed order: deterministic.
+//            with no split line, which sum_pairs skips; no atomics; sum_pairs (sum_pairs.cl) then adds each Gaussian's
+//            slots in a fixed order: deterministic.
 //       A launch walks the tiles tile0 .. tile0 + groups - 1; the host cuts a frame with many pairs into
 //       such runs (dc4gs_cl/backward/rasterize_backward.py, tile_runs) so fewer slots are held at once.
 //       The terms:
@@ -266,39 +266,4 @@ void rasterize_backward(const int width, const int height, const int tiles_x, co
         }
 #endif
     }
-}
-
-// PAIR_SUMS: each Gaussian's slots of the pairs pair0 .. pair_end - 1 (one run of tiles) added in emission
-// order (the split sums only where it had a line: elsewhere the backward left them unwritten). A Gaussian's
-// emissions go through its tiles in increasing tile id, so its pairs' indices increase too: the runs, summed
-// one after another onto the sums (accumulate = 1 past the first), add in the same order as one run.
-//   in  tiles_touched [N], pair_first [N], pair_of_emission [P]: from isect.cl;
-//       pair_sums [(pair_end - pair0)*SUM_WIDTH]; split_geometry [N*GEO_WIDTH] with SPLIT_CANDIDATES
-//   out sums [N*SUM_WIDTH] (in and out with accumulate)
-__kernel void sum_pairs(const uint n, const uint pair0, const uint pair_end, const int accumulate,
-                        __global const uint *tiles_touched, __global const uint *pair_first,
-                        __global const uint *pair_of_emission, __global const float *pair_sums,
-                        __global const float *split_geometry, __global float *sums) {
-    uint g = get_global_id(0);
-    if (g >= n) return;
-#if SPLIT_CANDIDATES
-    __global const float *geo = split_geometry + (size_t)g * GEO_WIDTH;
-    const int used = HAS_SPLIT_LINE(geo) ? SUM_WIDTH : SUM_SPLIT;
-#else
-    const int used = SUM_WIDTH;
-#endif
-    uint count = tiles_touched[g], first = count ? pair_first[g] : 0;
-    // Past the first run, a Gaussian with no pair in this one keeps its sums untouched (most of them).
-    if (accumulate && (count == 0 || pair_of_emission[first + count - 1] < pair0
-                       || pair_of_emission[first] >= pair_end))
-        return;
-    float acc[SUM_WIDTH];
-    for (int k = 0; k < SUM_WIDTH; ++k) acc[k] = accumulate ? sums[(size_t)g * SUM_WIDTH + k] : 0.f;
-    for (uint e = first; e < first + count; ++e) {
-        uint pair = pair_of_emission[e];
-        if (pair < pair0 || pair >= pair_end) continue;
-        __global const float *slot = pair_sums + (size_t)(pair - pair0) * SUM_WIDTH;
-        for (int k = 0; k < used; ++k) acc[k] += slot[k];
-    }
-    for (int k = 0; k < SUM_WIDTH; ++k) sums[(size_t)g * SUM_WIDTH + k] = acc[k];
 }

@@ -114,11 +114,11 @@ class Trainer:
                   kept=np.count_nonzero(keep) if keep is not None else 0)
         actions = s.actions(it)
         gathering = s.gather(it, self.params, cam, res)
-        sums = self.rasterize_backward(res, dL_dimage, background, gathering.layout, gathering.geometry, keep_buf)
-        s.fold(gathering, res, sums)
+        sums, layout = self.rasterize_backward.folding(res, dL_dimage, background, gathering.layout,
+                                                       gathering.geometry, keep_buf, gathering.window)
         if actions.optimiser_step:
             lrs = self.schedule.learning_rates(it, self.scene.extent, actions.opacity_steps)
-            self.project_backward.step(self.params, cam, self.sh_degree, res, sums, gathering.layout,
+            self.project_backward.step(self.params, cam, self.sh_degree, res, sums, layout,
                                        self.model.adam.step_value(lrs), self.model.adam.m, self.model.adam.v)
         if it in self.cfg.save_at:   # before this iteration's densification and opacity limits, as Inria saves
             self.save_model()

@@ -41,15 +41,23 @@ class DensifyStats(Stage):
         self.rows.resize(n)
         self.rows.zero()
 
+    def fold_args(self, res: RenderResult) -> list:
+        """The fold's arguments for a view, before the sums (kernels/window_fold.h; the rasterizer backward's
+        sum_pairs folds a view with them too, backward/sum_pairs.py)."""
+        return [np.float32(0.5 * res.width), np.float32(0.5 * res.height), np.float32(self.depth_scale),
+                np.float32(self.track_threshold), res.proj.radius, res.proj.depth]
+
     def fold(self, res: RenderResult, sums: cl.Buffer, split_geometry: cl.Buffer | None = None) -> None:
         """Add one view: its sums (spec.sums rows) and, with DCS, its split geometry."""
         n = self.n
         if n == 0:
             return
-        self.rt.launch_items("densify_stats", self.kernel, n, PER_GAUSSIAN_WG, np.uint32(n),
-                             np.float32(0.5 * res.width), np.float32(0.5 * res.height), np.float32(self.depth_scale),
-                             np.float32(self.track_threshold), res.proj.radius, res.proj.depth, sums,
-                             split_geometry if split_geometry is not None else sums, self.buffer)
+        self.rt.launch_items("densify_stats", self.kernel, n, PER_GAUSSIAN_WG, np.uint32(n), *self.fold_args(res),
+                             sums, split_geometry if split_geometry is not None else sums, self.buffer)
+        self.folded()
+
+    def folded(self) -> None:
+        """After a view's fold (here or in sum_pairs): --check-finite reads the window."""
         self.check(lambda: {"window": self.rows.download_group("window")})
 
     def download(self) -> dict[str, np.ndarray]:

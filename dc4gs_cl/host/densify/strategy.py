@@ -82,9 +82,11 @@ class Actions:
 
 @dataclass
 class Gathering:
-    """What the rasterizer backward gathers this view: the sums' layout and, for DCS, the view's split geometry."""
+    """What the rasterizer backward gathers this view: the sums' layout, for DCS the view's split geometry, and
+    the window it folds the view's statistics into (None once the window has closed)."""
     layout: SumsLayout
     geometry: cl.Buffer | None = None
+    window: DensifyStats | None = None
 
 
 class Strategy:
@@ -181,11 +183,7 @@ class Strategy:
             geometry = self.split_geometry(params, cam, res, self.split_candidates,
                                            self.config.percent_dense * self.extent,
                                            (self.window.buffer, self.window.record))
-        return Gathering(spec.sums, geometry)
-
-    def fold(self, gathering: Gathering, res: RenderResult, sums: cl.Buffer) -> None:
-        if gathering.layout.stats:   # the window is open
-            self.window.fold(res, sums, gathering.geometry)
+        return Gathering(spec.sums, geometry, self.window)
 
     def apply(self, actions: Actions, it: int, model, rng: np.random.Generator) -> DensifyReport | None:
         """Densify (on the device model: host.trainable.TrainableGaussians) and limit the opacities as the

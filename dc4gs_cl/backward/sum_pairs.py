@@ -1,0 +1,50 @@
+"""Pair-sums stage (kernels/sum_pairs.cl): the rasterizer backward's per-pair slots added up per Gaussian in a
+fixed order, and, when a densification window is given and the frame was walked in one run, that view's
+statistics folded into the window on the way (kernels/window_fold.h), so the per-Gaussian sums that reach
+memory are the gradients alone."""
+from __future__ import annotations
+
+from typing import Protocol
+
+import numpy as np
+import pyopencl as cl
+
+from ..render.renderer import RenderResult
+from ..render.stage import PER_GAUSSIAN_WG, Stage
+from .sums import GRADIENTS, SumsLayout
+
+
+class WindowFold(Protocol):
+    """A densification window (host/densify/densify_stats.py) as the backward sees it: what its fold kernel is
+    built with, the arguments it takes for a view, and its own fold of a view's sums."""
+
+    buffer: cl.Buffer   # the window's rows
+
+    def defines(self) -> dict: ...
+
+    def fold_args(self, res: RenderResult) -> list: ...
+
+    def fold(self, res: RenderResult, sums: cl.Buffer, split_geometry: cl.Buffer | None = None) -> None: ...
+
+    def folded(self) -> None: ...
+
+
+class SumPairs(Stage):
+    FILE, KERNELS = "sum_pairs.cl", ("sum_pairs",)
+
+    def __call__(self, res: RenderResult, layout: SumsLayout, pair_sums: cl.Buffer, pair0: int, pair_end: int,
+                 split_geometry: cl.Buffer, sums: cl.Buffer, window: WindowFold | None = None) -> None:
+        """Add the slots of pairs pair0 .. pair_end - 1 onto sums (N x layout.width; written, not added to, when
+        pair0 is 0). window (one run only): fold the view into it; sums are then N x GRADIENTS.width."""
+        n = res.proj.n
+        if not n:
+            return
+        fold = {"FOLD_WINDOW": int(window is not None), "GRADIENT_WIDTH": GRADIENTS.width,
+                **(window.defines() if window is not None else {})}
+        kernel = self.kernels({**layout.defines(), **fold})["sum_pairs"]
+        self.rt.launch_items("sum_pairs", kernel, n, PER_GAUSSIAN_WG, np.uint32(n), np.uint32(pair0),
+                             np.uint32(pair_end), np.int32(pair0 > 0), res.proj.tiles_touched, res.isect.pair_first,
+                             res.isect.pair_of_emission, pair_sums, split_geometry,
+                             *([*window.fold_args(res), window.buffer] if window is not None else []), sums)
+        if window is not None:
+            window.folded()

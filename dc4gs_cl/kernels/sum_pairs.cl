@@ -1,0 +1,77 @@
+// sum_pairs.cl: the rasterizer backward's per-pair slots (rasterize_backward.cl, -D PAIR_SUMS=1) reduced to
+// per-Gaussian sums (the SUM record: offsets SUM_<FIELD>, SUM_WIDTH, SPLIT_CANDIDATES and the GEO record's
+// offsets are -D options from dc4gs_cl/backward/sums.py), in a fixed order: the deterministic design.
+
+#include "common.h"
+
+REQUIRE_DEFINED(FOLD_WINDOW);
+#if FOLD_WINDOW
+// window_fold.h requires SPLIT_CANDIDATES too
+#include "window_fold.h"
+#else
+REQUIRE_DEFINED(SPLIT_CANDIDATES);
+#endif
+
+// acc += Gaussian g's slots of the pairs pair0 .. pair_end - 1, in emission order.
+ALWAYS_INLINE void add_slots(const uint g, const uint pair0, const uint pair_end, __global const uint *tiles_touched,
+                             __global const uint *pair_first, __global const uint *pair_of_emission,
+                             __global const float *pair_sums, __global const float *split_geometry, float *acc) {
+#if SPLIT_CANDIDATES
+    __global const float *geo = split_geometry + (size_t)g * GEO_WIDTH;
+    const int used = HAS_SPLIT_LINE(geo) ? SUM_WIDTH : SUM_SPLIT;
+#else
+    const int used = SUM_WIDTH;
+#endif
+    uint count = tiles_touched[g], first = count ? pair_first[g] : 0;
+    for (uint e = first; e < first + count; ++e) {
+        uint pair = pair_of_emission[e];
+        if (pair < pair0 || pair >= pair_end) continue;
+        __global const float *slot = pair_sums + (size_t)(pair - pair0) * SUM_WIDTH;
+        for (int k = 0; k < used; ++k) acc[k] += slot[k];
+    }
+}
+
+// Each Gaussian's slots of the pairs pair0 .. pair_end - 1 (one run of tiles) added in emission order (the split
+// sums only where it had a line: elsewhere the backward left them unwritten). A Gaussian's emissions go through
+// its tiles in increasing tile id, so its pairs' indices increase too: the runs, summed one after another onto
+// the sums (accumulate = 1 past the first), add in the same order as one run.
+//   in  tiles_touched [N], pair_first [N], pair_of_emission [P]: from isect.cl;
+//       pair_sums [(pair_end - pair0)*SUM_WIDTH]; split_geometry [N*GEO_WIDTH] with SPLIT_CANDIDATES
+//   out sums [N*SUM_WIDTH] (in and out with accumulate)
+// -D FOLD_WINDOW=1 (a frame walked in one run, accumulate = 0): each Gaussian's sums are folded into the
+// densification window here (window_fold.h; the window's arguments and -D options as densify_stats.cl's), and
+// only the gradients reach memory: sums [N*GRADIENT_WIDTH], the SUM record's first GRADIENT_WIDTH fields.
+__kernel void sum_pairs(const uint n, const uint pair0, const uint pair_end, const int accumulate,
+                        __global const uint *tiles_touched, __global const uint *pair_first,
+                        __global const uint *pair_of_emission, __global const float *pair_sums,
+                        __global const float *split_geometry,
+#if FOLD_WINDOW
+                        const float ndc_x, const float ndc_y, const float depth_scale, const float track_threshold,
+                        __global const int *radius, __global const float *depth, __global float *window,
+#endif
+                        __global float *sums) {
+    const uint g = get_global_id(0);
+    float acc[SUM_WIDTH];
+#if FOLD_WINDOW
+    // One run (accumulate = 0). The fold comes past a barrier, which makes it PoCL's own loop over the
+    // work-items: that vectorises, as densify_stats does, where after the slots' loop of varying length it ran
+    // one Gaussian at a time (4.3 ms against 1.6 + 1.0 for sum_pairs and densify_stats, 48k Gaussians, DC4GS).
+    for (int k = 0; k < SUM_WIDTH; ++k) acc[k] = 0.f;
+    if (g < n)
+        add_slots(g, pair0, pair_end, tiles_touched, pair_first, pair_of_emission, pair_sums, split_geometry, acc);
+    barrier(CLK_LOCAL_MEM_FENCE);
+    if (g >= n) return;
+    fold_view_sums(g, acc, ndc_x, ndc_y, depth_scale, track_threshold, radius, depth, split_geometry, window);
+    for (int k = 0; k < GRADIENT_WIDTH; ++k) sums[(size_t)g * GRADIENT_WIDTH + k] = acc[k];
+#else
+    if (g >= n) return;
+    uint count = tiles_touched[g], first = count ? pair_first[g] : 0;
+    // Past the first run, a Gaussian with no pair in this one keeps its sums untouched (most of them).
+    if (accumulate && (count == 0 || pair_of_emission[first + count - 1] < pair0
+                       || pair_of_emission[first] >= pair_end))
+        return;
+    for (int k = 0; k < SUM_WIDTH; ++k) acc[k] = accumulate ? sums[(size_t)g * SUM_WIDTH + k] : 0.f;
+    add_slots(g, pair0, pair_end, tiles_touched, pair_first, pair_of_emission, pair_sums, split_geometry, acc);
+    for (int k = 0; k < SUM_WIDTH; ++k) sums[(size_t)g * SUM_WIDTH + k] = acc[k];
+#endif
+}
