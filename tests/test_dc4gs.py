@@ -150,9 +150,12 @@ def test_tile_runs_cut_the_frame_into_runs_within_the_budget(rng):
         for (t0, t1, p0, p1), nxt in zip(runs, runs[1:] + [None]):
             assert p0 == ends[t0] - counts[t0] and p1 == ends[t1 - 1]
             assert t1 - t0 >= min_tiles                          # the last run too: a short tail joins it
-            assert p1 - p0 <= budget or t1 - t0 == min_tiles or (nxt is None and t1 - t0 < 2 * min_tiles)
-            if nxt is not None:             # greedy: the next tile would not fit
+            if nxt is not None:             # greedy: within the budget (or the floor), and the next tile would not fit
+                assert p1 - p0 <= budget or t1 - t0 == min_tiles
                 assert nxt[0] == t1 and p1 - p0 + counts[t1] > budget
+            else:                           # the last: a greedy run and a tail of fewer than min_tiles tiles
+                head = t1 - (min_tiles - 1)
+                assert ends[head - 1] - p0 <= budget or head - t0 <= min_tiles
 
 def one_view_window(rt, model, cam, target, background, strategy):
     """The window statistics of one view for a hand-built model, through the strategy's hooks (the device
