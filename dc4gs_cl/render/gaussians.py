@@ -25,7 +25,10 @@ class DeviceArrays:
         """Set the count; growing past the capacity reallocates (contents are then undefined)."""
         if max(n, 1) > self.capacity:
             self.capacity = grown_size(max(n, 1), self.capacity)
-            self.buffers = {k: self.rt.buffer(4 * w * self.capacity) for k, w in self.widths.items()}
+            # Growing keeps no contents, so each old buffer goes before its larger one is made.
+            for k, w in self.widths.items():
+                self.buffers[k] = None
+                self.buffers[k] = self.rt.buffer(4 * w * self.capacity)
         self.n = n
 
     @property
