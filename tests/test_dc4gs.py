@@ -157,6 +157,7 @@ def test_tile_runs_cut_the_frame_into_runs_within_the_budget(rng):
                 head = t1 - (min_tiles - 1)
                 assert ends[head - 1] - p0 <= budget or head - t0 <= min_tiles
 
+
 def one_view_window(rt, model, cam, target, background, strategy):
     """The window statistics of one view for a hand-built model, through the strategy's hooks (the device
     path training takes)."""

@@ -4,8 +4,8 @@ dominate.
     python tools/bench_memory.py [--gaussians 100000 400000] [--iterations 5] [--size 192x144] [--device D]
 
 The built-in scene's trainer (its views rendered at --size) gets N random Gaussians (SH degree 3) in place
-of its initial model and runs --iterations training steps with the densification statistics on (the most memory an iteration
-uses), for the base strategy and with DC4GS (view and window pooling), and the base and DC4GS again with
+of its initial model and runs --iterations training steps with the densification statistics on (the most
+memory an iteration uses), for the base strategy and with DC4GS (view and window pooling), and the base and DC4GS again with
 --low-memory (float-atomic backward, no per-pair slots); the peak of the bytes held in device buffers
 (Runtime.memory_peak) is divided by N. What is held per Gaussian is listed below the table.
 """

@@ -83,8 +83,8 @@ class RasterizeBackward(Stage):
 def tile_runs(ranges: np.ndarray, budget: int, min_tiles: int = 1) -> list[tuple[int, int, int, int]]:
     """The frame's tiles cut into runs of consecutive tiles with at most `budget` pairs each, except that a run
     holds at least min_tiles tiles, and fewer than min_tiles left over join the last run (a launch of a few
-    tiles would leave cores idle): (first tile, end tile, first pair, end pair) per run. ranges: (tiles, 2), each tile's (first pair, end pair), (0, 0) when empty; a tile's pairs follow
-    the previous tile's."""
+    tiles would leave cores idle): (first tile, end tile, first pair, end pair) per run. ranges: (tiles, 2),
+    each tile's (first pair, end pair), (0, 0) when empty; a tile's pairs follow the previous tile's."""
     ends = np.cumsum(ranges[:, 1].astype(np.int64) - ranges[:, 0])   # pairs up to and including each tile
     runs, t0, tiles = [], 0, len(ranges)
     while t0 < tiles:

@@ -1,8 +1,10 @@
 // densify_stats.cl: fold one view's per-Gaussian sums into the densification window's statistics.
 //
-// One work-item per Gaussian; a Gaussian not visible in the view (radius 0) changes nothing.
+// One work-item per Gaussian; a Gaussian not visible in the view (radius 0) changes nothing. The fold itself is
+// window_fold.h's, which sum_pairs.cl also runs (-D FOLD_WINDOW) for a frame walked in one run; this kernel
+// folds the full sums of frames walked in runs of tiles and of the float-atomic backward (--low-memory).
 //   in  radius [N] int px, depth [N] view z: from project.cl
-//   in  sums   [N*SUM_WIDTH]: from rasterize_backward.cl (SUM_MEAN2D in px; SUM_ABS in NDC units,
+//   in  sums   [N*SUM_WIDTH]: from rasterize_backward.cl / sum_pairs.cl (SUM_MEAN2D in px; SUM_ABS in NDC units,
 //              SUM_PIXELS; with DC4GS SUM_DC and SUM_SPLIT; see that file)
 //   in  split_geometry [N*GEO_WIDTH]: from split_geometry.cl (with SPLIT_CANDIDATES)
 //   io  window [N*WIN_WIDTH] float, accumulated since the last densification step (the WIN record: offsets

@@ -9,8 +9,8 @@
 //         0: sums [N*SUM_WIDTH], added to with float atomics (the host zeroes it first);
 //         1: sums [(pair_end - pair0)*SUM_WIDTH], one slot per pair of this launch's tiles (pair p at slot
 //            p - pair0), written in full (zeros for pairs past the walk) except the split sums of a Gaussian
-//            with no split line, which sum_pairs skips; no atomics; sum_pairs (sum_pairs.cl) then adds each Gaussian's
-//            slots in a fixed order: deterministic.
+//            with no split line, which sum_pairs skips; no atomics; sum_pairs (sum_pairs.cl) then adds each
+//            Gaussian's slots in a fixed order: deterministic.
 //       A launch walks the tiles tile0 .. tile0 + groups - 1; the host cuts a frame with many pairs into
 //       such runs (dc4gs_cl/backward/rasterize_backward.py, tile_runs) so fewer slots are held at once.
 //       The terms:
