@@ -126,6 +126,20 @@ def test_rasterize_backward_kernel_matches_reference(rt, rng, shape, dc, pair_su
     assert_sums_match(rt, sums, layout, res.proj.n, ref)
 
 
+@pytest.mark.parametrize("pixels_per_item", [2, 4])
+def test_rasterize_backward_with_narrow_column_blocks_matches_reference(rt, rng, pixels_per_item):
+    """Work-items of 2 or 4 pixels (devices with small work-groups) sum their pixels in column blocks of that
+    many lanes (rasterize_backward.cl's lane_total at its other widths)."""
+    from dataclasses import replace
+    renderer, res, cam, bg, dL_dimage = backward_case(
+        rt, rng, replace(SHAPES["mid"], pixels_per_item=pixels_per_item, pair_sums=True), opaque=300)
+    layout = SumsLayout(stats=True, dc_stats=True)
+    sums = RasterizeBackward(renderer.context)(res, rt.to_device(dL_dimage), bg, layout)
+    ref = backward_reference(rt, res, cam, bg, dL_dimage)
+    assert np.count_nonzero(ref["pixels"]) > 300
+    assert_sums_match(rt, sums, layout, res.proj.n, ref)
+
+
 @pytest.mark.parametrize("shape", SHAPES)
 def test_rasterize_backward_with_a_mask_matches_reference(rt, rng, shape):
     """A masked-out pixel adds no gradient and no statistic: the kernel's -D PIXEL_MASK variant against the
