@@ -68,6 +68,34 @@ def test_split_sums_match_the_papers_algorithm(rt, rng, shape, pair_sums, candid
 
 
 
+def test_split_line_follows_the_first_largest_log_scale(rt, rng):
+    """The device's split axis is geometry.principal_axis' (the host's, for the split itself): the largest
+    scale, the first on ties, also for scales equal or one float apart (where exps rounded separately could
+    reorder them)."""
+    model = random_model(rng, 400, spread=0.8, scale_range=(0.02, 0.1))
+    cam = random_camera(rng, 96, 72)
+    logs = model.log_scales
+    k = rng.integers(0, 3, 400)
+    top = logs[np.arange(400), k]
+    for i in range(0, 400, 4):                              # equal largest scales, in every pair of axes
+        logs[i, (k[i] + 1) % 3] = top[i]
+    for i in range(1, 400, 4):                              # one float apart, either way
+        logs[i, (k[i] + 1) % 3] = np.nextafter(top[i], np.float32(np.inf if i % 8 == 1 else -np.inf))
+    logs[2:400:4] = top[2:400:4, None]                      # isotropic
+    renderer = Renderer(rt, SHAPES["cpu"], poison=True)
+    g = DeviceGaussians(rt, model)
+    res = renderer.render(g, cam, 3, np.zeros(3))
+    geometry = SplitGeometry(renderer.context)(g, cam, res, 5)
+    record = geometry_record(5)
+    geo = record.views(rt.to_host(geometry, (len(model), record.width)))
+    radius = rt.to_host(res.proj.radius, len(model), np.int32)
+    cand_px, end_px, valid = split_geometry_reference(model.means, logs, model.quats, cam, radius > 0, 5)
+    assert valid.sum() > 200
+    d = end_px - cand_px[:, 0]
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    assert np.abs(geo["dir"][valid] - d[valid]).max() < 1e-4
+
+
 @pytest.mark.parametrize("shape", SHAPES)
 def test_backward_in_runs_of_tiles_sums_exactly_as_in_one(rt, rng, shape):
     """The per-pair slots held at once bounded (Tuning.pair_chunk): the frame's tiles are walked in runs, each
