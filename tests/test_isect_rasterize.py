@@ -164,4 +164,7 @@ def test_relaxed_math_is_built_with_the_flag_and_stays_close(rt, rng):
     approx = Renderer(rt, SHAPES["cpu"], relaxed, poison=True).render(g, cam, 3, (0.3, 0.3, 0.3)).image(rt)
     assert np.isfinite(approx).all()
     # An approximation: how far it may move a pixel is what tools/bench_render.py reports; here only a bound.
-    np.testing.assert_allclose(approx, exact, atol=1e-3)
+    # A rare pixel differs by one faint Gaussian's share, where the relaxed exp moves an alpha across 1/255 (one
+    # of 18,432 values, 0.0035, with Intel's runtime at seed 258534123).
+    diff = np.abs(approx - exact)
+    assert np.mean(diff > 1e-3) < 1e-3 and diff.max() < 0.02, (np.count_nonzero(diff > 1e-3), diff.max())
