@@ -37,7 +37,7 @@
 
 #include "window_fold.h"
 
-__kernel void densify_stats(const uint n, const float ndc_x, const float ndc_y, const float depth_scale,
+__kernel UNPACKED_WORK_ITEMS void densify_stats(const uint n, const float ndc_x, const float ndc_y, const float depth_scale,
                             const float track_threshold,
                             __global const int *radius, __global const float *depth,
                             __global const float *sums, __global const float *split_geometry,

@@ -156,7 +156,7 @@ ALWAYS_INLINE void visible_gradients(int i, const Camera cam, int sh_degree, PAR
 }
 
 
-__kernel void project_backward(const int n, const Camera cam, const int sh_degree,
+__kernel UNPACKED_WORK_ITEMS void project_backward(const int n, const Camera cam, const int sh_degree,
                     PARAM *means, PARAM *log_scales, PARAM *quats, PARAM *opacity_logits, PARAM *sh,
                     __global const int *radius, __global const float *sums,
 #if FUSED_ADAM

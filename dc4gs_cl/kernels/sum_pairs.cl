@@ -41,7 +41,7 @@ ALWAYS_INLINE void add_slots(const uint g, const uint pair0, const uint pair_end
 // -D FOLD_WINDOW=1 (a frame walked in one run, accumulate = 0): each Gaussian's sums are folded into the
 // densification window here (window_fold.h; the window's arguments and -D options as densify_stats.cl's), and
 // only the gradients reach memory: sums [N*GRADIENT_WIDTH], the SUM record's first GRADIENT_WIDTH fields.
-__kernel void sum_pairs(const uint n, const uint pair0, const uint pair_end, const int accumulate,
+__kernel UNPACKED_WORK_ITEMS void sum_pairs(const uint n, const uint pair0, const uint pair_end, const int accumulate,
                         __global const uint *tiles_touched, __global const uint *pair_first,
                         __global const uint *pair_of_emission, __global const float *pair_sums,
                         __global const float *split_geometry,
