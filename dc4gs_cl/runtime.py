@@ -132,8 +132,8 @@ SIMULATORS = ("oclgrind",)
 # CPU implementations in the order the default prefers them, each with why (measured on 2 AMD EPYC cores: the
 # built-in scene's and the garden's frames, issue #11; `dc4gs-cl devices` shows the reason).
 CPU_PREFERENCE = (
-    ("intel(r) opencl", "Intel's CPU runtime: frames 15-21% faster than PoCL's, the built-in 3DGS run's iterations "
-                        "0-22% (`dc4gs-cl bench`; DC4GS iterations 22-123% slower: its sum_pairs)"),
+    ("intel(r) opencl", "Intel's CPU runtime: frames 11-24% faster than PoCL's, 3DGS iterations 6-23% "
+                        "(`dc4gs-cl bench`; DC4GS iterations within 9% either way)"),
     ("portable computing language", "PoCL"),
 )
 
