@@ -2,7 +2,7 @@
 markdown table row per (scene, strategy).
 
     python tools/bench_train.py [--scenes S ...] [--strategies 3dgs absgs pixelgs] [--iterations 3000] [-r K]
-                                [--out DIR] [--json PATH] [--device D] [--quick] [--dc4gs]
+                                [--turn N] [--out DIR] [--json PATH] [--device D] [--quick] [--dc4gs]
 
 A strategy is a base (3dgs, absgs, pixelgs) with optional DC4GS parts and settings: "absgs+dc4gs" (DCC and
 DCS), "absgs+dcc", "absgs+dcs", and ":" options, e.g. "absgs+dc4gs:window:argmin" (pooling, split pick,
@@ -10,7 +10,12 @@ DCS), "absgs+dcc", "absgs+dcs", and ":" options, e.g. "absgs+dc4gs:window:argmin
 runs the DC4GS results table: each base with and without DC4GS and the AbsGS ablation (base, +DCC, +DCS, +both),
 then prints each DC4GS row against its base.
 
-Per run, measured in this process through the library (one Runtime, profiling on):
+A scene's runs train interleaved: each in turn trains --turn iterations (default 100) until all are done, so
+that a slower or busier stretch of the machine falls on every run alike and the wall-time ratios between them
+(printed against each DC4GS row's base) hold; --turn 0 trains them one after the other. Interleaving changes
+no result, only when each iteration runs (tests/test_bench_train.py).
+
+Per run, measured in this process through the library (each run its own Runtime, profiling on):
 - test-view PSNR and SSIM (dc4gs_cl.evaluate; every 8th image by name is a test view);
 - Gaussians at the start, at the end and at their peak;
 - wall time per iteration: Trainer.step() in a loop, from the first step until the queue is done after
@@ -19,8 +24,9 @@ Per run, measured in this process through the library (one Runtime, profiling on
 - peak device memory: the high-water mark of the bytes held in device buffers (Runtime.memory_peak,
   restarted before each run once the previous run's buffers are gone), and that divided by the peak
   Gaussian count (it includes the per-image buffers, so it overstates what a Gaussian costs in small models);
-- host peak RSS (getrusage), restarted before each run through /proc/self/clear_refs on Linux; where
-  that is not possible it is the peak of the process so far (the JSON says which).
+- host peak RSS (getrusage), restarted before each run (interleaved: before each scene, so it is the peak
+  of the scene's runs together) through /proc/self/clear_refs on Linux; where that is not possible it is the
+  peak of the process so far (the JSON says which).
 
 Images are read (and distorted ones undistorted) before a scene's first run, and each strategy's kernels
 built by a two-step warm-up, so no run pays for either. The default -r makes every scene at most 400 px
@@ -58,6 +64,7 @@ MAX_WIDTH = 400                # default -r: images at most this wide
 QUICK_SCENES = ("temple_sparse_ring", "fountain_p11")
 STAGES = ("project", "isect", "sort", "rasterize", "loss", "split_geometry", "rasterize_backward", "sum_pairs",
           "project_backward", "densify_stats")
+TURN = 100                     # iterations each run trains before the next run's turn (interleaved)
 EVENTS_EVERY = 100             # iterations between collections of the profiling events (bounds how many are held)
 MB = 2 ** 20
 
@@ -153,7 +160,7 @@ def dc4gs_summary(runs: list[dict]) -> list[str]:
 
 
 def warm_up(rt: Runtime, scene: Scene, strategies: list[str], resolution: int, out: Path) -> None:
-    """Two iterations per strategy, so that the kernels are built before anything is timed."""
+    """Two iterations per strategy, so that its kernels are built on `rt` before anything is timed."""
     for strategy in strategies:
         trainer = Trainer(config(scene, strategy, 1000, resolution), scene, rt, out)
         for _ in range(2):
@@ -161,38 +168,82 @@ def warm_up(rt: Runtime, scene: Scene, strategies: list[str], resolution: int, o
     rt.stage_times()
 
 
+class BenchRun:
+    """One training run in `out` on its own Runtime, trained in turns (advance) and then evaluated (finish): the
+    measurements listed at the top."""
+
+    def __init__(self, rt: Runtime, scene: Scene, cfg: TrainConfig, out: Path, reset_rss: bool):
+        gc.collect()                           # released buffers go before the peaks restart
+        self.rt, self.scene, self.cfg = rt, scene, cfg
+        self.at_start = rt.memory_in_use
+        rt.reset_memory_peak()
+        self.rss_per_run = reset_host_peak() if reset_rss else False
+        self.run = RunFolder(out)
+        self.trainer = Trainer(cfg, scene, rt, self.run)
+        self.run.write_settings(cfg, scene)
+        self.initial = self.peak = self.trainer.params.n
+        self.stages = Counter()
+        self.wall = 0.0
+        rt.stage_times()
+
+    @property
+    def done(self) -> bool:
+        return self.trainer.iteration >= self.cfg.iterations
+
+    def advance(self, iterations: int) -> None:
+        """Train up to `iterations` more (all that are left for 0); the wall clock runs until the queue is done."""
+        trainer, last = self.trainer, self.cfg.iterations
+        stop = last if iterations <= 0 else min(last, trainer.iteration + iterations)
+        start = time.perf_counter()
+        while trainer.iteration < stop:
+            trainer.step()
+            self.peak = max(self.peak, trainer.params.n)
+            if trainer.iteration % EVENTS_EVERY == 0 or trainer.iteration == stop:
+                self.stages.update(self.rt.stage_times())   # waits for the queue
+        self.wall += time.perf_counter() - start
+
+    def finish(self) -> dict:
+        rt, trainer, cfg = self.rt, self.trainer, self.cfg
+        device_peak, host_peak = rt.memory_peak, host_peak_bytes()
+        trainer.save_model()
+        result = evaluate(rt, trainer.renderer, trainer.params, self.scene, self.scene.test, trainer.sh_degree,
+                          self.run.views_dir("test", cfg.iterations))
+        self.run.write_results(cfg.iterations, result)
+        per_it = 1e3 / cfg.iterations
+        return {"psnr": result["mean"]["PSNR"], "ssim": result["mean"]["SSIM"], "test_views": result["views"],
+                "per_view_psnr": result["per_view"]["PSNR"],
+                "gaussians_initial": self.initial, "gaussians_final": trainer.params.n, "gaussians_peak": self.peak,
+                "wall_ms_per_it": self.wall * per_it,
+                "device_ms_per_it": {s: t * per_it for s, t in self.stages.items()},
+                "device_peak_bytes": device_peak, "device_bytes_at_start": self.at_start,
+                "bytes_per_gaussian": device_peak / self.peak, "host_peak_rss_bytes": host_peak,
+                "host_peak_rss_per_run": self.rss_per_run, "output": str(self.run.path)}
+
+
 def train_one(rt: Runtime, scene: Scene, cfg: TrainConfig, out: Path) -> dict:
-    """Train one run in `out`, then evaluate it; the measurements listed at the top."""
-    gc.collect()                           # the previous run's buffers go before the peaks restart
-    at_start = rt.memory_in_use
-    rt.reset_memory_peak()
-    rss_per_run = reset_host_peak()
-    run = RunFolder(out)
-    trainer = Trainer(cfg, scene, rt, run)
-    run.write_settings(cfg, scene)
-    initial = peak = trainer.params.n
-    stages = Counter()
-    rt.stage_times()
-    start = time.perf_counter()
-    while trainer.iteration < cfg.iterations:
-        trainer.step()
-        peak = max(peak, trainer.params.n)
-        if trainer.iteration % EVENTS_EVERY == 0 or trainer.iteration == cfg.iterations:
-            stages.update(rt.stage_times())   # waits for the queue
-    wall = time.perf_counter() - start
-    device_peak, host_peak = rt.memory_peak, host_peak_bytes()
-    trainer.save_model()
-    result = evaluate(rt, trainer.renderer, trainer.params, scene, scene.test, trainer.sh_degree,
-                      run.views_dir("test", cfg.iterations))
-    run.write_results(cfg.iterations, result)
-    per_it = 1e3 / cfg.iterations
-    return {"psnr": result["mean"]["PSNR"], "ssim": result["mean"]["SSIM"], "test_views": result["views"],
-            "per_view_psnr": result["per_view"]["PSNR"],
-            "gaussians_initial": initial, "gaussians_final": trainer.params.n, "gaussians_peak": peak,
-            "wall_ms_per_it": wall * per_it, "device_ms_per_it": {s: t * per_it for s, t in stages.items()},
-            "device_peak_bytes": device_peak, "device_bytes_at_start": at_start,
-            "bytes_per_gaussian": device_peak / peak, "host_peak_rss_bytes": host_peak,
-            "host_peak_rss_per_run": rss_per_run, "output": str(out)}
+    """One run from start to end on `rt`, then evaluated."""
+    run = BenchRun(rt, scene, cfg, out, reset_rss=True)
+    run.advance(0)
+    return run.finish()
+
+
+def train_scene(device: str | None, name: str, scene: Scene, strategies: list[str], iterations: int,
+                resolution: int, root: Path, warm: Path, turn: int) -> list[dict]:
+    """Train every strategy on the scene, `turn` iterations each in turn (0: one run after the other); the
+    results in the order of `strategies`."""
+    runtimes = [Runtime(device, profiling=True) for _ in strategies]
+    for rt, strategy in zip(runtimes, strategies):
+        warm_up(rt, scene, [strategy], resolution, warm)
+    cfgs = [config(scene, strategy, iterations, resolution) for strategy in strategies]
+    folders = [root / f"{name}-{strategy}" for strategy in strategies]
+    if turn <= 0:
+        return [train_one(rt, scene, cfg, out) for rt, cfg, out in zip(runtimes, cfgs, folders)]
+    rss_scene = reset_host_peak()
+    runs = [BenchRun(rt, scene, cfg, out, reset_rss=False) for rt, cfg, out in zip(runtimes, cfgs, folders)]
+    while not all(run.done for run in runs):
+        for run in runs:
+            run.advance(turn)
+    return [{**run.finish(), "host_peak_rss_per_scene": rss_scene} for run in runs]
 
 
 HEADER = ("| scene | strategy | size | PSNR | SSIM | G init | G final | G peak | wall ms/it | "
@@ -210,28 +261,32 @@ def table_row(r: dict) -> str:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--scenes", nargs="+", default=None,
-                    help="scene folders of ../shared/data (default: every COLMAP one)")
+                    help=f"scene folders of ../shared/data (default: every COLMAP one), or {BUILTIN_SCENE}")
     ap.add_argument("--strategies", nargs="+", default=None,
                     help="densification strategies, e.g. absgs absgs+dc4gs absgs+dcc:window (default: 3dgs absgs pixelgs)")
     ap.add_argument("--dc4gs", action="store_true", help=f"the DC4GS results table: {' '.join(DC4GS_TABLE)}")
     ap.add_argument("--iterations", type=int, default=None, help="iterations per run (default 3000)")
     ap.add_argument("-r", "--resolution", type=int, default=None,
                     help=f"downscale factor for every scene (default: per scene, at most {MAX_WIDTH} px wide)")
+    ap.add_argument("--turn", type=int, default=TURN,
+                    help=f"iterations each of a scene's runs trains in its turn (default {TURN}; 0: one run after "
+                         "the other)")
     ap.add_argument("--out", type=Path, default=None, help="keep each run's folder under DIR (default: temporary)")
     ap.add_argument("--json", type=Path, default=None, help="also write the results here (rewritten after each run)")
     ap.add_argument("--device", default=None)
     ap.add_argument("--quick", action="store_true",
                     help=f"smoke test: one scene ({' or '.join(QUICK_SCENES)}), strategy 3dgs, 200 iterations")
     args = ap.parse_args(argv)
-    if not DATA.is_dir():
-        print(f"no scene data at {DATA}: nothing to benchmark (the COLMAP scenes of ../shared/data are needed)")
-        return 0
-    available = colmap_scenes()
+    available = colmap_scenes() if DATA.is_dir() else []
     if args.quick:
-        args.scenes = args.scenes or [next(s for s in QUICK_SCENES if s in available)]
+        args.scenes = args.scenes or [next((s for s in QUICK_SCENES if s in available), BUILTIN_SCENE)]
         args.strategies = args.strategies or ["3dgs"]
         args.iterations = args.iterations or 200
     scenes = args.scenes or available
+    if not scenes:
+        print(f"no scene data at {DATA}: nothing to benchmark (the COLMAP scenes of ../shared/data are needed; "
+              f"--scenes {BUILTIN_SCENE} trains the built-in scene)")
+        return 0
     strategies = args.strategies or (list(DC4GS_TABLE) if args.dc4gs else ["3dgs", "absgs", "pixelgs"])
     for spec in strategies:
         try:
@@ -239,13 +294,14 @@ def main(argv=None) -> int:
         except ValueError as e:
             ap.error(str(e))
     iterations = args.iterations or 3000
-    unknown = [s for s in scenes if s not in available]
+    unknown = [s for s in scenes if s not in available and s != BUILTIN_SCENE]
     if unknown:
         ap.error(f"not COLMAP scenes of {DATA}: {', '.join(unknown)} (there are: {', '.join(available)})")
 
-    rt = Runtime(args.device, profiling=True)
-    print(f"device: {describe(rt.device)}; {iterations:,} iterations per run", file=sys.stderr)
-    report = {"device": describe(rt.device), "iterations": iterations, "runs": []}
+    device = describe(Runtime(args.device).device)
+    order = f"interleaved, {args.turn} iterations a turn" if args.turn > 0 else "one after the other"
+    print(f"device: {device}; {iterations:,} iterations per run; a scene's runs {order}", file=sys.stderr)
+    report = {"device": device, "iterations": iterations, "turn": max(args.turn, 0), "runs": []}
     with tempfile.TemporaryDirectory(prefix="bench_train-") as tmp:
         root = args.out or Path(tmp)
         print(HEADER + "\n|" + "---|" * (HEADER.count("|") - 1), flush=True)
@@ -259,14 +315,14 @@ def main(argv=None) -> int:
             size = f"{cam.width}x{cam.height}"
             print(f"{name}: -r {r} -> {size}, {len(scene.train)} train / {len(scene.test)} test views, "
                   f"{len(scene.points):,} SfM points", file=sys.stderr)
-            warm_up(rt, scene, strategies, r, Path(tmp) / "warm-up")
-            for strategy in strategies:
-                run = train_one(rt, scene, config(scene, strategy, iterations, r), root / f"{name}-{strategy}")
+            runs = train_scene(args.device, name, scene, strategies, iterations, r, root, Path(tmp) / "warm-up",
+                               args.turn)
+            for strategy, run in zip(strategies, runs):
                 row = {"scene": name, "strategy": strategy, "resolution": r, "size": size, **run}
                 report["runs"].append(row)
                 print(table_row(row), flush=True)
-                if args.json:
-                    write_json(args.json, report)
+            if args.json:
+                write_json(args.json, report)
     if any("+" in s for s in strategies):
         print("\n" + "\n".join(dc4gs_summary(report["runs"])))
     return 0

@@ -1,0 +1,32 @@
+"""tools/bench_train.py: a scene's runs interleaved in turns give the same results as run one after the other
+(only the timing may differ), each run measured on its own."""
+import json
+
+from helpers import load_tool
+
+bench_train = load_tool("bench_train")
+
+SAME = ("psnr", "ssim", "gaussians_initial", "gaussians_final", "gaussians_peak", "per_view_psnr")
+
+
+def runs(tmp_path, turn):
+    report = tmp_path / f"turn{turn}.json"
+    args = ["--scenes", "builtin", "--strategies", "absgs", "absgs+dc4gs", "--iterations", "60", "-r", "4",
+            "--turn", str(turn), "--json", str(report), "--out", str(tmp_path / f"runs{turn}")]
+    assert bench_train.main(args) == 0
+    return json.loads(report.read_text())
+
+
+def test_interleaved_runs_match_runs_one_after_the_other(tmp_path, capsys):
+    apart, interleaved = runs(tmp_path, 0), runs(tmp_path, 7)
+    assert apart["turn"] == 0 and interleaved["turn"] == 7
+    assert [r["strategy"] for r in interleaved["runs"]] == ["absgs", "absgs+dc4gs"]
+    for a, b in zip(apart["runs"], interleaved["runs"]):
+        assert {k: a[k] for k in SAME} == {k: b[k] for k in SAME}, a["strategy"]
+        assert b["wall_ms_per_it"] > 0 and b["device_ms_per_it"]["rasterize_backward"] > 0
+        assert b["host_peak_rss_per_run"] is False
+    # densification ran, and DC4GS' own stage only in its run: each run's profiling events are its own
+    assert any(r["gaussians_final"] != r["gaussians_initial"] for r in interleaved["runs"])
+    plain, dc4gs = interleaved["runs"]
+    assert "split_geometry" not in plain["device_ms_per_it"] and dc4gs["device_ms_per_it"]["split_geometry"] > 0
+    assert "| builtin | absgs+dc4gs |" in capsys.readouterr().out
