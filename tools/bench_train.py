@@ -53,7 +53,7 @@ from dc4gs_cl.files import write_json
 from dc4gs_cl.host.densify import STRATEGIES, DC4GSConfig
 from dc4gs_cl.host.densify.ops import SPLIT_SCALE_DIVISOR
 from dc4gs_cl.run_folder import RunFolder
-from dc4gs_cl.runtime import Runtime, describe
+from dc4gs_cl.runtime import Runtime, choose_device, describe
 from dc4gs_cl.scene import Scene, load_scene
 from dc4gs_cl.scene.builtin import BUILTIN_SCENE
 from dc4gs_cl.scene.colmap import model_dir
@@ -272,7 +272,8 @@ def main(argv=None) -> int:
                     help=f"iterations each of a scene's runs trains in its turn (default {TURN}; 0: one run after "
                          "the other)")
     ap.add_argument("--out", type=Path, default=None, help="keep each run's folder under DIR (default: temporary)")
-    ap.add_argument("--json", type=Path, default=None, help="also write the results here (rewritten after each run)")
+    ap.add_argument("--json", type=Path, default=None,
+                    help="also write the results here (rewritten after each scene)")
     ap.add_argument("--device", default=None)
     ap.add_argument("--quick", action="store_true",
                     help=f"smoke test: one scene ({' or '.join(QUICK_SCENES)}), strategy 3dgs, 200 iterations")
@@ -298,7 +299,7 @@ def main(argv=None) -> int:
     if unknown:
         ap.error(f"not COLMAP scenes of {DATA}: {', '.join(unknown)} (there are: {', '.join(available)})")
 
-    device = describe(Runtime(args.device).device)
+    device = describe(choose_device(args.device)[1])
     order = f"interleaved, {args.turn} iterations a turn" if args.turn > 0 else "one after the other"
     print(f"device: {device}; {iterations:,} iterations per run; a scene's runs {order}", file=sys.stderr)
     report = {"device": device, "iterations": iterations, "turn": max(args.turn, 0), "runs": []}

@@ -37,11 +37,12 @@
 
 #include "window_fold.h"
 
-__kernel UNPACKED_WORK_ITEMS void densify_stats(const uint n, const float ndc_x, const float ndc_y, const float depth_scale,
-                            const float track_threshold,
-                            __global const int *radius, __global const float *depth,
-                            __global const float *sums, __global const float *split_geometry,
-                            __global float *window) {
+__kernel UNPACKED_WORK_ITEMS
+void densify_stats(const uint n, const float ndc_x, const float ndc_y, const float depth_scale,
+                   const float track_threshold,
+                   __global const int *radius, __global const float *depth,
+                   __global const float *sums, __global const float *split_geometry,
+                   __global float *window) {
     uint i = get_global_id(0);
     if (i >= n) return;
     float s[SUM_WIDTH];

@@ -156,21 +156,22 @@ ALWAYS_INLINE void visible_gradients(int i, const Camera cam, int sh_degree, PAR
 }
 
 
-__kernel UNPACKED_WORK_ITEMS void project_backward(const int n, const Camera cam, const int sh_degree,
-                    PARAM *means, PARAM *log_scales, PARAM *quats, PARAM *opacity_logits, PARAM *sh,
-                    __global const int *radius, __global const float *sums,
+__kernel UNPACKED_WORK_ITEMS
+void project_backward(const int n, const Camera cam, const int sh_degree,
+                      PARAM *means, PARAM *log_scales, PARAM *quats, PARAM *opacity_logits, PARAM *sh,
+                      __global const int *radius, __global const float *sums,
 #if FUSED_ADAM
-                    const AdamStep step,
-                    __global float *m_means, __global float *v_means,
-                    __global float *m_log_scales, __global float *v_log_scales,
-                    __global float *m_quats, __global float *v_quats,
-                    __global float *m_opacity_logits, __global float *v_opacity_logits,
-                    __global float *m_sh, __global float *v_sh
+                      const AdamStep step,
+                      __global float *m_means, __global float *v_means,
+                      __global float *m_log_scales, __global float *v_log_scales,
+                      __global float *m_quats, __global float *v_quats,
+                      __global float *m_opacity_logits, __global float *v_opacity_logits,
+                      __global float *m_sh, __global float *v_sh
 #else
-                    __global float *d_means, __global float *d_log_scales, __global float *d_quats,
-                    __global float *d_opacity_logits, __global float *d_sh
+                      __global float *d_means, __global float *d_log_scales, __global float *d_quats,
+                      __global float *d_opacity_logits, __global float *d_sh
 #endif
-                    ) {
+                      ) {
     int i = get_global_id(0);
     if (i >= n) return;
     // Not visible: zero gradients (Adam still steps, on its moments alone). One emit section for both.

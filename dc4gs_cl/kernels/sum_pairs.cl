@@ -41,15 +41,16 @@ ALWAYS_INLINE void add_slots(const uint g, const uint pair0, const uint pair_end
 // -D FOLD_WINDOW=1 (a frame walked in one run, accumulate = 0): each Gaussian's sums are folded into the
 // densification window here (window_fold.h; the window's arguments and -D options as densify_stats.cl's), and
 // only the gradients reach memory: sums [N*GRADIENT_WIDTH], the SUM record's first GRADIENT_WIDTH fields.
-__kernel UNPACKED_WORK_ITEMS void sum_pairs(const uint n, const uint pair0, const uint pair_end, const int accumulate,
-                        __global const uint *tiles_touched, __global const uint *pair_first,
-                        __global const uint *pair_of_emission, __global const float *pair_sums,
-                        __global const float *split_geometry,
+__kernel UNPACKED_WORK_ITEMS
+void sum_pairs(const uint n, const uint pair0, const uint pair_end, const int accumulate,
+               __global const uint *tiles_touched, __global const uint *pair_first,
+               __global const uint *pair_of_emission, __global const float *pair_sums,
+               __global const float *split_geometry,
 #if FOLD_WINDOW
-                        const float ndc_x, const float ndc_y, const float depth_scale, const float track_threshold,
-                        __global const int *radius, __global const float *depth, __global float *window,
+               const float ndc_x, const float ndc_y, const float depth_scale, const float track_threshold,
+               __global const int *radius, __global const float *depth, __global float *window,
 #endif
-                        __global float *sums) {
+               __global float *sums) {
     const uint g = get_global_id(0);
     float acc[SUM_WIDTH];
 #if FOLD_WINDOW
