@@ -182,7 +182,12 @@ def test_schedule_follows_the_recipe():
     a = AbsGS()
     clamps = [it for it in range(1, 30_001) if a.clamp_opacity_now(it)]
     assert clamps[0] == 500 and clamps[-1] == 14_500 and not s.clamp_opacity_now(500)
-    assert s.collecting(14_999) and not s.collecting(15_000)
+    assert s.last_densify_step == 14_900 and s.collecting(1) and s.collecting(14_900) and not s.collecting(14_901)
+    assert a.last_densify_step == 14_900 and not s.collecting(15_000)
+    # no step in the window: nothing gathered; a step on the window's last iteration is not one (it < until)
+    assert Strategy(DensifyConfig(densify_from=500, densify_until=550)).last_densify_step == 0
+    assert Strategy(DensifyConfig(densify_from=0, densify_until=200)).last_densify_step == 100
+    assert not Strategy(DensifyConfig(densify_until=0)).collecting(1)
 
 
 class ToyBase(Strategy):

@@ -39,7 +39,7 @@ from .statistics import GRAD_PER_VIEW, MAX_RADIUS, SPLIT_COSTS, Criterion, Stati
 @dataclass(frozen=True)
 class DensifyConfig:
     densify_from: int = 500            # densify at iterations densify_from < it < densify_until ...
-    densify_until: int = 15_000        # ... that are multiples of densify_every; statistics gather while it < this
+    densify_until: int = 15_000        # ... that are multiples of densify_every; statistics gather up to the last
     densify_every: int = 100
     clone_threshold: float = 2e-4      # on the mean per-view criterion, NDC units
     split_threshold: float = 2e-4
@@ -138,9 +138,18 @@ class Strategy:
         return self.dc4gs.track * self.config.split_threshold if self.dc4gs is not None else 0.0
 
     # schedule ----------------------------------------------------------------------------------------
+    @property
+    def last_densify_step(self) -> int:
+        """The window's last densification step (0: none)."""
+        c = self.config
+        last = (c.densify_until - 1) // c.densify_every * c.densify_every
+        return last if last > c.densify_from else 0
+
     def collecting(self, it: int) -> bool:
-        """Whether iteration it gathers densification statistics."""
-        return it < self.config.densify_until
+        """Whether iteration it gathers densification statistics: up to the window's last densification step.
+        What the recipe gathers after it (14,901 to 14,999 of 30,000; 1,401 to 1,499 of 3,000) no step reads, so
+        those iterations run the backward without statistics, DC4GS' split costs included."""
+        return it <= self.last_densify_step
 
     def densify_now(self, it: int) -> bool:
         c = self.config
