@@ -55,7 +55,7 @@ from .train import Trainer
 from .train.schedule import Schedule
 
 SUITE_VERSION = 1
-NEVER = 10 ** 9                       # a densification interval no run reaches
+NEVER = 10 ** 9                       # an opacity reset interval no run reaches
 
 
 @dataclass(frozen=True)
@@ -93,9 +93,17 @@ def frozen_trainer(cfg: TrainConfig, scene: Scene, rt: Runtime, state: GaussianS
     Gaussian, not only those large enough to split."""
     scaled = Schedule(cfg).strategy()
     c = scaled.config
-    strategy = type(scaled)(replace(c, densify_every=NEVER, opacity_reset_every=NEVER, opacity_clamp_every=None,
-                                    densify_until=0 if closed else c.densify_until,
-                                    percent_dense=0.0 if split_costs_for_all else c.percent_dense), cfg.dc4gs)
+
+    class Frozen(type(scaled)):
+        def densify_now(self, it: int) -> bool:
+            return False
+
+        def collecting(self, it: int) -> bool:      # the whole window, though no step reads it
+            return it < self.config.densify_until
+
+    strategy = Frozen(replace(c, opacity_reset_every=NEVER, opacity_clamp_every=None,
+                              densify_until=0 if closed else c.densify_until,
+                              percent_dense=0.0 if split_costs_for_all else c.percent_dense), cfg.dc4gs)
     trainer = Trainer(cfg, scene, rt, Path("/nonexistent"), strategy=strategy)
     trainer.start_from(state, iteration)
     return trainer
