@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from dc4gs_cl.backward import RasterizeBackward, SplitGeometry, SumsLayout, geometry_record
-from dc4gs_cl.backward.rasterize_backward import tile_runs
+from dc4gs_cl.backward.rasterize_backward import carry_bound, tile_runs
 from dc4gs_cl.host.densify import AbsGS, DC4GSConfig
 from dc4gs_cl.host.densify.statistics import SPLIT_COSTS
 from dc4gs_cl.reference.dc4gs import split_costs_from_sums, split_geometry_reference
@@ -121,13 +121,27 @@ def test_backward_in_runs_of_tiles_sums_exactly_as_in_one(rt, rng, shape):
     assert np.array_equal(got["runs"], got["one run"])
 
 
+def spanning_runs(rt, res, tuning, n: int) -> tuple[int, int]:
+    """How many Gaussians have pairs in more than one of the frame's runs of tiles (from the isect arrays), and
+    carry_bound's bound on them."""
+    ranges = rt.to_host(res.isect.ranges, (res.tiles_x * res.tiles_y, 2), np.uint32)
+    runs = tile_runs(ranges, max(int(np.ceil(tuning.pair_chunk * n)), 1), tuning.min_run_tiles)
+    touched = rt.to_host(res.proj.tiles_touched, n, np.uint32)
+    first = rt.to_host(res.isect.pair_first, n, np.uint32)[touched > 0]
+    pair_of_emission = rt.to_host(res.isect.pair_of_emission, res.isect.n_pairs, np.uint32)
+    run_ends = [r[3] for r in runs]
+    first_run = np.searchsorted(run_ends, pair_of_emission[first], side="right")
+    last_run = np.searchsorted(run_ends, pair_of_emission[first + touched[touched > 0] - 1], side="right")
+    return int((first_run != last_run).sum()), carry_bound(ranges, res.tiles_x, runs)
+
+
 @pytest.mark.parametrize("base", ["3dgs", "absgs", "pixelgs"])
 @pytest.mark.parametrize("pooling", ["view", "window"])
 def test_sum_pairs_folds_the_window_as_the_window_kernel_does(rt, rng, base, pooling):
-    """A frame walked in one run has its statistics folded into the window by sum_pairs (window_fold.h), and
-    only its gradients reach memory; walked in runs (or given full sums), the window's own kernel folds them.
-    Over two views (the second adds to a window holding the first), both give the same window and gradients,
-    bit for bit, as the full sums folded by the window's kernel."""
+    """sum_pairs folds a view's statistics into the window (window_fold.h) and only its gradients reach memory,
+    for a frame walked in one run and in runs of tiles (a Gaussian whose pairs span runs carries its partial sums
+    from run to run). Over two views (the second adds to a window holding the first), both give the same window
+    and gradients, bit for bit, as the full sums folded by the window's own kernel."""
     from dc4gs_cl.backward import GRADIENTS
     from dc4gs_cl.host.densify import STRATEGIES
     model = random_model(rng, 700, spread=1.0, scale_range=(0.01, 0.12))
@@ -153,7 +167,11 @@ def test_sum_pairs_folds_the_window_as_the_window_kernel_does(rt, rng, base, poo
                 gathering.window.fold(res, sums, gathering.geometry)
             else:
                 sums, layout = backwards[name].folding(*args, window=gathering.window)
-            assert layout == (GRADIENTS if name == "fused" else gathering.layout)
+            assert layout == (GRADIENTS if name != "window kernel" else gathering.layout)
+            if name == "runs":                   # the Gaussians spanning runs carried, within carry_bound's rows
+                carried = rt.to_host(renderers[name].context.ws.get("backward.carry_taken", 4), 1, np.uint32)[0]
+                spanning, bound = spanning_runs(rt, res, paths["runs"], len(model))
+                assert carried == spanning and 10 < spanning <= bound
             grads[name] = rt.to_host(sums, (len(model), layout.width))[:, :GRADIENTS.width]
         assert np.isfinite(grads["fused"]).all() and np.count_nonzero(grads["fused"]) > 1000
         assert np.array_equal(grads["fused"], grads["window kernel"]) and np.array_equal(grads["runs"], grads["fused"])

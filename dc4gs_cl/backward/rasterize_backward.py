@@ -42,9 +42,10 @@ class RasterizeBackward(Stage):
                 geometry: cl.Buffer | None = None, keep: cl.Buffer | None = None,
                 window: WindowFold | None = None) -> tuple[cl.Buffer, SumsLayout]:
         """As a call, and with a window (layout with statistics), the view's statistics folded into it: by
-        sum_pairs as it adds up a frame walked in one run (the sums returned then hold the gradients alone, and the
-        per-Gaussian statistics never reach memory: 124 of 160 bytes per Gaussian with DC4GS), else by the
-        window's own kernel. The sums and their layout."""
+        sum_pairs as it adds up each Gaussian's slots (the sums returned then hold the gradients alone, and the
+        per-Gaussian statistics never reach memory: 124 of 160 bytes per Gaussian with DC4GS; in runs of tiles,
+        only the Gaussians whose pairs span runs hold theirs between runs, in carry rows), else (float atomics)
+        by the window's own kernel. The sums and their layout."""
         if layout.split_candidates and geometry is None:
             raise ValueError("split costs need the split geometry of the view")
         rt, tuning = self.rt, self.ctx.tuning
@@ -53,8 +54,9 @@ class RasterizeBackward(Stage):
         if tuning.pair_sums:
             budget = max(math.ceil(tuning.pair_chunk * n), 1)
             if p > budget and tiles >= 2 * tuning.min_run_tiles:
-                runs = tile_runs(rt.to_host(res.isect.ranges, (tiles, 2), np.uint32), budget, tuning.min_run_tiles)
-        fused = window is not None and tuning.pair_sums and len(runs) == 1
+                ranges = rt.to_host(res.isect.ranges, (tiles, 2), np.uint32)
+                runs = tile_runs(ranges, budget, tuning.min_run_tiles)
+        fused = window is not None and tuning.pair_sums
         out_layout = GRADIENTS if fused else layout
         sums = self.ws.get("backward.sums", 4 * out_layout.width * max(n, 1))
         if tuning.pair_sums:
@@ -62,6 +64,9 @@ class RasterizeBackward(Stage):
         else:
             target = sums
             rt.fill(sums, np.float32(0), 4 * layout.width * n)
+        carry = None
+        if fused:
+            carry = self.sum_pairs.carry(n, layout, carry_bound(ranges, res.tiles_x, runs) if len(runs) > 1 else 0)
         k = self.fitted_kernels({**layout.defines(), "PIXEL_MASK": int(keep is not None)})
         items = TILE_SIZE * TILE_SIZE // tuning.pixels_per_item
         split_geometry = geometry if geometry is not None else sums
@@ -72,12 +77,21 @@ class RasterizeBackward(Stage):
                       res.proj.conic_opacity, res.proj.rgb, res.proj.alpha_extent, res.raster.final_T,
                       res.raster.last_pair, dL_dimage, split_geometry, *([keep] if keep is not None else []), target)
             if tuning.pair_sums:
-                self.sum_pairs(res, layout, target, p0, p1, split_geometry, sums, window if fused else None)
+                self.sum_pairs(res, layout, target, p0, p1, split_geometry, sums, window if fused else None, carry)
         self.check(lambda: {"sums": visible_rows(rt, sums, rt.to_host(res.proj.radius, n, np.int32),
                                                  out_layout.width)})
         if window is not None and not fused:
             window.fold(res, sums, geometry)
         return sums, out_layout
+
+
+def carry_bound(ranges: np.ndarray, tiles_x: int, runs: list[tuple[int, int, int, int]]) -> int:
+    """At least as many as the Gaussians whose pairs span runs of tiles (tile_runs), from the pairs per tile alone.
+    Such a Gaussian spans the boundary before some run's first tile B: its tiles are a rectangle (isect.cl) holding
+    a tile before B and one at or past B, so its rows run from at most B - 1's row to at least B's, and it has a
+    pair in B - 1's row. The pairs in those rows, over the boundaries, bound them."""
+    row_pairs = (ranges[:, 1].astype(np.int64) - ranges[:, 0]).reshape(-1, tiles_x).sum(axis=1)
+    return int(sum(row_pairs[(t0 - 1) // tiles_x] for t0, *_ in runs[1:]))
 
 
 def tile_runs(ranges: np.ndarray, budget: int, min_tiles: int = 1) -> list[tuple[int, int, int, int]]:

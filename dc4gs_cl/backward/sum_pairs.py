@@ -1,10 +1,9 @@
 """Pair-sums stage (kernels/sum_pairs.cl): the rasterizer backward's per-pair slots added up per Gaussian in a
-fixed order, and, when a densification window is given and the frame was walked in one run, that view's
-statistics folded into the window on the way (kernels/window_fold.h), so the per-Gaussian sums that reach
-memory are the gradients alone."""
+fixed order, and, when a densification window is given, that view's statistics folded into the window on the
+way (kernels/window_fold.h), so the per-Gaussian sums that reach memory are the gradients alone."""
 from __future__ import annotations
 
-from typing import Protocol
+from typing import NamedTuple, Protocol
 
 import numpy as np
 import pyopencl as cl
@@ -29,22 +28,42 @@ class WindowFold(Protocol):
     def folded(self) -> None: ...
 
 
+class Carry(NamedTuple):
+    """Where a view walked in runs of tiles keeps the partial sums of the Gaussians whose pairs span runs, while
+    sum_pairs folds the window (kernels/sum_pairs.cl): each one's row, the rows taken, the rows."""
+    slot: cl.Buffer      # [N] uint
+    taken: cl.Buffer     # [1] uint, zeroed for each view
+    rows: cl.Buffer      # [rows * SUM_WIDTH] float
+
+
 class SumPairs(Stage):
     FILE, KERNELS = "sum_pairs.cl", ("sum_pairs",)
 
+    def carry(self, n: int, layout: SumsLayout, rows: int) -> Carry:
+        """The carry of a view of n Gaussians with at most `rows` spanning runs (backward.rasterize_backward's
+        carry_bound; 0 for one run, whose carry is never read)."""
+        taken = self.ws.get("backward.carry_taken", 4)
+        if not rows:
+            return Carry(taken, taken, taken)
+        self.rt.fill(taken, np.uint32(0), 4)
+        return Carry(self.ws.get("backward.carry_slot", 4 * n), taken,
+                     self.ws.get("backward.carry_rows", 4 * layout.width * rows))
+
     def __call__(self, res: RenderResult, layout: SumsLayout, pair_sums: cl.Buffer, pair0: int, pair_end: int,
-                 split_geometry: cl.Buffer, sums: cl.Buffer, window: WindowFold | None = None) -> None:
+                 split_geometry: cl.Buffer, sums: cl.Buffer, window: WindowFold | None = None,
+                 carry: Carry | None = None) -> None:
         """Add the slots of pairs pair0 .. pair_end - 1 onto sums (N x layout.width; written, not added to, when
-        pair0 is 0). window (one run only): fold the view into it; sums are then N x GRADIENTS.width."""
+        pair0 is 0). window (with the view's carry): fold the view into it, each Gaussian in the run holding its
+        last pair; sums are then N x GRADIENTS.width."""
         n = res.proj.n
         if not n:
             return
         fold = {"FOLD_WINDOW": int(window is not None), "GRADIENT_WIDTH": GRADIENTS.width,
                 **(window.defines() if window is not None else {})}
         kernel = self.kernels({**layout.defines(), **fold})["sum_pairs"]
+        folding = [*window.fold_args(res), window.buffer, *carry] if window is not None else []
         self.rt.launch_items("sum_pairs", kernel, n, PER_GAUSSIAN_WG, np.uint32(n), np.uint32(pair0),
                              np.uint32(pair_end), np.int32(pair0 > 0), res.proj.tiles_touched, res.isect.pair_first,
-                             res.isect.pair_of_emission, pair_sums, split_geometry,
-                             *([*window.fold_args(res), window.buffer] if window is not None else []), sums)
-        if window is not None:
+                             res.isect.pair_of_emission, pair_sums, split_geometry, *folding, sums)
+        if window is not None and pair_end == res.isect.n_pairs:
             window.folded()

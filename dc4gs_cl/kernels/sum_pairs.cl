@@ -38,9 +38,14 @@ ALWAYS_INLINE void add_slots(const uint g, const uint pair0, const uint pair_end
 //   in  tiles_touched [N], pair_first [N], pair_of_emission [P]: from isect.cl;
 //       pair_sums [(pair_end - pair0)*SUM_WIDTH]; split_geometry [N*GEO_WIDTH] with SPLIT_CANDIDATES
 //   out sums [N*SUM_WIDTH] (in and out with accumulate)
-// -D FOLD_WINDOW=1 (a frame walked in one run, accumulate = 0): each Gaussian's sums are folded into the
-// densification window here (window_fold.h; the window's arguments and -D options as densify_stats.cl's), and
-// only the gradients reach memory: sums [N*GRADIENT_WIDTH], the SUM record's first GRADIENT_WIDTH fields.
+// -D FOLD_WINDOW=1: each Gaussian's sums are folded into the densification window here (window_fold.h; the
+// window's arguments and -D options as densify_stats.cl's), and only the gradients reach memory: sums
+// [N*GRADIENT_WIDTH], the SUM record's first GRADIENT_WIDTH fields. A Gaussian is folded in the run holding its
+// last pair (one with no pair, in the first run); one whose pairs span runs carries its partial sums from run to
+// run in a carry row (SUM_WIDTH floats): carry_slot [N] names its row, taken in the run holding its first pair
+// (atomic_inc on carried [1], which the host zeroes for each view; carry holds as many rows as the host's bound on
+// Gaussians spanning runs). The rows are taken in any order; each Gaussian's sums still add its pairs in emission
+// order, so a frame gives the same window and gradients, bit for bit, in one run or in many (accumulate unused).
 __kernel UNPACKED_WORK_ITEMS
 void sum_pairs(const uint n, const uint pair0, const uint pair_end, const int accumulate,
                __global const uint *tiles_touched, __global const uint *pair_first,
@@ -49,19 +54,39 @@ void sum_pairs(const uint n, const uint pair0, const uint pair_end, const int ac
 #if FOLD_WINDOW
                const float ndc_x, const float ndc_y, const float depth_scale, const float track_threshold,
                __global const int *radius, __global const float *depth, __global float *window,
+               __global uint *carry_slot, __global uint *carried, __global float *carry,
 #endif
                __global float *sums) {
     const uint g = get_global_id(0);
     float acc[SUM_WIDTH];
 #if FOLD_WINDOW
-    // One run (accumulate = 0). The fold comes past a barrier, which makes it PoCL's own loop over the
-    // work-items: that vectorises, as densify_stats does, where after the slots' loop of varying length it ran
-    // one Gaussian at a time (4.3 ms against 1.6 + 1.0 for sum_pairs and densify_stats, 48k Gaussians, DC4GS).
-    for (int k = 0; k < SUM_WIDTH; ++k) acc[k] = 0.f;
-    if (g < n)
+    // Where this run holds the Gaussian's first and last pair (pairs increase with emissions); a frame walked in
+    // one run starts and ends every Gaussian in it.
+    uint count = 0, first_pair = 0, last_pair = 0;
+    if (g < n) count = tiles_touched[g];
+    if (count) {
+        first_pair = pair_of_emission[pair_first[g]];
+        last_pair = pair_of_emission[pair_first[g] + count - 1];
+    }
+    const int in_run = count && first_pair < pair_end && last_pair >= pair0;
+    const int starts = count ? in_run && first_pair >= pair0 : pair0 == 0;
+    const int ends = count ? in_run && last_pair < pair_end : pair0 == 0;
+    uint row = 0;
+    if (in_run && !starts) row = carry_slot[g];
+    for (int k = 0; k < SUM_WIDTH; ++k) acc[k] = in_run && !starts ? carry[(size_t)row * SUM_WIDTH + k] : 0.f;
+    if (in_run)
         add_slots(g, pair0, pair_end, tiles_touched, pair_first, pair_of_emission, pair_sums, split_geometry, acc);
+    // The fold comes past a barrier, which makes it PoCL's own loop over the work-items: that vectorises, as
+    // densify_stats does, where after the slots' loop of varying length it ran one Gaussian at a time (4.3 ms
+    // against 1.6 + 1.0 for sum_pairs and densify_stats, 48k Gaussians, DC4GS).
     barrier(CLK_LOCAL_MEM_FENCE);
     if (g >= n) return;
+    if (!ends) {                                  // more of its pairs in later runs: carry the partial sums
+        if (!in_run) return;
+        if (starts) carry_slot[g] = row = atomic_inc(carried);
+        for (int k = 0; k < SUM_WIDTH; ++k) carry[(size_t)row * SUM_WIDTH + k] = acc[k];
+        return;
+    }
     fold_view_sums(g, acc, ndc_x, ndc_y, depth_scale, track_threshold, radius, depth, split_geometry, window);
     for (int k = 0; k < GRADIENT_WIDTH; ++k) sums[(size_t)g * GRADIENT_WIDTH + k] = acc[k];
 #else
