@@ -43,9 +43,9 @@ class RasterizeBackward(Stage):
                 window: WindowFold | None = None) -> tuple[cl.Buffer, SumsLayout]:
         """As a call, and with a window (layout with statistics), the view's statistics folded into it: by
         sum_pairs as it adds up each Gaussian's slots (the sums returned then hold the gradients alone, and the
-        per-Gaussian statistics never reach memory: 124 of 160 bytes per Gaussian with DC4GS; in runs of tiles,
-        only the Gaussians whose pairs span runs hold theirs between runs, in carry rows), else (float atomics)
-        by the window's own kernel. The sums and their layout."""
+        per-Gaussian statistics never reach memory: 124 of 160 bytes per Gaussian with DC4GS; in a few runs of
+        tiles, Tuning.max_folded_runs, only the Gaussians whose pairs span runs hold theirs between runs, in carry
+        rows), else (float atomics, or more runs) by the window's own kernel. The sums and their layout."""
         if layout.split_candidates and geometry is None:
             raise ValueError("split costs need the split geometry of the view")
         rt, tuning = self.rt, self.ctx.tuning
@@ -54,9 +54,8 @@ class RasterizeBackward(Stage):
         if tuning.pair_sums:
             budget = max(math.ceil(tuning.pair_chunk * n), 1)
             if p > budget and tiles >= 2 * tuning.min_run_tiles:
-                ranges = rt.to_host(res.isect.ranges, (tiles, 2), np.uint32)
-                runs = tile_runs(ranges, budget, tuning.min_run_tiles)
-        fused = window is not None and tuning.pair_sums
+                runs = tile_runs(rt.to_host(res.isect.ranges, (tiles, 2), np.uint32), budget, tuning.min_run_tiles)
+        fused = window is not None and tuning.pair_sums and len(runs) <= tuning.max_folded_runs
         out_layout = GRADIENTS if fused else layout
         sums = self.ws.get("backward.sums", 4 * out_layout.width * max(n, 1))
         if tuning.pair_sums:
@@ -64,9 +63,7 @@ class RasterizeBackward(Stage):
         else:
             target = sums
             rt.fill(sums, np.float32(0), 4 * layout.width * n)
-        carry = None
-        if fused:
-            carry = self.sum_pairs.carry(n, layout, carry_bound(ranges, res.tiles_x, runs) if len(runs) > 1 else 0)
+        carry = self.sum_pairs.carry(res, layout, window, runs) if fused else None
         k = self.fitted_kernels({**layout.defines(), "PIXEL_MASK": int(keep is not None)})
         items = TILE_SIZE * TILE_SIZE // tuning.pixels_per_item
         split_geometry = geometry if geometry is not None else sums
@@ -83,15 +80,6 @@ class RasterizeBackward(Stage):
         if window is not None and not fused:
             window.fold(res, sums, geometry)
         return sums, out_layout
-
-
-def carry_bound(ranges: np.ndarray, tiles_x: int, runs: list[tuple[int, int, int, int]]) -> int:
-    """At least as many as the Gaussians whose pairs span runs of tiles (tile_runs), from the pairs per tile alone.
-    Such a Gaussian spans the boundary before some run's first tile B: its tiles are a rectangle (isect.cl) holding
-    a tile before B and one at or past B, so its rows run from at most B - 1's row to at least B's, and it has a
-    pair in B - 1's row. The pairs in those rows, over the boundaries, bound them."""
-    row_pairs = (ranges[:, 1].astype(np.int64) - ranges[:, 0]).reshape(-1, tiles_x).sum(axis=1)
-    return int(sum(row_pairs[(t0 - 1) // tiles_x] for t0, *_ in runs[1:]))
 
 
 def tile_runs(ranges: np.ndarray, budget: int, min_tiles: int = 1) -> list[tuple[int, int, int, int]]:

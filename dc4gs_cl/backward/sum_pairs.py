@@ -37,17 +37,31 @@ class Carry(NamedTuple):
 
 
 class SumPairs(Stage):
-    FILE, KERNELS = "sum_pairs.cl", ("sum_pairs",)
+    FILE, KERNELS = "sum_pairs.cl", ("sum_pairs", "count_spanning")
 
-    def carry(self, n: int, layout: SumsLayout, rows: int) -> Carry:
-        """The carry of a view of n Gaussians with at most `rows` spanning runs (backward.rasterize_backward's
-        carry_bound; 0 for one run, whose carry is never read)."""
+    def variant(self, layout: SumsLayout, window: WindowFold | None) -> dict[str, cl.Kernel]:
+        """The kernels that sum these sums and fold them into this window (None: no fold)."""
+        fold = {"FOLD_WINDOW": int(window is not None), "GRADIENT_WIDTH": GRADIENTS.width,
+                **(window.defines() if window is not None else {})}
+        return self.kernels({**layout.defines(), **fold})
+
+    def carry(self, res: RenderResult, layout: SumsLayout, window: WindowFold, runs: list[tuple]) -> Carry:
+        """The carry of a view walked in these runs of tiles (backward.rasterize_backward.tile_runs), with a row
+        for each Gaussian whose pairs span runs (counted on the device and read back); one run needs none."""
+        rt, n = self.rt, res.proj.n
         taken = self.ws.get("backward.carry_taken", 4)
-        if not rows:
+        if len(runs) == 1 or not n:
             return Carry(taken, taken, taken)
-        self.rt.fill(taken, np.uint32(0), 4)
+        run_ends = self.ws.get("backward.run_ends", 4 * len(runs))
+        rt.write(run_ends, np.array([r[3] for r in runs], np.uint32))
+        rt.fill(taken, np.uint32(0), 4)
+        rt.launch_items("sum_pairs", self.variant(layout, window)["count_spanning"], n, PER_GAUSSIAN_WG,
+                        np.uint32(n), np.uint32(len(runs)), run_ends, res.proj.tiles_touched, res.isect.pair_first,
+                        res.isect.pair_of_emission, taken)
+        spanning = int(rt.to_host(taken, 1, np.uint32)[0])
+        rt.fill(taken, np.uint32(0), 4)
         return Carry(self.ws.get("backward.carry_slot", 4 * n), taken,
-                     self.ws.get("backward.carry_rows", 4 * layout.width * rows))
+                     self.ws.get("backward.carry_rows", 4 * layout.width * max(spanning, 1)))
 
     def __call__(self, res: RenderResult, layout: SumsLayout, pair_sums: cl.Buffer, pair0: int, pair_end: int,
                  split_geometry: cl.Buffer, sums: cl.Buffer, window: WindowFold | None = None,
@@ -58,12 +72,10 @@ class SumPairs(Stage):
         n = res.proj.n
         if not n:
             return
-        fold = {"FOLD_WINDOW": int(window is not None), "GRADIENT_WIDTH": GRADIENTS.width,
-                **(window.defines() if window is not None else {})}
-        kernel = self.kernels({**layout.defines(), **fold})["sum_pairs"]
         folding = [*window.fold_args(res), window.buffer, *carry] if window is not None else []
-        self.rt.launch_items("sum_pairs", kernel, n, PER_GAUSSIAN_WG, np.uint32(n), np.uint32(pair0),
-                             np.uint32(pair_end), np.int32(pair0 > 0), res.proj.tiles_touched, res.isect.pair_first,
-                             res.isect.pair_of_emission, pair_sums, split_geometry, *folding, sums)
+        self.rt.launch_items("sum_pairs", self.variant(layout, window)["sum_pairs"], n, PER_GAUSSIAN_WG,
+                             np.uint32(n), np.uint32(pair0), np.uint32(pair_end), np.int32(pair0 > 0),
+                             res.proj.tiles_touched, res.isect.pair_first, res.isect.pair_of_emission, pair_sums,
+                             split_geometry, *folding, sums)
         if window is not None and pair_end == res.isect.n_pairs:
             window.folded()

@@ -43,9 +43,9 @@ ALWAYS_INLINE void add_slots(const uint g, const uint pair0, const uint pair_end
 // [N*GRADIENT_WIDTH], the SUM record's first GRADIENT_WIDTH fields. A Gaussian is folded in the run holding its
 // last pair (one with no pair, in the first run); one whose pairs span runs carries its partial sums from run to
 // run in a carry row (SUM_WIDTH floats): carry_slot [N] names its row, taken in the run holding its first pair
-// (atomic_inc on carried [1], which the host zeroes for each view; carry holds as many rows as the host's bound on
-// Gaussians spanning runs). The rows are taken in any order; each Gaussian's sums still add its pairs in emission
-// order, so a frame gives the same window and gradients, bit for bit, in one run or in many (accumulate unused).
+// (atomic_inc on carried [1], which the host zeroes for each view; carry holds as many rows as count_spanning
+// counted). The rows are taken in any order; each Gaussian's sums still add its pairs in emission order, so a
+// frame gives the same window and gradients, bit for bit, in one run or in many (accumulate unused).
 __kernel UNPACKED_WORK_ITEMS
 void sum_pairs(const uint n, const uint pair0, const uint pair_end, const int accumulate,
                __global const uint *tiles_touched, __global const uint *pair_first,
@@ -78,7 +78,8 @@ void sum_pairs(const uint n, const uint pair0, const uint pair_end, const int ac
         add_slots(g, pair0, pair_end, tiles_touched, pair_first, pair_of_emission, pair_sums, split_geometry, acc);
     // The fold comes past a barrier, which makes it PoCL's own loop over the work-items: that vectorises, as
     // densify_stats does, where after the slots' loop of varying length it ran one Gaussian at a time (4.3 ms
-    // against 1.6 + 1.0 for sum_pairs and densify_stats, 48k Gaussians, DC4GS).
+    // against 1.6 + 1.0 for sum_pairs and densify_stats, 48k Gaussians, DC4GS). It then runs, masked, for every
+    // work-item in every run: the host folds here only in a few runs (Tuning.max_folded_runs).
     barrier(CLK_LOCAL_MEM_FENCE);
     if (g >= n) return;
     if (!ends) {                                  // more of its pairs in later runs: carry the partial sums
@@ -100,4 +101,25 @@ void sum_pairs(const uint n, const uint pair0, const uint pair_end, const int ac
     add_slots(g, pair0, pair_end, tiles_touched, pair_first, pair_of_emission, pair_sums, split_geometry, acc);
     for (int k = 0; k < SUM_WIDTH; ++k) sums[(size_t)g * SUM_WIDTH + k] = acc[k];
 #endif
+}
+
+// The Gaussians whose pairs lie in more than one run of tiles (the carry rows sum_pairs takes for a view walked in
+// runs), added onto spanning [1] (the host zeroes it). run_ends [runs]: each run's end pair, increasing. A
+// work-group counts its own first, so the global counter takes one atomic per group.
+__kernel void count_spanning(const uint n, const uint runs, __global const uint *run_ends,
+                             __global const uint *tiles_touched, __global const uint *pair_first,
+                             __global const uint *pair_of_emission, __global uint *spanning) {
+    __local uint group_spanning;
+    const uint g = get_global_id(0);
+    if (get_local_id(0) == 0) group_spanning = 0;
+    barrier(CLK_LOCAL_MEM_FENCE);
+    const uint count = g < n ? tiles_touched[g] : 0;
+    if (count) {
+        const uint first = pair_of_emission[pair_first[g]], last = pair_of_emission[pair_first[g] + count - 1];
+        int spans = 0;
+        for (uint r = 0; r + 1 < runs; ++r) spans |= (first < run_ends[r]) & (run_ends[r] <= last);
+        if (spans) atomic_inc(&group_spanning);
+    }
+    barrier(CLK_LOCAL_MEM_FENCE);
+    if (get_local_id(0) == 0 && group_spanning) atomic_add(spanning, group_spanning);
 }

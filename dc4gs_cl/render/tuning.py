@@ -24,6 +24,12 @@ class Tuning:
     # at 192x144 cost +20% of the backward; 4 runs of 90-476 tiles at 576x432, +1%)
     pair_chunk: float = 1.0
     min_run_tiles: int = 256
+    # backward with a densification window: sum_pairs folds the view into it (only Gaussians spanning runs keep sums
+    # between runs) in frames walked in at most this many runs; past that the full per-Gaussian sums and the
+    # window's own kernel, as its fold (vectorised past a barrier) runs for every Gaussian in every run (PoCL,
+    # AbsGS + DC4GS: 400k Gaussians at 576x432 in 3 runs, sum_pairs as fast and 1,480 -> 1,369 bytes per Gaussian;
+    # a million at 1280x720 in 7 runs, sum_pairs +27%)
+    max_folded_runs: int = 3
 
     @staticmethod
     def for_device(caps: Capabilities) -> "Tuning":
