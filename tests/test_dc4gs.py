@@ -121,8 +121,9 @@ def test_backward_in_runs_of_tiles_sums_exactly_as_in_one(rt, rng, shape):
     assert np.array_equal(got["runs"], got["one run"])
 
 
-def spanning_runs(rt, res, tuning, n: int) -> int:
-    """How many Gaussians have pairs in more than one of the frame's runs of tiles (from the isect arrays)."""
+def spanning_runs(rt, res, tuning, n: int) -> tuple[int, list]:
+    """How many Gaussians have pairs in more than one of the frame's runs of tiles (from the isect arrays), and
+    the runs."""
     ranges = rt.to_host(res.isect.ranges, (res.tiles_x * res.tiles_y, 2), np.uint32)
     runs = tile_runs(ranges, max(int(np.ceil(tuning.pair_chunk * n)), 1), tuning.min_run_tiles)
     touched = rt.to_host(res.proj.tiles_touched, n, np.uint32)
@@ -131,7 +132,7 @@ def spanning_runs(rt, res, tuning, n: int) -> int:
     run_ends = [r[3] for r in runs]
     first_run = np.searchsorted(run_ends, pair_of_emission[first], side="right")
     last_run = np.searchsorted(run_ends, pair_of_emission[first + touched[touched > 0] - 1], side="right")
-    return int((first_run != last_run).sum())
+    return int((first_run != last_run).sum()), runs
 
 
 @pytest.mark.parametrize("base", ["3dgs", "absgs", "pixelgs"])
@@ -146,7 +147,8 @@ def test_sum_pairs_folds_the_window_as_the_window_kernel_does(rt, rng, base, poo
     model = random_model(rng, 700, spread=1.0, scale_range=(0.01, 0.12))
     g = DeviceGaussians(rt, model)
     bg = rng.uniform(0, 1, 3)
-    paths = {"fused": SHAPES["cpu"], "runs": replace(SHAPES["cpu"], pair_chunk=0.1, min_run_tiles=1, max_folded_runs=10 ** 6),
+    paths = {"fused": SHAPES["cpu"],
+             "runs": replace(SHAPES["cpu"], pair_chunk=0.1, min_run_tiles=1, max_folded_runs=10 ** 6),
              "window kernel": SHAPES["cpu"]}
     renderers = {name: Renderer(rt, tuning, poison=True) for name, tuning in paths.items()}
     backwards = {name: RasterizeBackward(r.context) for name, r in renderers.items()}
@@ -170,9 +172,13 @@ def test_sum_pairs_folds_the_window_as_the_window_kernel_does(rt, rng, base, poo
             if name == "runs":                   # a row for each Gaussian spanning runs, each taken once
                 ws = renderers[name].context.ws
                 carried = rt.to_host(ws.get("backward.carry_taken", 4), 1, np.uint32)[0]
-                spanning = spanning_runs(rt, res, paths["runs"], len(model))
-                assert carried == spanning > 10
+                spanning, runs = spanning_runs(rt, res, paths["runs"], len(model))
+                assert carried == spanning > 10 and len(runs) >= 4
                 assert ws.get("backward.carry_rows", 4).size >= 4 * gathering.layout.width * spanning
+                # count_spanning against the host's count, on a counter poisoned first
+                rt.fill(ws.get("backward.carry_taken", 4), np.uint32(0xFFFFFFFF), 4)
+                assert backwards[name].sum_pairs.count_spanning(res, gathering.layout, gathering.window,
+                                                                runs) == spanning
             grads[name] = rt.to_host(sums, (len(model), layout.width))[:, :GRADIENTS.width]
         assert np.isfinite(grads["fused"]).all() and np.count_nonzero(grads["fused"]) > 1000
         assert np.array_equal(grads["fused"], grads["window kernel"]) and np.array_equal(grads["runs"], grads["fused"])

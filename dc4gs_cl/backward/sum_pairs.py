@@ -45,23 +45,29 @@ class SumPairs(Stage):
                 **(window.defines() if window is not None else {})}
         return self.kernels({**layout.defines(), **fold})
 
+    def count_spanning(self, res: RenderResult, layout: SumsLayout, window: WindowFold, runs: list[tuple]) -> int:
+        """How many Gaussians have pairs in more than one of these runs of tiles (counted on the device, read back)."""
+        rt, n = self.rt, res.proj.n
+        spanning = self.ws.get("backward.carry_taken", 4)
+        run_ends = self.ws.get("backward.run_ends", 4 * len(runs))
+        rt.write(run_ends, np.array([r[3] for r in runs], np.uint32))
+        rt.fill(spanning, np.uint32(0), 4)
+        rt.launch_items("sum_pairs", self.variant(layout, window)["count_spanning"], n, PER_GAUSSIAN_WG,
+                        np.uint32(n), np.uint32(len(runs)), run_ends, res.proj.tiles_touched, res.isect.pair_first,
+                        res.isect.pair_of_emission, spanning)
+        return int(rt.to_host(spanning, 1, np.uint32)[0])
+
     def carry(self, res: RenderResult, layout: SumsLayout, window: WindowFold, runs: list[tuple]) -> Carry:
         """The carry of a view walked in these runs of tiles (backward.rasterize_backward.tile_runs), with a row
-        for each Gaussian whose pairs span runs (counted on the device and read back); one run needs none."""
-        rt, n = self.rt, res.proj.n
+        for each Gaussian whose pairs span runs; one run needs none."""
+        n = res.proj.n
         taken = self.ws.get("backward.carry_taken", 4)
         if len(runs) == 1 or not n:
             return Carry(taken, taken, taken)
-        run_ends = self.ws.get("backward.run_ends", 4 * len(runs))
-        rt.write(run_ends, np.array([r[3] for r in runs], np.uint32))
-        rt.fill(taken, np.uint32(0), 4)
-        rt.launch_items("sum_pairs", self.variant(layout, window)["count_spanning"], n, PER_GAUSSIAN_WG,
-                        np.uint32(n), np.uint32(len(runs)), run_ends, res.proj.tiles_touched, res.isect.pair_first,
-                        res.isect.pair_of_emission, taken)
-        spanning = int(rt.to_host(taken, 1, np.uint32)[0])
-        rt.fill(taken, np.uint32(0), 4)
+        rows = self.count_spanning(res, layout, window, runs)
+        self.rt.fill(taken, np.uint32(0), 4)
         return Carry(self.ws.get("backward.carry_slot", 4 * n), taken,
-                     self.ws.get("backward.carry_rows", 4 * layout.width * max(spanning, 1)))
+                     self.ws.get("backward.carry_rows", 4 * layout.width * max(rows, 1)))
 
     def __call__(self, res: RenderResult, layout: SumsLayout, pair_sums: cl.Buffer, pair0: int, pair_end: int,
                  split_geometry: cl.Buffer, sums: cl.Buffer, window: WindowFold | None = None,
