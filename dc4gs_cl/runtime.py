@@ -207,6 +207,7 @@ class Capabilities:
                                # kernels/common.h), this is reported by `dc4gs-cl devices`
     fp64: bool
     loop_limit: int | None = None   # a driver defect: see LOOP_LIMITED_DRIVERS
+    platform: str = ""              # the OpenCL platform's name: some shapes suit one implementation's compiler
 
     @staticmethod
     def of(device: cl.Device) -> "Capabilities":
@@ -219,6 +220,7 @@ class Capabilities:
             float_atomic_add="cl_ext_float_atomics" in ext,
             fp64="cl_khr_fp64" in ext,
             loop_limit=loop_limit(device),
+            platform=device.platform.name,
         )
 
     def summary(self) -> str:

@@ -100,7 +100,8 @@ def test_split_line_follows_the_first_largest_log_scale(rt, rng):
 def test_backward_in_runs_of_tiles_sums_exactly_as_in_one(rt, rng, shape):
     """The per-pair slots held at once bounded (Tuning.pair_chunk): the frame's tiles are walked in runs, each
     run's slots summed onto the sums; a Gaussian's pairs are added in the same order, so the sums (gradients,
-    statistics and split sums, the widest layout) equal the one-run backward's bit for bit."""
+    statistics and split sums, the widest layout) equal the one-run backward's bit for bit. So do the split sums
+    added per column block after its pixels' walk (Tuning.split_sums_per_block): the same adds in the same order."""
     model = random_model(rng, 900, spread=1.0, scale_range=(0.01, 0.12))
     cam = random_camera(rng, int(rng.integers(80, 130)), int(rng.integers(60, 100)))
     bg = rng.uniform(0, 1, 3)
@@ -108,7 +109,8 @@ def test_backward_in_runs_of_tiles_sums_exactly_as_in_one(rt, rng, shape):
     layout = SumsLayout(stats=True, dc_stats=True, split_candidates=5)
     got = {}
     for name, tuning in (("one run", SHAPES[shape]),
-                         ("runs", replace(SHAPES[shape], pair_chunk=0.1, min_run_tiles=1))):
+                         ("runs", replace(SHAPES[shape], pair_chunk=0.1, min_run_tiles=1)),
+                         ("per block", replace(SHAPES[shape], split_sums_per_block=True))):
         renderer = Renderer(rt, tuning, poison=True)
         g = DeviceGaussians(rt, model)
         res = renderer.render(g, cam, 3, bg)
@@ -118,7 +120,7 @@ def test_backward_in_runs_of_tiles_sums_exactly_as_in_one(rt, rng, shape):
         ranges = rt.to_host(res.isect.ranges, (res.tiles_x * res.tiles_y, 2), np.uint32)
     assert len(tile_runs(ranges, max(int(np.ceil(0.1 * len(model))), 1))) >= 4
     assert np.isfinite(got["runs"]).all() and np.count_nonzero(got["runs"][:, -5:]) > 100
-    assert np.array_equal(got["runs"], got["one run"])
+    assert np.array_equal(got["runs"], got["one run"]) and np.array_equal(got["per block"], got["one run"])
 
 
 def spanning_runs(rt, res, tuning, n: int) -> tuple[int, list]:

@@ -48,15 +48,20 @@ inline int4 reach(float2 mean, float2 extent, int x0, int y0) {
 // Between FOR_PIXELS_IN_REACH and END_PIXELS_IN_REACH: p is the pixel's index in the item's arrays, cc its
 // column lane, dx, dy its offset from the mean m (px[p], py[p]: the pixel's centre), power the Gaussian's
 // exponent there (conic co). The body may hold #if lines, which a macro argument could not.
-#define FOR_PIXELS_IN_REACH(m, co, span, row0, col0, px, py)                                   \
+#define FOR_BLOCKS_IN_REACH(span, row0, col0)                                                  \
     for (int rr = 0; rr < ROWS_PER_ITEM; ++rr) {                                                \
         if ((row0) + rr < (span).z || (row0) + rr > (span).w) continue;                         \
         for (int c0 = 0; c0 < COLS_PER_ITEM; c0 += COL_BLOCK) {                                 \
-            if ((col0) + c0 + COL_BLOCK - 1 < (span).x || (col0) + c0 > (span).y) continue;    \
+            if ((col0) + c0 + COL_BLOCK - 1 < (span).x || (col0) + c0 > (span).y) continue;
+#define FOR_PIXELS_IN_BLOCK(m, co, px, py)                                                      \
             for (int cc = c0; cc < c0 + COL_BLOCK; ++cc) {                                      \
                 const int p = rr * COLS_PER_ITEM + cc;                                          \
                 const float dx = (px)[p] - (m).x, dy = (py)[p] - (m).y;                         \
                 const float power = gaussian_power((co), dx, dy);
-#define END_PIXELS_IN_REACH } } }
+#define END_PIXELS_IN_BLOCK }
+#define END_BLOCKS_IN_REACH } }
+#define FOR_PIXELS_IN_REACH(m, co, span, row0, col0, px, py)                                   \
+    FOR_BLOCKS_IN_REACH(span, row0, col0) FOR_PIXELS_IN_BLOCK(m, co, px, py)
+#define END_PIXELS_IN_REACH END_PIXELS_IN_BLOCK END_BLOCKS_IN_REACH
 
 #endif

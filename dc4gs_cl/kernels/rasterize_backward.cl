@@ -24,7 +24,8 @@
 //         SUM_DC     +0,1,2 sum of g/|g| and the count, |g| > 0     (-D DC_STATS)
 //         SUM_SPLIT  +5k+0..4 for split candidate k: the same five sums (u_x, u_y, count, |g_x|, |g_y|)
 //                    over the pixels left of it (-D SPLIT_CANDIDATES = N > 0; split_geometry [N*GEO_WIDTH]
-//                    from split_geometry.cl, the GEO record, says where the candidates fall)
+//                    from split_geometry.cl, the GEO record, says where the candidates fall); -D
+//                    SPLIT_SUMS_PER_BLOCK=1 adds them per column block after its pixels (Tuning.split_sums_per_block)
 // Per pair, each work-item sums its pixels' terms privately; the sums reach `sums` once per (tile,
 // Gaussian) pair (-D ITEMS_PER_TILE > 1 first combines the items' partial sums in local memory).
 
@@ -35,6 +36,26 @@ REQUIRE_DEFINED(DC_STATS);
 REQUIRE_DEFINED(SPLIT_CANDIDATES);
 REQUIRE_DEFINED(PAIR_SUMS);
 REQUIRE_DEFINED(PIXEL_MASK);
+REQUIRE_DEFINED(SPLIT_SUMS_PER_BLOCK);
+
+// A column block's values as one vector (floatB), for the split sums' explicit vector adds.
+#if COL_BLOCK == 8
+typedef float8 floatB;
+#define LOADB(a) vload8(0, a)
+#define STOREB(v, a) vstore8(v, 0, a)
+#elif COL_BLOCK == 4
+typedef float4 floatB;
+#define LOADB(a) vload4(0, a)
+#define STOREB(v, a) vstore4(v, 0, a)
+#elif COL_BLOCK == 2
+typedef float2 floatB;
+#define LOADB(a) vload2(0, a)
+#define STOREB(v, a) vstore2(v, 0, a)
+#else
+typedef float floatB;
+#define LOADB(a) ((a)[0])
+#define STOREB(v, a) ((a)[0] = (v))
+#endif
 
 // One pair: this work-item's pixels within the Gaussian's reach, walked back past the Gaussian; its terms
 // summed per lane of a column block into lanes. with_split, a constant at each call, adds the split terms:
@@ -46,7 +67,11 @@ ALWAYS_INLINE void backward_pair(const float2 m, const float4 co, const float3 c
                                  const float *px, const float *py, const float *dr, const float *dg, const float *db,
                                  const float *bg_term, const int *last, float *T, float *behind,
                                  float lanes[][COL_BLOCK]) {
-    FOR_PIXELS_IN_REACH(m, co, span, row0, col0, px, py)
+    FOR_BLOCKS_IN_REACH(span, row0, col0)
+#if SPLIT_CANDIDATES && SPLIT_SUMS_PER_BLOCK
+    float sv[6][COL_BLOCK];          // the block's pixels: t along the candidate line, then the five split terms
+#endif
+    FOR_PIXELS_IN_BLOCK(m, co, px, py)
         float G = exp_nonpositive(power);
         float oG = co.w * G;
         float alpha = MINF(ALPHA_MAX, oG);
@@ -88,6 +113,10 @@ ALWAYS_INLINE void backward_pair(const float2 m, const float4 co, const float3 c
         float t_q = (px[p] - line.x) * line.z + (py[p] - line.y) * line.w;
         float has_g = g2 > 0.f ? 1.f : 0.f;
         float ux = gx * inv, uy = gy * inv, ax = ABSF(gx), ay = ABSF(gy);
+#if SPLIT_SUMS_PER_BLOCK
+        sv[0][cc - c0] = t_q; sv[1][cc - c0] = has_g * ux; sv[2][cc - c0] = has_g * uy; sv[3][cc - c0] = has_g;
+        sv[4][cc - c0] = has_g * ax; sv[5][cc - c0] = has_g * ay;
+#else
         // Fully unrolled: a loop here keeps the compiler from vectorising the pixel loop (11x slower).
         #pragma unroll
         for (int k = 0; k < SPLIT_CANDIDATES; ++k) {
@@ -98,13 +127,28 @@ ALWAYS_INLINE void backward_pair(const float2 m, const float4 co, const float3 c
             lanes[SUM_SPLIT + 5 * k + 3][cc - c0] += left * ax;
             lanes[SUM_SPLIT + 5 * k + 4][cc - c0] += left * ay;
         }
+#endif
         }
 #endif
 #endif
 #endif
         T[p] = t;
         behind[p] += blend ? w * c_dot : 0.f;
-    END_PIXELS_IN_REACH
+    END_PIXELS_IN_BLOCK
+#if SPLIT_CANDIDATES && SPLIT_SUMS_PER_BLOCK
+    if (with_split) {      // the block's split terms, in explicit vector adds (Tuning.split_sums_per_block)
+        const floatB t_q = LOADB(sv[0]), zero = (floatB)(0.f);
+        #pragma unroll
+        for (int k = 0; k < SPLIT_CANDIDATES; ++k) {
+            #pragma unroll
+            for (int v = 0; v < 5; ++v) {
+                float *lane = lanes[SUM_SPLIT + 5 * k + v];
+                STOREB(LOADB(lane) + (t_q < tk[k] ? LOADB(sv[1 + v]) : zero), lane);
+            }
+        }
+    }
+#endif
+    END_BLOCKS_IN_REACH
 }
 
 // A sum's COL_BLOCK lanes added pairwise, halves at a time, in vector adds: added lane by lane, once per sum and

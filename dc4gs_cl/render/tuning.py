@@ -7,6 +7,9 @@ from dataclasses import dataclass, replace
 from ..constants import TILE_SIZE
 from ..runtime import Capabilities
 
+# CPU implementations whose compiler wants the split sums added per column block (Tuning.split_sums_per_block).
+SPLIT_SUMS_PER_BLOCK = ("intel(r) opencl",)
+
 
 @dataclass(frozen=True)
 class Tuning:
@@ -30,6 +33,11 @@ class Tuning:
     # AbsGS + DC4GS: 400k Gaussians at 576x432 in 3 runs, sum_pairs as fast and 1,480 -> 1,369 bytes per Gaussian;
     # a million at 1280x720 in 7 runs, sum_pairs +27%)
     max_folded_runs: int = 3
+    # backward with DC4GS' split sums: a column block's 25 split terms added after its pixels' walk, in explicit
+    # vector adds, instead of inside the walk (exact: the same adds in the same order). Intel's CPU runtime
+    # compiles the walk with them inside 7x slower than without (AVX2, 48k Gaussians, 192x144: 99.8 against 14.4
+    # ms), per block 26.8; PoCL vectorises the walk either way and is faster with them inside (38.8 against 59.7).
+    split_sums_per_block: bool = False
 
     @staticmethod
     def for_device(caps: Capabilities) -> "Tuning":
@@ -37,8 +45,10 @@ class Tuning:
             # One work-item per tile vectorises across the tile's pixels; sequential runs for the
             # sort and scan keep each core streaming through memory.
             cores = max(1, caps.compute_units)
+            per_block = any(name in caps.platform.lower() for name in SPLIT_SUMS_PER_BLOCK)
             return Tuning(pixels_per_item=256, batch=32, radix_bits=8, sort_blocks=4 * cores,
-                          scan_wg=1, scan_groups=4 * cores, isect_wg=64).within(caps)
+                          scan_wg=1, scan_groups=4 * cores, isect_wg=64,
+                          split_sums_per_block=per_block).within(caps)
         # GPUs, and drivers that cut a work-item's loops short (Capabilities.loop_limit): one pixel, and short
         # runs of keys and of scan elements, per work-item.
         return Tuning(pixels_per_item=1, batch=256, radix_bits=4, sort_blocks=4096,
