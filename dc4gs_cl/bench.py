@@ -255,7 +255,7 @@ def accuracy(rt: Runtime, suite: Suite) -> list[dict]:
     rows.append({"stage": "loss", "quantity": "dL/dimage", "rel_l2": rel_l2(rt.to_host(dL_dimage, image.shape),
                                                                              loss_reference.loss_gradient(x, target))})
 
-    undecided = undecided_pixels(p["mean2d"], p["conic"], p["opacity"], gop, ranges, w, h, tiles_x)
+    undecided = undecided_pixels(p["mean2d"], p["conic"], p["opacity"], p["depth"], gop, ranges, w, h, tiles_x)
     grad_image = rng.normal(size=image.shape).astype(np.float32)
     grad_image[undecided] = 0.0
     sums = RasterizeBackward(renderer.context)(res, rt.to_device(grad_image), bg, GRADIENTS)

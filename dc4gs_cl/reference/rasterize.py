@@ -136,10 +136,13 @@ def rasterize_backward_reference(mean2d, conic, opacity, rgb, gaussian_of_pair, 
     return out
 
 
-def undecided_pixels(mean2d, conic, opacity, gaussian_of_pair, ranges, width, height, tiles_x, margin=1e-3):
+def undecided_pixels(mean2d, conic, opacity, depth, gaussian_of_pair, ranges, width, height, tiles_x, margin=1e-3,
+                     depth_margin=1e-6):
     """(height, width) mask of the pixels where float32 and float64 can decide a blend differently: some pair
     within a relative `margin` of the 1/255 alpha cut-off or the alpha clamp, or transmittance within it of
-    the stop threshold. A flipped decision there moves whole pixels' worth of gradient, not rounding."""
+    the stop threshold. A flipped decision there moves whole pixels' worth of gradient, not rounding. So does a
+    flipped order: the pixels that two Gaussians next in a tile's list and within a relative `depth_margin` in
+    depth (about 8 float32 ulps) may both blend, as float32 may sort them the other way."""
     out = np.zeros((height, width), bool)
     near = lambda x, t: np.abs(x - t) < margin * t
     for tile, (first, end) in enumerate(np.asarray(ranges)):
@@ -147,8 +150,13 @@ def undecided_pixels(mean2d, conic, opacity, gaussian_of_pair, ranges, width, he
         ys, xs = np.mgrid[y0:min(y0 + K.TILE_SIZE, height), x0:min(x0 + K.TILE_SIZE, width)]
         if end <= first or not ys.size:
             continue
-        _, _, oG, alpha, blend, t_before = _tile_blend(mean2d, conic, opacity, gaussian_of_pair[first:end], xs, ys)
+        g = gaussian_of_pair[first:end]
+        _, _, oG, alpha, blend, t_before = _tile_blend(mean2d, conic, opacity, g, xs, ys)
         ambiguous = near(oG, K.ALPHA_MIN) | near(oG, K.ALPHA_MAX) | (blend & near(t_before * (1 - alpha),
                                                                                  K.TRANSMITTANCE_MIN))
+        d = np.asarray(depth)[g]                     # front to back
+        may_blend = oG >= K.ALPHA_MIN * (1 - margin)
+        for j in np.flatnonzero(np.abs(np.diff(d)) < depth_margin * np.abs(d[1:])):
+            ambiguous[:, j] |= may_blend[:, j] & may_blend[:, j + 1]
         out[ys.ravel(), xs.ravel()] = ambiguous.any(axis=1)
     return out
