@@ -123,9 +123,9 @@ def test_backward_in_runs_of_tiles_sums_exactly_as_in_one(rt, rng, shape):
     assert np.array_equal(got["runs"], got["one run"]) and np.array_equal(got["per block"], got["one run"])
 
 
-def spanning_runs(rt, res, tuning, n: int) -> tuple[int, list]:
-    """How many Gaussians have pairs in more than one of the frame's runs of tiles (from the isect arrays), and
-    the runs."""
+def spanning_runs(rt, res, tuning, n: int) -> tuple[int, list, list]:
+    """From the isect arrays: how many Gaussians have pairs in more than one of the frame's runs of tiles, the
+    runs, and each run's Gaussians (those whose first and last pairs' runs enclose it)."""
     ranges = rt.to_host(res.isect.ranges, (res.tiles_x * res.tiles_y, 2), np.uint32)
     runs = tile_runs(ranges, max(int(np.ceil(tuning.pair_chunk * n)), 1), tuning.min_run_tiles)
     touched = rt.to_host(res.proj.tiles_touched, n, np.uint32)
@@ -134,7 +134,9 @@ def spanning_runs(rt, res, tuning, n: int) -> tuple[int, list]:
     run_ends = [r[3] for r in runs]
     first_run = np.searchsorted(run_ends, pair_of_emission[first], side="right")
     last_run = np.searchsorted(run_ends, pair_of_emission[first + touched[touched > 0] - 1], side="right")
-    return int((first_run != last_run).sum()), runs
+    ids = np.flatnonzero(touched > 0)
+    members = [ids[(first_run <= r) & (r <= last_run)] for r in range(len(runs))]
+    return int((first_run != last_run).sum()), runs, members
 
 
 @pytest.mark.parametrize("base", ["3dgs", "absgs", "pixelgs"])
@@ -174,13 +176,17 @@ def test_sum_pairs_folds_the_window_as_the_window_kernel_does(rt, rng, base, poo
             if name == "runs":                   # a row for each Gaussian spanning runs, each taken once
                 ws = renderers[name].context.ws
                 carried = rt.to_host(ws.get("backward.carry_taken", 4), 1, np.uint32)[0]
-                spanning, runs = spanning_runs(rt, res, paths["runs"], len(model))
+                spanning, runs, members = spanning_runs(rt, res, paths["runs"], len(model))
                 assert carried == spanning > 10 and len(runs) >= 4
                 assert ws.get("backward.carry_rows", 4).size >= 4 * gathering.layout.width * spanning
-                # count_spanning against the host's count, on a counter poisoned first
+                # run_spans and each run's members against the host's, on a counter and a list poisoned first
+                stage = backwards[name].sum_pairs
                 rt.fill(ws.get("backward.carry_taken", 4), np.uint32(0xFFFFFFFF), 4)
-                assert backwards[name].sum_pairs.count_spanning(res, gathering.layout, gathering.window,
-                                                                runs) == spanning
+                assert stage.run_spans(res, gathering.layout, gathering.window, runs) == spanning
+                for run in range(1, len(runs)):
+                    rt.fill(ws.get("backward.run_members", 4), np.uint32(0xFFFFFFFF), 4 * len(model))
+                    listed = stage.members(res, gathering.layout, gathering.window, run)
+                    assert np.array_equal(np.sort(rt.to_host(listed.ids, listed.count, np.uint32)), members[run])
             grads[name] = rt.to_host(sums, (len(model), layout.width))[:, :GRADIENTS.width]
         assert np.isfinite(grads["fused"]).all() and np.count_nonzero(grads["fused"]) > 1000
         assert np.array_equal(grads["fused"], grads["window kernel"]) and np.array_equal(grads["runs"], grads["fused"])

@@ -64,18 +64,24 @@ class RasterizeBackward(Stage):
         else:
             target = sums
             rt.fill(sums, np.float32(0), 4 * layout.width * n)
-        carry = self.sum_pairs.carry(res, layout, window, runs) if fused else None
+        fold = window if fused else None
+        # Past the first run, sum_pairs covers only the Gaussians with a pair in the run (members).
+        spanning = self.sum_pairs.run_spans(res, layout, fold, runs) if len(runs) > 1 and n else 0
+        carry = self.sum_pairs.carry(layout, n, spanning) if fused else None
+        if carry is not None:
+            rt.fill(carry.taken, np.uint32(0), 4)
         k = self.fitted_kernels({**layout.defines(), "PIXEL_MASK": int(keep is not None)})
         items = TILE_SIZE * TILE_SIZE // tuning.pixels_per_item
         split_geometry = geometry if geometry is not None else sums
-        for t0, t1, p0, p1 in runs:
+        for run, (t0, t1, p0, p1) in enumerate(runs):
             rt.launch("rasterize_backward", k["rasterize_backward"], (t1 - t0) * items, items,
                       np.int32(res.width), np.int32(res.height), np.int32(res.tiles_x), np.int32(t0), np.uint32(p0),
                       background_value(background), res.isect.ranges, res.isect.gaussian_of_pair, res.proj.mean2d,
                       res.proj.conic_opacity, res.proj.rgb, res.proj.alpha_extent, res.raster.final_T,
                       res.raster.last_pair, dL_dimage, split_geometry, *([keep] if keep is not None else []), target)
             if tuning.pair_sums:
-                self.sum_pairs(res, layout, target, p0, p1, split_geometry, sums, window if fused else None, carry)
+                members = self.sum_pairs.members(res, layout, fold, run) if run else None
+                self.sum_pairs(res, layout, target, p0, p1, split_geometry, sums, fold, carry, members)
         self.check(lambda: {"sums": visible_rows(rt, sums, rt.to_host(res.proj.radius, n, np.int32),
                                                  out_layout.width)})
         if window is not None and not fused:

@@ -36,8 +36,15 @@ class Carry(NamedTuple):
     rows: cl.Buffer      # [rows * SUM_WIDTH] float
 
 
+class Members(NamedTuple):
+    """The Gaussians with a pair in one run of tiles (past the first) of a view walked in runs: sum_pairs covers
+    these alone, where each run would otherwise look at every Gaussian (kernels/sum_pairs.cl, run_members)."""
+    ids: cl.Buffer       # [count] uint
+    count: int
+
+
 class SumPairs(Stage):
-    FILE, KERNELS = "sum_pairs.cl", ("sum_pairs", "count_spanning")
+    FILE, KERNELS = "sum_pairs.cl", ("sum_pairs", "run_spans", "run_members")
 
     def variant(self, layout: SumsLayout, window: WindowFold | None) -> dict[str, cl.Kernel]:
         """The kernels that sum these sums and fold them into this window (None: no fold)."""
@@ -45,43 +52,56 @@ class SumPairs(Stage):
                 **(window.defines() if window is not None else {})}
         return self.kernels({**layout.defines(), **fold})
 
-    def count_spanning(self, res: RenderResult, layout: SumsLayout, window: WindowFold, runs: list[tuple]) -> int:
-        """How many Gaussians have pairs in more than one of these runs of tiles (counted on the device, read back)."""
+    def run_spans(self, res: RenderResult, layout: SumsLayout, window: WindowFold | None, runs: list[tuple]) -> int:
+        """Each Gaussian's first and last run of these runs of tiles (backward.rasterize_backward.tile_runs), kept
+        on the device for members(); how many Gaussians have pairs in more than one run (read back). (layout and
+        window: the variant whose program holds the kernel.)"""
         rt, n = self.rt, res.proj.n
+        if len(runs) >= 1 << 16:
+            raise ValueError(f"{len(runs)} runs of tiles: a Gaussian's runs are kept in 16 bits each")
         spanning = self.ws.get("backward.carry_taken", 4)
         run_ends = self.ws.get("backward.run_ends", 4 * len(runs))
         rt.write(run_ends, np.array([r[3] for r in runs], np.uint32))
         rt.fill(spanning, np.uint32(0), 4)
-        rt.launch_items("sum_pairs", self.variant(layout, window)["count_spanning"], n, PER_GAUSSIAN_WG,
-                        np.uint32(n), np.uint32(len(runs)), run_ends, res.proj.tiles_touched, res.isect.pair_first,
-                        res.isect.pair_of_emission, spanning)
+        rt.launch_items("sum_pairs", self.variant(layout, window)["run_spans"], n, PER_GAUSSIAN_WG, np.uint32(n),
+                        np.uint32(len(runs)), run_ends, res.proj.tiles_touched, res.isect.pair_first,
+                        res.isect.pair_of_emission, self.ws.get("backward.run_spans", 4 * max(n, 1)), spanning)
         return int(rt.to_host(spanning, 1, np.uint32)[0])
 
-    def carry(self, res: RenderResult, layout: SumsLayout, window: WindowFold, runs: list[tuple]) -> Carry:
-        """The carry of a view walked in these runs of tiles (backward.rasterize_backward.tile_runs), with a row
-        for each Gaussian whose pairs span runs; one run needs none."""
-        n = res.proj.n
+    def members(self, res: RenderResult, layout: SumsLayout, window: WindowFold | None, run: int) -> Members:
+        """The Gaussians with a pair in run `run`, from the last run_spans (listed on the device, counted back)."""
+        rt, n = self.rt, res.proj.n
+        ids, count = self.ws.get("backward.run_members", 4 * max(n, 1)), self.ws.get("backward.run_count", 4)
+        rt.fill(count, np.uint32(0), 4)
+        rt.launch_items("sum_pairs", self.variant(layout, window)["run_members"], n, PER_GAUSSIAN_WG, np.uint32(n),
+                        np.uint32(run),
+                        self.ws.get("backward.run_spans", 4 * max(n, 1)), ids, count)
+        return Members(ids, int(rt.to_host(count, 1, np.uint32)[0]))
+
+    def carry(self, layout: SumsLayout, n: int, spanning: int) -> Carry:
+        """The carry of a view walked in runs of tiles, with a row for each of the `spanning` Gaussians whose pairs
+        span runs (run_spans); with none (one run), sum_pairs touches no carry."""
         taken = self.ws.get("backward.carry_taken", 4)
-        if len(runs) == 1 or not n:
+        if not spanning:
             return Carry(taken, taken, taken)
-        rows = self.count_spanning(res, layout, window, runs)
-        self.rt.fill(taken, np.uint32(0), 4)
-        return Carry(self.ws.get("backward.carry_slot", 4 * n), taken,
-                     self.ws.get("backward.carry_rows", 4 * layout.width * max(rows, 1)))
+        return Carry(self.ws.get("backward.carry_slot", 4 * max(n, 1)), self.ws.get("backward.carry_taken", 4),
+                     self.ws.get("backward.carry_rows", 4 * layout.width * max(spanning, 1)))
 
     def __call__(self, res: RenderResult, layout: SumsLayout, pair_sums: cl.Buffer, pair0: int, pair_end: int,
                  split_geometry: cl.Buffer, sums: cl.Buffer, window: WindowFold | None = None,
-                 carry: Carry | None = None) -> None:
+                 carry: Carry | None = None, members: Members | None = None) -> None:
         """Add the slots of pairs pair0 .. pair_end - 1 onto sums (N x layout.width; written, not added to, when
-        pair0 is 0). window (with the view's carry): fold the view into it, each Gaussian in the run holding its
-        last pair; sums are then N x GRADIENTS.width."""
+        pair0 is 0), for the Gaussians of `members` only where given (a run past the first). window (with the
+        view's carry, its taken count zeroed): fold the view into it, each Gaussian in the run holding its last
+        pair; sums are then N x GRADIENTS.width."""
         n = res.proj.n
-        if not n:
-            return
-        folding = [*window.fold_args(res), window.buffer, *carry] if window is not None else []
-        self.rt.launch_items("sum_pairs", self.variant(layout, window)["sum_pairs"], n, PER_GAUSSIAN_WG,
-                             np.uint32(n), np.uint32(pair0), np.uint32(pair_end), np.int32(pair0 > 0),
-                             res.proj.tiles_touched, res.isect.pair_first, res.isect.pair_of_emission, pair_sums,
-                             split_geometry, *folding, sums)
+        items = members.count if members is not None else n
+        if items:
+            folding = [*window.fold_args(res), window.buffer, *carry] if window is not None else []
+            listed = [np.int32(members is not None), np.uint32(items), members.ids if members is not None else sums]
+            self.rt.launch_items("sum_pairs", self.variant(layout, window)["sum_pairs"], items, PER_GAUSSIAN_WG,
+                                 np.uint32(n), np.uint32(pair0), np.uint32(pair_end), np.int32(pair0 > 0), *listed,
+                                 res.proj.tiles_touched, res.isect.pair_first, res.isect.pair_of_emission, pair_sums,
+                                 split_geometry, *folding, sums)
         if window is not None and pair_end == res.isect.n_pairs:
             window.folded()

@@ -38,16 +38,19 @@ ALWAYS_INLINE void add_slots(const uint g, const uint pair0, const uint pair_end
 //   in  tiles_touched [N], pair_first [N], pair_of_emission [P]: from isect.cl;
 //       pair_sums [(pair_end - pair0)*SUM_WIDTH]; split_geometry [N*GEO_WIDTH] with SPLIT_CANDIDATES
 //   out sums [N*SUM_WIDTH] (in and out with accumulate)
+// listed = 1: the launch covers only the Gaussians with a pair in this run (run past the first), work-item i
+// taking members [i] for i < count (run_members); otherwise work-item g takes Gaussian g of all n.
 // -D FOLD_WINDOW=1: each Gaussian's sums are folded into the densification window here (window_fold.h; the
 // window's arguments and -D options as densify_stats.cl's), and only the gradients reach memory: sums
 // [N*GRADIENT_WIDTH], the SUM record's first GRADIENT_WIDTH fields. A Gaussian is folded in the run holding its
 // last pair (one with no pair, in the first run); one whose pairs span runs carries its partial sums from run to
 // run in a carry row (SUM_WIDTH floats): carry_slot [N] names its row, taken in the run holding its first pair
-// (atomic_inc on carried [1], which the host zeroes for each view; carry holds as many rows as count_spanning
+// (atomic_inc on carried [1], which the host zeroes for each view; carry holds as many rows as run_spans
 // counted). The rows are taken in any order; each Gaussian's sums still add its pairs in emission order, so a
 // frame gives the same window and gradients, bit for bit, in one run or in many (accumulate unused).
 __kernel UNPACKED_WORK_ITEMS
 void sum_pairs(const uint n, const uint pair0, const uint pair_end, const int accumulate,
+               const int listed, const uint count_listed, __global const uint *members,
                __global const uint *tiles_touched, __global const uint *pair_first,
                __global const uint *pair_of_emission, __global const float *pair_sums,
                __global const float *split_geometry,
@@ -57,7 +60,8 @@ void sum_pairs(const uint n, const uint pair0, const uint pair_end, const int ac
                __global uint *carry_slot, __global uint *carried, __global float *carry,
 #endif
                __global float *sums) {
-    const uint g = get_global_id(0);
+    const uint item = get_global_id(0);
+    const uint g = !listed ? item : item < count_listed ? members[item] : n;     // n: no Gaussian
     float acc[SUM_WIDTH];
 #if FOLD_WINDOW
     // Where this run holds the Gaussian's first and last pair (pairs increase with emissions); a frame walked in
@@ -103,23 +107,58 @@ void sum_pairs(const uint n, const uint pair0, const uint pair_end, const int ac
 #endif
 }
 
-// The Gaussians whose pairs lie in more than one run of tiles (the carry rows sum_pairs takes for a view walked in
-// runs), added onto spanning [1] (the host zeroes it). run_ends [runs]: each run's end pair, increasing. A
-// work-group counts its own first, so the global counter takes one atomic per group.
-__kernel void count_spanning(const uint n, const uint runs, __global const uint *run_ends,
-                             __global const uint *tiles_touched, __global const uint *pair_first,
-                             __global const uint *pair_of_emission, __global uint *spanning) {
+// Each Gaussian's runs of tiles (a view walked in runs): spans [n], the first run holding one of its pairs in the
+// high 16 bits and the last in the low 16 (RUN_SPAN_NONE for a Gaussian with no pair), and the Gaussians whose pairs
+// lie in more than one run (the carry rows sum_pairs takes with a window) added onto spanning [1] (the host zeroes
+// it). run_ends [runs]: each run's end pair, increasing. A work-group counts its own first, so the global counter
+// takes one atomic per group.
+#define RUN_SPAN_NONE 0xFFFF0000u
+
+// The run holding pair q: the first whose end lies past q.
+inline uint run_of_pair(const uint q, const uint runs, __global const uint *run_ends) {
+    uint lo = 0, hi = runs - 1;
+    while (lo < hi) {
+        const uint mid = (lo + hi) / 2;
+        if (q < run_ends[mid]) hi = mid; else lo = mid + 1;
+    }
+    return lo;
+}
+
+__kernel void run_spans(const uint n, const uint runs, __global const uint *run_ends,
+                        __global const uint *tiles_touched, __global const uint *pair_first,
+                        __global const uint *pair_of_emission, __global uint *spans, __global uint *spanning) {
     __local uint group_spanning;
     const uint g = get_global_id(0);
     if (get_local_id(0) == 0) group_spanning = 0;
     barrier(CLK_LOCAL_MEM_FENCE);
     const uint count = g < n ? tiles_touched[g] : 0;
-    if (count) {
-        const uint first = pair_of_emission[pair_first[g]], last = pair_of_emission[pair_first[g] + count - 1];
-        int spans = 0;
-        for (uint r = 0; r + 1 < runs; ++r) spans |= (first < run_ends[r]) & (run_ends[r] <= last);
-        if (spans) atomic_inc(&group_spanning);
+    if (g < n) {
+        uint span = RUN_SPAN_NONE;
+        if (count) {
+            const uint first = run_of_pair(pair_of_emission[pair_first[g]], runs, run_ends);
+            const uint last = run_of_pair(pair_of_emission[pair_first[g] + count - 1], runs, run_ends);
+            span = first << 16 | last;
+            if (first != last) atomic_inc(&group_spanning);
+        }
+        spans[g] = span;
     }
     barrier(CLK_LOCAL_MEM_FENCE);
     if (get_local_id(0) == 0 && group_spanning) atomic_add(spanning, group_spanning);
+}
+
+// The Gaussians with a pair in run `run` (from run_spans), listed in members [count [0]] (the host zeroes the count):
+// a work-group lists its own in one block, taken with one atomic on count.
+__kernel void run_members(const uint n, const uint run, __global const uint *spans, __global uint *members,
+                          __global uint *count) {
+    __local uint group_count, group_base;
+    const uint g = get_global_id(0);
+    if (get_local_id(0) == 0) group_count = 0;
+    barrier(CLK_LOCAL_MEM_FENCE);
+    const uint span = g < n ? spans[g] : RUN_SPAN_NONE;
+    const int member = (span >> 16) <= run && run <= (span & 0xFFFFu);
+    const uint slot = member ? atomic_inc(&group_count) : 0;
+    barrier(CLK_LOCAL_MEM_FENCE);
+    if (get_local_id(0) == 0) group_base = group_count ? atomic_add(count, group_count) : 0;
+    barrier(CLK_LOCAL_MEM_FENCE);
+    if (member) members[group_base + slot] = g;
 }
