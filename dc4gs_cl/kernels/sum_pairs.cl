@@ -83,7 +83,7 @@ void sum_pairs(const uint n, const uint pair0, const uint pair_end, const int ac
     // The fold comes past a barrier, which makes it PoCL's own loop over the work-items: that vectorises, as
     // densify_stats does, where after the slots' loop of varying length it ran one Gaussian at a time (4.3 ms
     // against 1.6 + 1.0 for sum_pairs and densify_stats, 48k Gaussians, DC4GS). It then runs, masked, for every
-    // work-item in every run: the host folds here only in a few runs (Tuning.max_folded_runs).
+    // work-item of a run's launch: the host folds here only in a few runs (Tuning.max_folded_runs).
     barrier(CLK_LOCAL_MEM_FENCE);
     if (g >= n) return;
     if (!ends) {                                  // more of its pairs in later runs: carry the partial sums

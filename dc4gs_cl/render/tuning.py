@@ -29,9 +29,10 @@ class Tuning:
     min_run_tiles: int = 256
     # backward with a densification window: sum_pairs folds the view into it (only Gaussians spanning runs keep sums
     # between runs) in frames walked in at most this many runs; past that the full per-Gaussian sums and the
-    # window's own kernel, as its fold (vectorised past a barrier) runs for every Gaussian in every run (PoCL,
-    # AbsGS + DC4GS: 400k Gaussians at 576x432 in 3 runs, sum_pairs as fast and 1,480 -> 1,369 bytes per Gaussian;
-    # a million at 1280x720 in 7 runs, sum_pairs +27%)
+    # window's own kernel, as the fold (vectorised past a barrier) runs masked for every Gaussian a run's launch
+    # covers, and carries more sums between more runs (PoCL, AbsGS + DC4GS: 400k Gaussians at 576x432 in 3 runs,
+    # sum_pairs as fast and 1,480 -> 1,369 bytes per Gaussian; a million at 1280x720 in 5 runs, sum_pairs and
+    # densify_stats 376 + 23 -> 473 ms for 1,502 -> 1,400 bytes per Gaussian)
     max_folded_runs: int = 3
     # backward with DC4GS' split sums: a column block's 25 split terms added after its pixels' walk, in explicit
     # vector adds, instead of inside the walk (exact: the same adds in the same order). Intel's CPU runtime
