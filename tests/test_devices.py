@@ -81,6 +81,15 @@ def test_drivers_that_cut_loops_short_get_short_loop_shapes(platform, driver, li
         (1, 4096, 256 * 256) if limit else (256, 4, 4))
 
 
+
+@pytest.mark.parametrize("platform, per_block", [("Intel(R) OpenCL", True), ("Portable Computing Language", False)])
+def test_split_sums_per_column_block_on_the_implementation_measured_faster_so(platform, per_block):
+    """Tuning.split_sums_per_block: Intel's CPU runtime ran the backward with the split sums inside the pixel walk
+    7x slower than without them; PoCL runs that walk faster than the per-block adds. GPUs keep the walk's."""
+    cpu = replace(NARROW_CAPS, is_cpu=True, max_work_group_size=1024, platform=platform)
+    assert Tuning.for_device(cpu).split_sums_per_block == per_block
+    assert not Tuning.for_device(replace(cpu, is_cpu=False)).split_sums_per_block
+
 def test_training_on_a_driver_that_cuts_loops_short_stops_with_the_reason(tmp_path, monkeypatch, capsys):
     monkeypatch.setattr(runtime, "loop_limit", lambda device: 65_535)
     out = tmp_path / "run"
