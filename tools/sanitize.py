@@ -243,7 +243,7 @@ class Backward:
     atomics, a pixel mask or none, the strategy whose statistics it gathers (None: the window has closed,
     the gradients alone, written out rather than stepped by Adam); runs: the per-pair slots held for one
     tile at a time (the backward walked in runs of tiles, the view folded in sum_pairs, Gaussians spanning runs
-    carried between them)."""
+    carried between them), and the split sums added per column block (Tuning.split_sums_per_block)."""
     pair_sums: bool
     masked: bool
     strategy: str | None
@@ -289,7 +289,8 @@ def workload(shape: str) -> dict:
         for b in backwards:
             # Fresh stages and buffers per variant, each sized to it exactly (no capacity to spare, no scratch
             # left larger by another variant), so that an access past the data is one past its buffer.
-            runs = {"pair_chunk": 0.0, "min_run_tiles": 1, "max_folded_runs": 10 ** 6} if b.runs else {}
+            runs = {"pair_chunk": 0.0, "min_run_tiles": 1, "max_folded_runs": 10 ** 6,
+                    "split_sums_per_block": True} if b.runs else {}
             ctx = StageContext(rt, replace(tuning, pair_sums=b.pair_sums, **runs), options)
             gaussians = TrainableGaussians(rt, model)
             keep_buf = rt.to_device(keep.astype(np.uint8)) if b.masked else None

@@ -68,8 +68,6 @@ class RasterizeBackward(Stage):
         # Past the first run, sum_pairs covers only the Gaussians with a pair in the run (members).
         spanning = self.sum_pairs.run_spans(res, layout, fold, runs) if len(runs) > 1 and n else 0
         carry = self.sum_pairs.carry(layout, n, spanning) if fused else None
-        if carry is not None:
-            rt.fill(carry.taken, np.uint32(0), 4)
         k = self.fitted_kernels({**layout.defines(), "PIXEL_MASK": int(keep is not None)})
         items = TILE_SIZE * TILE_SIZE // tuning.pixels_per_item
         split_geometry = geometry if geometry is not None else sums

@@ -74,26 +74,26 @@ class SumPairs(Stage):
         ids, count = self.ws.get("backward.run_members", 4 * max(n, 1)), self.ws.get("backward.run_count", 4)
         rt.fill(count, np.uint32(0), 4)
         rt.launch_items("sum_pairs", self.variant(layout, window)["run_members"], n, PER_GAUSSIAN_WG, np.uint32(n),
-                        np.uint32(run),
-                        self.ws.get("backward.run_spans", 4 * max(n, 1)), ids, count)
+                        np.uint32(run), self.ws.get("backward.run_spans", 4 * max(n, 1)), ids, count)
         return Members(ids, int(rt.to_host(count, 1, np.uint32)[0]))
 
     def carry(self, layout: SumsLayout, n: int, spanning: int) -> Carry:
         """The carry of a view walked in runs of tiles, with a row for each of the `spanning` Gaussians whose pairs
-        span runs (run_spans); with none (one run), sum_pairs touches no carry."""
+        span runs (run_spans), none taken yet; with none (one run), sum_pairs touches no carry."""
         taken = self.ws.get("backward.carry_taken", 4)
         if not spanning:
             return Carry(taken, taken, taken)
-        return Carry(self.ws.get("backward.carry_slot", 4 * max(n, 1)), self.ws.get("backward.carry_taken", 4),
-                     self.ws.get("backward.carry_rows", 4 * layout.width * max(spanning, 1)))
+        self.rt.fill(taken, np.uint32(0), 4)
+        return Carry(self.ws.get("backward.carry_slot", 4 * max(n, 1)), taken,
+                     self.ws.get("backward.carry_rows", 4 * layout.width * spanning))
 
     def __call__(self, res: RenderResult, layout: SumsLayout, pair_sums: cl.Buffer, pair0: int, pair_end: int,
                  split_geometry: cl.Buffer, sums: cl.Buffer, window: WindowFold | None = None,
                  carry: Carry | None = None, members: Members | None = None) -> None:
         """Add the slots of pairs pair0 .. pair_end - 1 onto sums (N x layout.width; written, not added to, when
         pair0 is 0), for the Gaussians of `members` only where given (a run past the first). window (with the
-        view's carry, its taken count zeroed): fold the view into it, each Gaussian in the run holding its last
-        pair; sums are then N x GRADIENTS.width."""
+        view's carry): fold the view into it, each Gaussian in the run holding its last pair; sums are then
+        N x GRADIENTS.width."""
         n = res.proj.n
         items = members.count if members is not None else n
         if items:
