@@ -71,7 +71,8 @@ def _tile_blend(mean2d, conic, opacity, g, xs, ys):
 
 
 def rasterize_backward_reference(mean2d, conic, opacity, rgb, gaussian_of_pair, ranges, width: int, height: int,
-                                 tiles_x: int, background, dL_dimage, split=None, keep=None) -> dict[str, np.ndarray]:
+                                 tiles_x: int, background, dL_dimage, split=None, keep=None,
+                                 near_px: float = 1e-2) -> dict[str, np.ndarray]:
     """Gradients of sum(image * dL_dimage) with respect to the rasterizer's per-Gaussian inputs, and the
     densification statistics, in closed form per tile (reverse cumulative sums over each tile's list):
         mean2d (N, 2) px, conic (N, 3), opacity (N,), rgb (N, 3);
@@ -80,7 +81,9 @@ def rasterize_backward_reference(mean2d, conic, opacity, rgb, gaussian_of_pair, 
         with split = (candidate pixels (N, C, 2), end pixels (N, 2), valid (N,)) from
         dc4gs.split_geometry_reference: split (N, C, 5), for each candidate the sums (u_x, u_y, count,
         |g_x|, |g_y|) over the pixels with |g| > 0 on its left, decided as the paper's algorithm 3 does:
-        left when (end - candidate) . (pixel - candidate) < 0.
+        left when (end - candidate) . (pixel - candidate) < 0; and split_near (N, C, 5): the same sums of the
+        values' magnitudes over the pixels within near_px of the candidate's line, whose side float32 geometry
+        may decide the other way (what a float32 kernel's left sums may differ by, past rounding).
     keep (H, W) bool: a mask; the pixels it masks out take no part (no gradient, no statistic).
     No gradient flows through alpha where min(ALPHA_MAX, o G) clamps."""
     n = len(mean2d)
@@ -89,6 +92,7 @@ def rasterize_backward_reference(mean2d, conic, opacity, rgb, gaussian_of_pair, 
     if split is not None:
         cand_px, end_px, split_valid = split
         out["split"] = np.zeros((n, cand_px.shape[1], 5))
+        out["split_near"] = np.zeros((n, cand_px.shape[1], 5))
     bg = np.asarray(background, np.float64)
     ndc = np.array([0.5 * width, 0.5 * height])
     for tile, (first, end) in enumerate(np.asarray(ranges)):
@@ -133,6 +137,8 @@ def rasterize_backward_reference(mean2d, conic, opacity, rgb, gaussian_of_pair, 
             cand, end = cand_px[g], end_px[g]                                           # (G, C, 2), (G, 2)
             side = np.einsum("gci,pgci->pgc", end[:, None] - cand, q[:, None, None] - cand[None])
             np.add.at(out["split"], g, np.einsum("pgc,pgv->gcv", (side < 0).astype(float), values))
+            near = np.abs(side) <= near_px * np.linalg.norm(end[:, None] - cand, axis=-1)[None]
+            np.add.at(out["split_near"], g, np.einsum("pgc,pgv->gcv", near.astype(float), np.abs(values)))
     return out
 
 
