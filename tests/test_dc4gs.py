@@ -130,6 +130,36 @@ def test_backward_in_runs_of_tiles_sums_exactly_as_in_one(rt, rng, shape):
     assert np.array_equal(got["runs"], got["one run"]) and np.array_equal(got["per block"], got["one run"])
 
 
+@pytest.mark.parametrize("shape", SHAPES)
+def test_split_sums_of_candidates_out_of_order(rt, rng, shape):
+    """A candidate's left sums depend on its own t_k alone: with the candidates 1 .. N-1 of every line given in
+    reverse order (t_k decreasing, which the walk's crossing range cannot take: it then tests every candidate per
+    pixel), each candidate's sums are those it has in order, where most pairs test one or two candidates per pixel
+    and take the pair's totals or zeros for the rest (so within rounding of the totals, not bit for bit)."""
+    model = random_model(rng, 900, spread=1.0, scale_range=(0.02, 0.2))
+    cam = random_camera(rng, int(rng.integers(80, 130)), int(rng.integers(60, 100)))
+    bg = rng.uniform(0, 1, 3)
+    dL_dimage = rng.normal(size=(cam.height, cam.width, 3)).astype(np.float32)
+    layout, record = SumsLayout(stats=True, dc_stats=True, split_candidates=5), geometry_record(5)
+    renderer = Renderer(rt, SHAPES[shape], poison=True)
+    g = DeviceGaussians(rt, model)
+    res = renderer.render(g, cam, 3, bg)
+    n = len(model)
+    geo = rt.to_host(SplitGeometry(renderer.context)(g, cam, res, 5), (n, record.width)).copy()
+    t = record.views(geo)["t"]
+    assert (np.diff(t[(t != 0).any(axis=1)], axis=1) > 0).all()         # in order as the projection gives them
+    reverse = geo.copy()
+    record.views(reverse)["t"][:] = t[:, ::-1]
+    got = {}
+    for name, rows in (("in order", geo), ("reversed", reverse)):
+        sums = RasterizeBackward(renderer.context)(res, rt.to_device(dL_dimage), bg, layout, rt.to_device(rows))
+        got[name] = layout.views(rt.to_host(sums, (n, layout.width)).astype(np.float64))["split"].reshape(n, 5, 5)
+    assert np.count_nonzero(got["in order"]) > 1000
+    unreversed = got["reversed"][:, [0, 4, 3, 2, 1]]
+    scale = np.abs(got["in order"]).max(axis=1, keepdims=True) + 1e-6
+    assert (np.abs(unreversed - got["in order"]) <= 1e-5 * scale).all()
+
+
 def spanning_runs(rt, res, tuning, n: int) -> tuple[int, list, list]:
     """From the isect arrays: how many Gaussians have pairs in more than one of the frame's runs of tiles, the
     runs, and each run's Gaussians (those whose first and last pairs' runs enclose it)."""

@@ -25,7 +25,7 @@
 //         SUM_SPLIT  +5k+0..4 for split candidate k: the same five sums (u_x, u_y, count, |g_x|, |g_y|)
 //                    over the pixels left of it (-D SPLIT_CANDIDATES = N > 0; split_geometry [N*GEO_WIDTH]
 //                    from split_geometry.cl, the GEO record, says where the candidates fall; a pair's walk tests
-//                    only the candidates whose line crosses its pixels, crossing_candidates); -D
+//                    only the candidates whose line crosses its pixels, crossing_range); -D
 //                    SPLIT_SUMS_PER_BLOCK=1 adds them per column block after its pixels (Tuning.split_sums_per_block)
 // Per pair, each work-item sums its pixels' terms privately; the sums reach `sums` once per (tile,
 // Gaussian) pair (-D ITEMS_PER_TILE > 1 first combines the items' partial sums in local memory).
@@ -59,7 +59,7 @@ typedef float floatB;
 #endif
 
 // Sums whose lanes the pixel walk adds to in place: all but the split sums, whose lanes (split_lanes, from
-// SUM_SPLIT on) hold only the candidates crossing the pair's pixels, in crossing order (crossing_candidates).
+// SUM_SPLIT on) hold only the candidates crossing the pair's pixels (crossing_range).
 #if SPLIT_CANDIDATES
 #define LANE_SUMS SUM_SPLIT
 // Crossing counts with a walk of their own (each a copy of the walk); more take the walk over all candidates.
@@ -186,22 +186,24 @@ ALWAYS_INLINE float lane_total(const float *lane) {
 }
 
 #if SPLIT_CANDIDATES
-// Split candidates whose walk needs no per-pixel test. t(q) rounds monotonically in each pixel coordinate, so over
-// the pixels a pair's walk visits (the item's rows within the span, its column blocks that meet the span) t lies
-// within its values at the 4 corners: a candidate above them all has every walked pixel on its left (its left sums
-// are the pair's totals), one at or below them none (zeros); only those in between, "crossing", are tested per
-// pixel. A margin far above float rounding around t_k keeps pixels the walk might round across t_k tested: exact.
-// Large Gaussians span several tiles, each crossed by one or two of the candidates' lines.
-// Returns how many cross: crossing[] their indices, t_cross[] their t_k; all_left: a bit per candidate.
-ALWAYS_INLINE int crossing_candidates(const float4 line, const float *tk, const int4 span, const int x0,
-                                      const int y0, const int row0, const int col0, int *crossing,
-                                      float *t_cross, uint *all_left) {
+// The split candidates a pair's walk must test per pixel: (lo, hi), candidates lo .. hi - 1. t(q) rounds
+// monotonically in each pixel coordinate, so over the pixels a pair's walk visits (the item's rows within the span,
+// its column blocks that meet the span) t lies within its values at the 4 corners: a candidate above them all has
+// every walked pixel on its left (its left sums are the pair's totals), one at or below them none (zeros); only
+// those in between, "crossing", are tested per pixel. A margin far above float rounding around t_k keeps pixels
+// the walk might round across t_k tested: exact. The t_k increase with k (the candidates' order along the
+// projected axis), so those with none left come first, those with all left last; were they out of order, every
+// candidate counts as crossing. Large Gaussians span several tiles, each crossed by one or two candidates' lines.
+// (Ternaries, not the integer min and max builtins, which PoCL calls rather than inlines: once per pair.)
+ALWAYS_INLINE int2 crossing_range(const float4 line, const float *tk, const int4 span, const int x0, const int y0,
+                                  const int row0, const int col0) {
     const int a = span.x - col0, b = span.y - col0;                   // the span, item-relative
-    const int r_lo = max(span.z - row0, 0), r_hi = min(span.w - row0, ROWS_PER_ITEM - 1);
-    *all_left = 0u;
-    if (b < 0 || a > COLS_PER_ITEM - 1 || a > b || r_lo > r_hi) return 0;        // no pixel walked
-    const int c_lo = max(a, 0) / COL_BLOCK * COL_BLOCK;
-    const int c_hi = min(b, COLS_PER_ITEM - 1) / COL_BLOCK * COL_BLOCK + COL_BLOCK - 1;
+    const int r_lo = span.z > row0 ? span.z - row0 : 0;
+    const int r_hi = span.w - row0 < ROWS_PER_ITEM - 1 ? span.w - row0 : ROWS_PER_ITEM - 1;
+    if (b < 0 || a > COLS_PER_ITEM - 1 || a > b || r_lo > r_hi)        // no pixel walked: none left of any
+        return (int2)(SPLIT_CANDIDATES, SPLIT_CANDIDATES);
+    const int c_lo = (a > 0 ? a : 0) / COL_BLOCK * COL_BLOCK;
+    const int c_hi = (b < COLS_PER_ITEM - 1 ? b : COLS_PER_ITEM - 1) / COL_BLOCK * COL_BLOCK + COL_BLOCK - 1;
     float t_min = 0.f, t_max = 0.f, extent = 0.f;
     for (int corner = 0; corner < 4; ++corner) {
         // the pixel centres as the kernel sets px and py
@@ -213,12 +215,14 @@ ALWAYS_INLINE int crossing_candidates(const float4 line, const float *tk, const 
         extent = MAXF(extent, ABSF(ex) + ABSF(ey));
     }
     const float margin = 1e-5f * (1.f + extent);
-    int n = 0;
+    int none_left = 0, all_left = 0, in_order = 1;
     for (int k = 0; k < SPLIT_CANDIDATES; ++k) {
-        if (t_max < tk[k] - margin) *all_left |= 1u << k;
-        else if (!(t_min > tk[k] + margin)) { crossing[n] = k; t_cross[n] = tk[k]; ++n; }
+        const int none = t_min > tk[k] + margin, all = t_max < tk[k] - margin;
+        in_order &= (!none | (none_left == k)) & (all | (all_left == 0));
+        none_left += none;
+        all_left += all;
     }
-    return n;
+    return in_order ? (int2)(none_left, SPLIT_CANDIDATES - all_left) : (int2)(0, SPLIT_CANDIDATES);
 }
 #endif
 
@@ -337,23 +341,17 @@ void rasterize_backward(const int width, const int height, const int tiles_x, co
             float tk[SPLIT_CANDIDATES];
             tk[0] = 0.f;
             for (int k = 1; k < SPLIT_CANDIDATES; ++k) tk[k] = sg[GEO_T + k - 1];
-            // Only the candidates whose line crosses the pixels walked take split terms in the walk.
-            int crossing[SPLIT_CANDIDATES];
-            float t_cross[SPLIT_CANDIDATES];
-            uint all_left = 0;
-            int n_cross = split_ok ? crossing_candidates(line, tk, span, x0, y0, row0, col0, crossing, t_cross,
-                                                         &all_left) : 0;
-            if (n_cross > MAX_FEW_CROSSING) {      // the walk compiled for all candidates: every one crossing
-                n_cross = SPLIT_CANDIDATES;
-                all_left = 0;
-                for (int k = 0; k < SPLIT_CANDIDATES; ++k) { crossing[k] = k; t_cross[k] = tk[k]; }
-            }
+            // Only the candidates whose line crosses the pixels walked take split terms in the walk: lo .. hi - 1.
+            int2 cross = split_ok ? crossing_range(line, tk, span, x0, y0, row0, col0)
+                                  : (int2)(SPLIT_CANDIDATES, SPLIT_CANDIDATES);
+            if (cross.y - cross.x > MAX_FEW_CROSSING) cross = (int2)(0, SPLIT_CANDIDATES);   // the walk over all
+            const int n_cross = cross.y - cross.x;
             float (*split_lanes)[COL_BLOCK] = lanes + SUM_SPLIT;
             for (int k = 0; k < 5 * n_cross; ++k)
                 for (int cc = 0; cc < COL_BLOCK; ++cc) split_lanes[k][cc] = 0.f;
             // One call per crossing count, each its own vectorised loop (see backward_pair).
-#define WALK(n_split) backward_pair(m, co, c, idx, span, row0, col0, ndc_x, ndc_y, line, t_cross, n_split, px, py, \
-                                    dr, dg, db, bg_term, last, T, behind, lanes, split_lanes)
+#define WALK(n_split) backward_pair(m, co, c, idx, span, row0, col0, ndc_x, ndc_y, line, tk + cross.x, n_split, px, \
+                                    py, dr, dg, db, bg_term, last, T, behind, lanes, split_lanes)
             if (n_cross == 0) WALK(0);
             else if (n_cross == 1) WALK(1);
 #if MAX_FEW_CROSSING >= 2
@@ -369,9 +367,9 @@ void rasterize_backward(const int width, const int height, const int tiles_x, co
             if (split_ok) {
                 const float total[5] = {acc[SUM_DC], acc[SUM_DC + 1], acc[SUM_DC + 2], acc[SUM_ABS], acc[SUM_ABS + 1]};
                 for (int k = 0; k < SPLIT_CANDIDATES; ++k)
-                    for (int v = 0; v < 5; ++v) acc[SUM_SPLIT + 5 * k + v] = ((all_left >> k) & 1u) ? total[v] : 0.f;
+                    for (int v = 0; v < 5; ++v) acc[SUM_SPLIT + 5 * k + v] = k < cross.x ? 0.f : total[v];
                 for (int k = 0; k < n_cross; ++k)
-                    for (int v = 0; v < 5; ++v) acc[SUM_SPLIT + 5 * crossing[k] + v] = lane_total(split_lanes[5 * k + v]);
+                    for (int v = 0; v < 5; ++v) acc[SUM_SPLIT + 5 * (cross.x + k) + v] = lane_total(split_lanes[5 * k + v]);
             }
 #else
             const float no_split[1] = {0.f};
