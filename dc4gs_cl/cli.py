@@ -135,6 +135,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="gather split costs for a Gaussian only in its first views of a window and while its running "
                         "split criterion is at least this fraction of the threshold (0: every Gaussian that can be "
                         "split, exact; see the README)")
+    g.add_argument("--dcs-every", type=int, default=None,
+                   help="add to the split costs only every this-many-th iteration's view (1: every view, exact, "
+                        "default; an approximation that skips the split sums' cost in the other views: see the README)")
     g.add_argument("--dcs-other-scale", type=float, default=None,
                    help="DCS' children's two other axes times this (1: kept, the paper's, default; 0.625 shrinks them "
                         "as the 3DGS split does: see the README on regions of large Gaussians)")
@@ -270,7 +273,7 @@ def print_stage_table(timings: list[dict[str, float]], width: int, height: int) 
 
 DC4GS_FLAGS = {"dcc": "dcc", "dcs": "dcs", "dc_pooling": "pooling", "split_pick": "split_pick",
                "split_candidates": "candidates", "dcc_reading": "dcc_reading", "dcs_track": "track",
-               "dcs_other_scale": "other_scale"}
+               "dcs_other_scale": "other_scale", "dcs_every": "cost_every"}
 
 
 def train_config(args, run):

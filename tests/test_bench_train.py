@@ -30,3 +30,13 @@ def test_interleaved_runs_match_runs_one_after_the_other(tmp_path, capsys):
     plain, dc4gs = interleaved["runs"]
     assert "split_geometry" not in plain["device_ms_per_it"] and dc4gs["device_ms_per_it"]["split_geometry"] > 0
     assert "| builtin | absgs+dc4gs |" in capsys.readouterr().out
+
+
+def test_strategy_specs_name_dc4gs_settings():
+    import pytest
+    assert bench_train.variant("absgs+dc4gs:every=4:track=0.5:shrink") == {
+        "strategy": "absgs", "dcc": True, "dcs": True, "cost_every": 4, "track": 0.5, "other_scale": 0.625}
+    assert bench_train.variant("3dgs+dcs:window") == {"strategy": "3dgs", "dcs": True, "pooling": "window"}
+    for spec in ("absgs+dc4gs:often=2", "absgs+dc4gs:every", "absgs+dc4", "bogus"):
+        with pytest.raises(ValueError, match="unknown strategy"):
+            bench_train.variant(spec)

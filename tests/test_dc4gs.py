@@ -497,3 +497,44 @@ def test_split_costs_stop_for_gaussians_whose_criterion_stays_low(rt, rng):
     geometry = SplitGeometry(renderer.context)(g, cam, res, candidates, window=(window.buffer, window.record))
     geo = geometry_record(candidates).views(rt.to_host(geometry, (n, geometry_record(candidates).width)))
     np.testing.assert_array_equal(np.abs(geo["dir"]).sum(1) > 0, [False, True, False, True])
+
+
+def test_views_that_dcs_skips_leave_the_split_costs_alone(rt):
+    """--dcs-every K (an approximation): the split costs are the sum of what the exact run's every K-th iteration
+    adds to them; every other statistic, and the parameters, are the exact run's."""
+    from dc4gs_cl.bench import frozen_trainer
+    from dc4gs_cl.config import TrainConfig
+    from dc4gs_cl.scene.builtin import builtin_scene
+    from dc4gs_cl.train import Trainer
+    scene = builtin_scene(resolution=4)
+    warm = Trainer(TrainConfig(scene="builtin", iterations=600), scene, rt, "/nonexistent")
+    for _ in range(40):
+        warm.step()
+    state, every, steps = warm.model.download(), 3, 7
+
+    def run(cost_every):
+        cfg = TrainConfig(scene="builtin", iterations=600, strategy="absgs",
+                          dc4gs=DC4GSConfig(dcc=True, dcs=True, cost_every=cost_every))
+        trainer = frozen_trainer(cfg, scene, rt, state, 100)
+        added = {}                                   # iteration -> what its view added to the split costs
+        for _ in range(steps):
+            before = trainer.strategy.window.download()[SPLIT_COSTS].astype(np.float64)
+            trainer.step()
+            added[trainer.iteration] = trainer.strategy.window.download()[SPLIT_COSTS] - before
+        return trainer.model.download().params, trainer.strategy.window.download(), added
+
+    exact_params, exact, added = run(1)
+    got_params, got, skipped = run(every)
+    sampled = [it for it in added if it % every == 0]
+    assert 0 < len(sampled) < steps
+    assert all(np.abs(added[it]).max() > 0 for it in added)              # every view adds costs in the exact run
+    assert all(np.abs(skipped[it]).max() == 0 for it in skipped if it % every)
+    # each view's addition is read back as a difference of float32 running sums: exact to their rounding
+    want = sum(added[it] for it in sampled)
+    rounding = 1e-6 * np.abs(exact[SPLIT_COSTS]).max(axis=1, keepdims=True)
+    assert np.all(np.abs(got[SPLIT_COSTS] - want) <= 1e-5 * np.abs(want) + rounding)
+    for name in exact:
+        if name != SPLIT_COSTS:
+            np.testing.assert_array_equal(got[name], exact[name], err_msg=name)
+    for name in exact_params:
+        np.testing.assert_array_equal(got_params[name], exact_params[name], err_msg=name)

@@ -184,6 +184,8 @@ def test_corrupt_and_mismatched_checkpoints(finished_run, tmp_path, capsys):
     (["--split-candidates", "1"], "--split-candidates 1"),      # checked even with DC4GS off
     (["--dcs", "--dcs-track", "1.5"], "--dcs-track 1.5"),
     (["--dcs", "--dcs-other-scale", "0"], "--dcs-other-scale 0.0 must lie in (0, 1]"),
+    (["--dcs", "--dcs-every", "0"], "--dcs-every 0 must be at least 1"),
+    (["--dc4gs", "--dc-pooling", "window", "--dcs-every", "2"], "--dcs-every 2 needs --dc-pooling view"),
     (["--sh-degree", "4"], "--sh-degree 4"),
     (["--max-gaussians", "0"], "--max-gaussians 0 must be at least 1"),
     (["--max-gaussians", "100"], "--max-gaussians 100 is below the"),

@@ -9,7 +9,8 @@ in --rounds interleaved rounds; per-stage device times (OpenCL profiling events)
 medians over the rounds, and every overhead is a ratio against the base measured in the same run.
 Configurations: the base; +DCC; +DCS; +DC4GS (view pooling, the default) and with window pooling; with
 split costs tracked only while the split criterion is at least 0.5 or 0.25 of the threshold
-(--dcs-track, an approximation); DCS splitting at the middle with no split costs (--split-pick middle, an
+(--dcs-track, an approximation); split costs from every 2nd or 4th iteration's view only (--dcs-every, an
+approximation); DCS splitting at the middle with no split costs (--split-pick middle, an
 ablation that gains as much on the built-in scene: see the README); and two skips: split costs for every
 visible Gaussian (instead of only those large enough to be split), and no statistics at all (what an
 iteration costs once the densification window has closed). The trained state is reached without DC4GS,
@@ -36,6 +37,8 @@ CONFIGURATIONS = {   # name -> DC4GSConfig settings; "_" keys are the benchmark'
     "+DC4GS window": {"dcc": True, "dcs": True, "pooling": "window"},
     "+DC4GS, tracking 0.5": {"dcc": True, "dcs": True, "track": 0.5},
     "+DC4GS, tracking 0.25": {"dcc": True, "dcs": True, "track": 0.25},
+    "+DC4GS, costs every 2nd view": {"dcc": True, "dcs": True, "cost_every": 2},
+    "+DC4GS, costs every 4th view": {"dcc": True, "dcs": True, "cost_every": 4},
     "+DC4GS, middle split (no costs)": {"dcc": True, "dcs": True, "split_pick": "middle"},
     "+DC4GS, split costs for all": {"dcc": True, "dcs": True, "_all": True},
     "no statistics (window closed)": {"_closed": True},

@@ -6,9 +6,9 @@ markdown table row per (scene, strategy).
 
 A strategy is a base (3dgs, absgs, pixelgs) with optional DC4GS parts and settings: "absgs+dc4gs" (DCC and
 DCS), "absgs+dcc", "absgs+dcs", and ":" options, e.g. "absgs+dc4gs:window:argmin" (pooling, split pick,
-"abs" / "base" for the DCC reading, "track=F" for --dcs-track, "shrink" for --dcs-other-scale 0.625). --dc4gs
-runs the DC4GS results table: each base with and without DC4GS and the AbsGS ablation (base, +DCC, +DCS, +both),
-then prints each DC4GS row against its base.
+"abs" / "base" for the DCC reading, "track=F" for --dcs-track, "every=K" for --dcs-every, "shrink" for
+--dcs-other-scale 0.625). --dc4gs runs the DC4GS results table: each base with and without DC4GS and the AbsGS
+ablation (base, +DCC, +DCS, +both), then prints each DC4GS row against its base.
 
 A scene's runs train interleaved: each in turn trains --turn iterations (default 100) until all are done, so
 that a slower or busier stretch of the machine falls on every run alike and the wall-time ratios between them
@@ -105,6 +105,7 @@ OPTIONS = {"view": ("pooling", "view"), "window": ("pooling", "window"), "poly":
            "argmin": ("split_pick", "argmin"), "dense": ("split_pick", "dense"), "middle": ("split_pick", "middle"),
            "shrink": ("other_scale", 1 / SPLIT_SCALE_DIVISOR),
            "abs": ("dcc_reading", "abs"), "base": ("dcc_reading", "base")}
+VALUED = {"track": ("track", float), "every": ("cost_every", int)}   # "track=0.5": DC4GSConfig field, its type
 
 
 def variant(spec: str) -> dict:
@@ -112,17 +113,19 @@ def variant(spec: str) -> dict:
     anything unknown)."""
     head, *options = spec.split(":")
     base, *parts = head.split("+")
-    track = [o for o in options if o.startswith("track=")]
-    options = [o for o in options if not o.startswith("track=")]
-    if base not in STRATEGIES or any(p not in PARTS for p in parts) or any(o not in OPTIONS for o in options):
+    valued = dict(o.split("=", 1) for o in options if "=" in o)
+    options = [o for o in options if "=" not in o]
+    if (base not in STRATEGIES or any(p not in PARTS for p in parts) or any(o not in OPTIONS for o in options)
+            or any(k not in VALUED for k in valued)):
         raise ValueError(f"unknown strategy {spec!r}: a base ({', '.join(STRATEGIES)}), then +dc4gs, +dcc or "
-                         f"+dcs, then :options ({', '.join(OPTIONS)})")
+                         f"+dcs, then :options ({', '.join(OPTIONS)}, or {', '.join(k + '=' for k in VALUED)})")
     settings = {"strategy": base}
     for p in parts:
         settings.update(PARTS[p])
     settings.update(dict(OPTIONS[o] for o in options))
-    if track:
-        settings["track"] = float(track[-1].split("=", 1)[1])
+    for key, value in valued.items():
+        field, kind = VALUED[key]
+        settings[field] = kind(value)
     return settings
 
 

@@ -33,6 +33,7 @@ class DC4GSConfig:
     dcc_reading: str = "base"       # base: (1 - kappa) x the base's own per-view term; abs: (1 - kappa) |ghat|
     track: float = 0.0              # split costs only while the running split criterion >= track x threshold (0: exact)
     other_scale: float = 1.0        # DCS children's other two axes x this (1, the paper's: kept; release: const_scale)
+    cost_every: int = 1             # split costs from every this-many-th iteration's view only (1: every view, exact)
 
     def __post_init__(self):
         if problems := self.problems():
@@ -71,6 +72,11 @@ class DC4GSConfig:
             out.append(f"--dcs-track {self.track} must lie in [0, 1]")
         if not 0 < self.other_scale <= 1:
             out.append(f"--dcs-other-scale {self.other_scale} must lie in (0, 1]")
+        if self.cost_every < 1:
+            out.append(f"--dcs-every {self.cost_every} must be at least 1")
+        elif self.cost_every > 1 and self.pooling == "window":
+            # window pooling costs the sides' running sums at every visible view, which a skipped view cannot add to
+            out.append(f"--dcs-every {self.cost_every} needs --dc-pooling view")
         return out
 
 

@@ -3,6 +3,8 @@ window's accumulators, which live on the device until the next densification ste
 only there (and for checkpoints). Its float64 reference is reference/densify_stats.py."""
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pyopencl as cl
 
@@ -15,14 +17,22 @@ from .statistics import PIXELGS_DEPTH_FRACTION, StatisticsSpec
 class DensifyStats(Stage):
     FILE, KERNELS = "densify_stats.cl", ("densify_stats",)
 
-    def __init__(self, ctx: StageContext, spec: StatisticsSpec, extent: float, track_threshold: float = 0.0):
-        """extent: the scene's (Pixel-GS' depth factor); track_threshold: DCS tracking (statistics.py)."""
+    def __init__(self, ctx: StageContext, spec: StatisticsSpec, extent: float, track_threshold: float = 0.0,
+                 rows: DeviceArrays | None = None):
+        """extent: the scene's (Pixel-GS' depth factor); track_threshold: DCS tracking (statistics.py); rows:
+        another fold's rows to share (without_split_sums)."""
         super().__init__(ctx)
         self.spec, self.record = spec, spec.window
-        self.depth_scale = PIXELGS_DEPTH_FRACTION * extent
+        self.extent, self.depth_scale = extent, PIXELGS_DEPTH_FRACTION * extent
         self.track_threshold = track_threshold
-        self.rows = DeviceArrays(self.rt, {"window": self.record.width})
+        self.rows = rows if rows is not None else DeviceArrays(self.rt, {"window": self.record.width})
         self.kernel = self.kernels()["densify_stats"]
+
+    def without_split_sums(self) -> DensifyStats:
+        """The same window (its rows shared) as the views that gather no split sums fold it
+        (DC4GSConfig.cost_every): their fold leaves the split costs as they are."""
+        return DensifyStats(self.ctx, replace(self.spec, split_sums=False), self.extent, self.track_threshold,
+                            rows=self.rows)
 
     def defines(self) -> dict:
         return self.spec.defines()

@@ -65,16 +65,19 @@ class StatisticsSpec:
     """What a strategy gathers while its window is open. dc: DC4GS' directional-consistency sums (DCC, and
     DCS needs them); split_candidates: DCS' split sums; window_pooling: kappa (and the split sides) pooled
     over the window rather than per view; tracked: the split criterion DCS tracking reads (TRACK_TOTAL,
-    TRACK_COUNT), cost gathering stopping for a Gaussian whose criterion stays under the threshold."""
+    TRACK_COUNT), cost gathering stopping for a Gaussian whose criterion stays under the threshold;
+    split_sums: whether the view gathers the split sums (False: a view DCS skips, DC4GSConfig.cost_every; the
+    window, split costs included, keeps its layout, and the fold leaves the split costs as they are)."""
     dc: bool = False
     split_candidates: int = 0
     window_pooling: bool = False
     tracked: Criterion = GRAD_PER_VIEW
+    split_sums: bool = True
 
     @cached_property
     def sums(self) -> SumsLayout:
         """The backward's per-Gaussian sums of one view (SumsLayout validates the combination)."""
-        return SumsLayout(stats=True, dc_stats=self.dc, split_candidates=self.split_candidates)
+        return SumsLayout(stats=True, dc_stats=self.dc, split_candidates=self.split_candidates if self.split_sums else 0)
 
     @cached_property
     def window(self) -> Record:

@@ -100,6 +100,7 @@ class Strategy:
         self.config = config or self.default_config()
         self.dc4gs = dc4gs if dc4gs is not None and dc4gs.enabled else None
         self.window: DensifyStats | None = None        # attach() makes the device state
+        self.window_without_split: DensifyStats | None = None   # the views DCS skips fold with it (cost_every)
         self.split_geometry: SplitGeometry | None = None
         self.extent = 1.0
         self.white_background = False
@@ -179,13 +180,22 @@ class Strategy:
         self.window = DensifyStats(ctx, self.statistics, extent, self.track_threshold)
         self.window.reset(n)
         self.split_geometry = SplitGeometry(ctx) if self.split_candidates else None
+        if self.split_candidates and self.dc4gs.cost_every > 1:
+            self.window_without_split = self.window.without_split_sums()
+
+    def split_costs_now(self, it: int) -> bool:
+        """Whether iteration it's view adds to DCS' split costs: every view, or with DC4GSConfig.cost_every K
+        (an approximation) every K-th iteration's."""
+        return bool(self.split_candidates) and it % self.dc4gs.cost_every == 0
 
     def gather(self, it: int, params: DeviceGaussians, cam: Camera, res: RenderResult) -> Gathering:
         """What the backward gathers this view: the gradients alone once the window has closed; otherwise the
         window's statistics and, for DCS, the split geometry of the Gaussians that can be split (largest scale
-        above percent_dense x extent) and that the window still tracks."""
+        above percent_dense x extent) and that the window still tracks (where this view adds to the split costs)."""
         if not self.collecting(it):
             return Gathering(GRADIENTS)
+        if self.split_candidates and not self.split_costs_now(it):
+            return Gathering(self.window_without_split.spec.sums, None, self.window_without_split)
         spec = self.statistics
         geometry = None
         if self.split_geometry is not None:
