@@ -180,13 +180,9 @@ class Strategy:
         self.window = DensifyStats(ctx, self.statistics, extent, self.track_threshold)
         self.window.reset(n)
         self.split_geometry = SplitGeometry(ctx) if self.split_candidates else None
-        if self.split_candidates and self.dc4gs.cost_every > 1:
-            self.window_without_split = self.window.without_split_sums()
-
-    def split_costs_now(self, it: int) -> bool:
-        """Whether iteration it's view adds to DCS' split costs: every view, or with DC4GSConfig.cost_every K
-        (an approximation) every K-th iteration's."""
-        return bool(self.split_candidates) and it % self.dc4gs.cost_every == 0
+        # DCS gathering split costs from every K-th view only: the others fold through this
+        self.window_without_split = (self.window.without_split_sums()
+                                     if self.split_candidates and self.dc4gs.cost_every > 1 else None)
 
     def gather(self, it: int, params: DeviceGaussians, cam: Camera, res: RenderResult) -> Gathering:
         """What the backward gathers this view: the gradients alone once the window has closed; otherwise the
@@ -194,7 +190,7 @@ class Strategy:
         above percent_dense x extent) and that the window still tracks (where this view adds to the split costs)."""
         if not self.collecting(it):
             return Gathering(GRADIENTS)
-        if self.split_candidates and not self.split_costs_now(it):
+        if self.window_without_split is not None and it % self.dc4gs.cost_every:   # a view DCS skips
             return Gathering(self.window_without_split.spec.sums, None, self.window_without_split)
         spec = self.statistics
         geometry = None
