@@ -10,21 +10,21 @@ from __future__ import annotations
 import argparse
 import shutil
 import sys
+from functools import reduce
 from pathlib import Path
 
 import numpy as np
 
-from . import bench, export, report, viewer
-from .config import RECIPE_ITERATIONS
+from .apps import export, report, viewer
+from .apps.viewer import DEFAULT_PORT
+from .config import (DCC_READINGS, DEFAULT_LINE_EVERY, DENSE_CANDIDATES, FIVE_CANDIDATES, FLAGS, POOLINGS,
+                     RECIPE_ITERATIONS, SPLIT_PICKS, STRATEGY_NAMES, DC4GSConfig, TrainConfig, flag_key)
+from .constants import SH_MAX_DEGREE
 from .errors import DeviceError, InputError, OutputError
 from .files import replace_folder, staging_folder
 from .finite import NonFiniteError
-from .host.densify import STRATEGIES as STRATEGY_NAMES
-from .host.densify.dc4gs import DCC_READINGS, DENSE_CANDIDATES, POOLINGS, SPLIT_PICKS
 from .scene.builtin import BUILTIN_SCENE
 from .scene.camera import TEST_SPLITS
-from .train.log import DEFAULT_LINE_EVERY
-from .viewer import DEFAULT_PORT
 
 BUILTIN_ITERATIONS = 5_000   # the default run on the built-in scene: about five minutes on 2 CPU cores
 
@@ -56,108 +56,13 @@ def build_parser() -> argparse.ArgumentParser:
     _add_device(p)
 
     p = sub.add_parser("render", help="render a scene's cameras from a 3DGS PLY or a trained run to PNG files")
-    source = p.add_mutually_exclusive_group()
-    source.add_argument("--ply", type=Path, default=None,
-                        help="a standard 3DGS PLY (SH degree 0..3); with neither --ply nor --model, the Gaussians "
-                             "training would start from (the scene's SfM points), which shows whether a scene's "
-                             "cameras are read right")
-    source.add_argument("--model", type=Path, default=None,
-                        help="a training output folder: its scene, settings and saved model (see --iteration); "
-                             "renders and ground truth go to MODEL/<split>/ours_N/ unless --out is given")
-    p.add_argument("--iteration", type=int, default=None, help="with --model: which saved iteration (default: the last)")
-    p.add_argument("--scene", default=None,
-                   help=f'COLMAP or NeRF (transforms*.json) scene folder, or "{BUILTIN_SCENE}" (the default; with '
-                        "--model, the run's)")
-    p.add_argument("--out", type=Path, default=None,
-                   help="output folder (PNGs under OUT/<split>/renders/; --split all writes train/ and test/); "
-                        "required unless --model")
-    p.add_argument("--split", choices=["test", "train", "all"], default="test")
-    p.add_argument("-r", "--resolution", type=_resolution, default=None,
-                   help="downscale images by this factor (default: widths above 1600 px scaled to 1600; with --model, "
-                        "the run's)")
-    p.add_argument("--white-background", action="store_true", help="render onto white (Blender scenes)")
-    p.add_argument("--profile", action="store_true", help="print per-stage device times (median over views)")
+    _add_render(p)
     _add_check_finite(p)
     _add_device(p)
 
-    p = sub.add_parser("train", help="train a scene (no arguments: the built-in scene, three to five minutes on 2 cores)")
-    p.add_argument("--scene", default=None,
-                   help=f'COLMAP or NeRF scene folder, or "{BUILTIN_SCENE}" (the default)')
-    p.add_argument("--out", type=Path, default=None,
-                   help="output folder (default output/<scene>-<date-time>): point_cloud/iteration_N/point_cloud.ply, "
-                        "cameras.json, config.json, checkpoint.npz, results.json, test/ renders")
-    p.add_argument("--strategy", choices=sorted(STRATEGY_NAMES), default=None, help="densification criterion (3dgs)")
-    p.add_argument("--iterations", type=int, default=None,
-                   help=f"training iterations (default {RECIPE_ITERATIONS:,}; {BUILTIN_ITERATIONS:,} for the built-in "
-                        f"scene). Runs shorter than {RECIPE_ITERATIONS:,} scale the 3DGS schedule to their length")
-    p.add_argument("-r", "--resolution", type=_resolution, default=None,
-                   help="downscale images by this factor (default: widths above 1600 px scaled to 1600)")
-    p.add_argument("--test-every", type=int, default=None, help="every N-th image (by name) is a test image (8; 0: none)")
-    p.add_argument("--test-split", choices=TEST_SPLITS, default=None,
-                   help="which images are held out, by name: llff (default) from the first, so the path's first view "
-                        "is a test view (an extrapolation); interpolated: as many, spread inside the path, each with "
-                        "training views on both sides")
-    p.add_argument("--save-at", type=int, nargs="*", default=None, help="also write the PLY at these iterations")
-    p.add_argument("--eval-at", type=int, nargs="*", default=None,
-                   help="evaluate the test views after these iterations too, into metrics.jsonl (default: 7,000 "
-                        "scaled to the run, as the Inria code; the last iteration always)")
-    p.add_argument("--densify-until", type=int, default=None, help="end of the densification window (0: no densification)")
-    p.add_argument("--checkpoint-every", type=int, default=None, help="iterations between checkpoints (1000)")
-    p.add_argument("--seed", type=int, default=None, help="random seed: the same seed gives the same model (0)")
-    p.add_argument("--sh-degree", type=int, default=None, help="largest spherical-harmonics degree, 0 to 3 (3)")
-    p.add_argument("--white-background", action="store_true", default=None, help="white background (Blender scenes)")
-    p.add_argument("--alpha-mask", action="store_true", default=None,
-                   help="images' alpha channel masks pixels out (no loss, no densification statistics) instead of "
-                        "being composited onto the background; a masks/ folder beside images/ is always used")
-    p.add_argument("--split-threshold", type=float, default=None,
-                   help="split Gaussians whose split criterion reaches this (default: the strategy's, 2e-4 for 3dgs "
-                        "and pixelgs, 4e-4 for absgs); a higher one splits less. With DCC the criterion is DC-weighted "
-                        "and the threshold the same")
-    p.add_argument("--max-gaussians", type=int, default=None,
-                   help="a cap, not a target: densification never grows the model past N Gaussians. A step that "
-                        "would takes its clone and split candidates by their criterion over its threshold, highest "
-                        "first; pruning goes on as usual (default: no cap)")
-    g = p.add_argument_group("DC4GS (directional-consistency density control, on any base strategy)")
-    g.add_argument("--dc4gs", action="store_true", default=None, help="DCC and DCS together")
-    g.add_argument("--dcc", action="store_true", default=None,
-                   help="DC-weighted split criterion: a Gaussian is split only where its pixels' gradients disagree")
-    g.add_argument("--dcs", action="store_true", default=None,
-                   help="DC-guided split: children placed on the principal axis where the costs say, not at random")
-    g.add_argument("--dc-pooling", choices=POOLINGS, default=None,
-                   help="directional consistency per view (view: the paper; default) or over the densification "
-                        "window (window: the authors' release)")
-    g.add_argument("--split-pick", choices=SPLIT_PICKS, default=None,
-                   help="split position: minimum of the polynomial through the candidates' costs (poly, default), "
-                        f"the best candidate (argmin), the best of many candidates (dense: {DENSE_CANDIDATES}), or "
-                        "the middle, no costs gathered (middle: an ablation, DCS' split without its placement)")
-    g.add_argument("--split-candidates", type=int, default=None, help="candidate split positions (odd; default 5)")
-    g.add_argument("--dcs-track", type=float, default=None,
-                   help="gather split costs for a Gaussian only in its first views of a window and while its running "
-                        "split criterion is at least this fraction of the threshold (0: every Gaussian that can be "
-                        "split, exact; see the README)")
-    g.add_argument("--dcs-every", type=int, default=None,
-                   help="add to the split costs only every this-many-th iteration's view (1: every view, exact, "
-                        "default; an approximation that skips the split sums' cost in the other views: see the README)")
-    g.add_argument("--dcs-other-scale", type=float, default=None,
-                   help="DCS' children's two other axes times this (1: kept, the paper's, default; 0.625 shrinks them "
-                        "as the 3DGS split does: see the README on regions of large Gaussians)")
-    g.add_argument("--dcc-reading", choices=DCC_READINGS, default=None,
-                   help="what DCC weights on the 3DGS and Pixel-GS bases: the base's own term (base, the paper's "
-                        "literal reading; default) or the homodirectional gradient (abs)")
-    p.add_argument("--low-memory", action="store_true", default=None,
-                   help="the backward adds into per-Gaussian sums with float atomics instead of per-pair slots: "
-                        "about 17%% less device memory, as fast, not bit-reproducible from run to run")
-    p.add_argument("--resume", action="store_true", help="continue the run in --out from its checkpoint")
-    p.add_argument("--force", action="store_true", help="replace a previous run's files in --out")
-    p.add_argument("--viewer", action="store_true",
-                   help="watch training in the browser (the viewer extra; see `view`): while a browser is connected, "
-                        "at most 2 frames a second, each a render training waits for; none costs nothing")
-    p.add_argument("--port", type=int, default=DEFAULT_PORT, help=f"with --viewer: the viewer's port ({DEFAULT_PORT})")
-    p.add_argument("--no-progress", action="store_true", help="no progress display")
-    p.add_argument("--log-every", type=int, default=DEFAULT_LINE_EVERY,
-                   help="when the output is not a terminal (a log file, a job scheduler), one progress line every N "
-                        f"iterations instead of a bar ({DEFAULT_LINE_EVERY})")
-    p.add_argument("--profile", action="store_true", help="print per-stage device time per iteration at the end")
+    p = sub.add_parser("train",
+                       help="train a scene (no arguments: the built-in scene, three to five minutes on 2 cores)")
+    _add_train(p)
     _add_check_finite(p)
     _add_device(p)
 
@@ -176,7 +81,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("bench", help="the benchmark to run on your device and post: per-stage times of a forward and a "
                                      "training iteration, bytes per Gaussian, error against float64 (JSON + markdown)")
-    bench.add_arguments(p)
+    _add_bench(p)
     _add_device(p)
 
     p = sub.add_parser("eval", help="render a trained model's test views and write PSNR / SSIM (results.json)")
@@ -187,8 +92,137 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _add_render(p: argparse.ArgumentParser) -> None:
+    source = p.add_mutually_exclusive_group()
+    source.add_argument("--ply", type=Path, default=None,
+                        help="a standard 3DGS PLY (SH degree 0..3); with neither --ply nor --model, the Gaussians "
+                             "training would start from (the scene's SfM points), which shows whether a scene's "
+                             "cameras are read right")
+    source.add_argument("--model", type=Path, default=None,
+                        help="a training output folder: its scene, settings and saved model (see --iteration); "
+                             "renders and ground truth go to MODEL/<split>/ours_N/ unless --out is given")
+    p.add_argument("--iteration", type=int, default=None,
+                   help="with --model: which saved iteration (default: the last)")
+    p.add_argument("--scene", default=None,
+                   help=f'COLMAP or NeRF (transforms*.json) scene folder, or "{BUILTIN_SCENE}" (the default; with '
+                        "--model, the run's)")
+    p.add_argument("--out", type=Path, default=None,
+                   help="output folder (PNGs under OUT/<split>/renders/; --split all writes train/ and test/); "
+                        "required unless --model")
+    p.add_argument("--split", choices=["test", "train", "all"], default="test")
+    p.add_argument("-r", "--resolution", type=_resolution, default=None,
+                   help="downscale images by this factor (default: widths above 1600 px scaled to 1600; with --model, "
+                        "the run's)")
+    p.add_argument("--white-background", action="store_true", help="render onto white (Blender scenes)")
+    p.add_argument("--profile", action="store_true", help="print per-stage device times (median over views)")
+
+
+def _add_train(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--scene", default=None,
+                   help=f'COLMAP or NeRF scene folder, or "{BUILTIN_SCENE}" (the default)')
+    p.add_argument("--out", type=Path, default=None,
+                   help="output folder (default output/<scene>-<date-time>): point_cloud/iteration_N/point_cloud.ply, "
+                        "cameras.json, config.json, checkpoint.npz, results.json, test/ renders")
+    p.add_argument("--strategy", choices=sorted(STRATEGY_NAMES), default=None, help="densification criterion (3dgs)")
+    p.add_argument("--iterations", type=int, default=None,
+                   help=f"training iterations (default {RECIPE_ITERATIONS:,}; {BUILTIN_ITERATIONS:,} for the built-in "
+                        f"scene). Runs shorter than {RECIPE_ITERATIONS:,} scale the 3DGS schedule to their length")
+    p.add_argument("-r", "--resolution", type=_resolution, default=None,
+                   help="downscale images by this factor (default: widths above 1600 px scaled to 1600)")
+    p.add_argument("--test-every", type=int, default=None,
+                   help=f"every N-th image (by name) is a test image ({TrainConfig.test_every}; 0: none)")
+    p.add_argument("--test-split", choices=TEST_SPLITS, default=None,
+                   help="which images are held out, by name: llff (default) from the first, so the path's first view "
+                        "is a test view (an extrapolation); interpolated: as many, spread inside the path, each with "
+                        "training views on both sides")
+    p.add_argument("--save-at", type=int, nargs="*", default=None, help="also write the PLY at these iterations")
+    p.add_argument("--eval-at", type=int, nargs="*", default=None,
+                   help="evaluate the test views after these iterations too, into metrics.jsonl (default: 7,000 "
+                        "scaled to the run, as the Inria code; the last iteration always)")
+    p.add_argument("--densify-until", type=int, default=None,
+                   help="end of the densification window (0: no densification)")
+    p.add_argument("--checkpoint-every", type=int, default=None,
+                   help=f"iterations between checkpoints ({TrainConfig.checkpoint_every})")
+    p.add_argument("--seed", type=int, default=None,
+                   help=f"random seed: the same seed gives the same model ({TrainConfig.seed})")
+    p.add_argument("--sh-degree", type=int, default=None,
+                   help=f"largest spherical-harmonics degree, 0 to {SH_MAX_DEGREE} ({TrainConfig.sh_degree})")
+    p.add_argument("--white-background", action="store_true", default=None, help="white background (Blender scenes)")
+    p.add_argument("--alpha-mask", action="store_true", default=None,
+                   help="images' alpha channel masks pixels out (no loss, no densification statistics) instead of "
+                        "being composited onto the background; a masks/ folder beside images/ is always used")
+    p.add_argument("--split-threshold", type=float, default=None,
+                   help="split Gaussians whose split criterion reaches this (default: the strategy's, 2e-4 for 3dgs "
+                        "and pixelgs, 4e-4 for absgs); a higher one splits less. With DCC the criterion is DC-weighted "
+                        "and the threshold the same")
+    p.add_argument("--max-gaussians", type=int, default=None,
+                   help="a cap, not a target: densification never grows the model past N Gaussians. A step that "
+                        "would takes its clone and split candidates by their criterion over its threshold, highest "
+                        "first; pruning goes on as usual (default: no cap)")
+    _add_dc4gs(p)
+    p.add_argument("--low-memory", action="store_true", default=None,
+                   help="the backward adds into per-Gaussian sums with float atomics instead of per-pair slots: "
+                        "about 17%% less device memory, as fast, not bit-reproducible from run to run")
+    p.add_argument("--resume", action="store_true", help="continue the run in --out from its checkpoint")
+    p.add_argument("--force", action="store_true", help="replace a previous run's files in --out")
+    p.add_argument("--viewer", action="store_true",
+                   help="watch training in the browser (the viewer extra; see `view`): while a browser is connected, "
+                        "at most 2 frames a second, each a render training waits for; none costs nothing")
+    p.add_argument("--port", type=int, default=DEFAULT_PORT, help=f"with --viewer: the viewer's port ({DEFAULT_PORT})")
+    p.add_argument("--no-progress", action="store_true", help="no progress display")
+    p.add_argument("--log-every", type=int, default=DEFAULT_LINE_EVERY,
+                   help="when the output is not a terminal (a log file, a job scheduler), one progress line every N "
+                        f"iterations instead of a bar ({DEFAULT_LINE_EVERY})")
+    p.add_argument("--profile", action="store_true", help="print per-stage device time per iteration at the end")
+
+
+def _add_dc4gs(p: argparse.ArgumentParser) -> None:
+    g = p.add_argument_group("DC4GS (directional-consistency density control, on any base strategy)")
+    g.add_argument("--dc4gs", action="store_true", default=None, help="DCC and DCS together")
+    g.add_argument("--dcc", action="store_true", default=None,
+                   help="DC-weighted split criterion: a Gaussian is split only where its pixels' gradients disagree")
+    g.add_argument("--dcs", action="store_true", default=None,
+                   help="DC-guided split: children placed on the principal axis where the costs say, not at random")
+    g.add_argument("--dc-pooling", choices=POOLINGS, default=None,
+                   help="directional consistency per view (view: the paper; default) or over the densification "
+                        "window (window: the authors' release)")
+    g.add_argument("--split-pick", choices=SPLIT_PICKS, default=None,
+                   help="split position: minimum of the polynomial through the candidates' costs (poly, default), "
+                        f"the best candidate (argmin), the best of many candidates (dense: {DENSE_CANDIDATES}), or "
+                        "the middle, no costs gathered (middle: an ablation, DCS' split without its placement)")
+    g.add_argument("--split-candidates", type=int, default=None,
+                   help=f"candidate split positions (odd; default {FIVE_CANDIDATES})")
+    g.add_argument("--dcs-track", type=float, default=None,
+                   help="gather split costs for a Gaussian only in its first views of a window and while its running "
+                        "split criterion is at least this fraction of the threshold (0: every Gaussian that can be "
+                        "split, exact; see the README)")
+    g.add_argument("--dcs-every", type=int, default=None,
+                   help="add to the split costs only every this-many-th iteration's view (1: every view, exact, "
+                        "default; an approximation that skips the split sums' cost in the other views: see the README)")
+    g.add_argument("--dcs-other-scale", type=float, default=None,
+                   help="DCS' children's two other axes times this (1: kept, the paper's, default; 0.625 shrinks them "
+                        "as the 3DGS split does: see the README on regions of large Gaussians)")
+    g.add_argument("--dcc-reading", choices=DCC_READINGS, default=None,
+                   help="what DCC weights on the 3DGS and Pixel-GS bases: the base's own term (base, the paper's "
+                        "literal reading; default) or the homodirectional gradient (abs)")
+
+
+def _add_bench(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--out", type=Path, default=Path("."),
+                   help="folder for the report: bench-<platform>-<device>.json and .md (default: here)")
+    p.add_argument("--quick", action="store_true", help="a tiny version of the suite (seconds; checks that it runs)")
+    p.add_argument("--compare", nargs=2, type=Path, metavar=("A.json", "B.json"), default=None,
+                   help="print B's numbers against A's, line by line, and run nothing")
+
+
+def cmd_bench(args) -> int:
+    from .apps.bench import cmd_bench   # the device's modules: the other commands import without them
+    return cmd_bench(args)
+
+
 def cmd_devices(args) -> int:
     import os
+
     from .runtime import DEVICE_ENV, Capabilities, choose_device, default_device, describe, is_simulator, list_devices
     devices = list_devices()
     chosen, _ = choose_device(args.device)
@@ -197,7 +231,8 @@ def cmd_devices(args) -> int:
         print(f"{'*' if key == chosen else ' '} {key}  {describe(dev)}{note}")
         print(f"      {Capabilities.of(dev).summary()}")
     named = args.device if args.device is not None else os.environ.get(DEVICE_ENV)
-    why = f"named by {'--device' if args.device is not None else '$' + DEVICE_ENV}" if named else default_device(devices)[2]
+    why = (f"named by {'--device' if args.device is not None else '$' + DEVICE_ENV}" if named
+           else default_device(devices)[2])
     print(f"(* = the device dc4gs-cl would use: {why}; choose another with --device or ${DEVICE_ENV})")
     return 0
 
@@ -216,16 +251,17 @@ def cmd_render(args) -> int:
         raise InputError(None, "render needs --out (or --model, a training output folder)")
     if args.iteration is not None and run is None:
         raise InputError(None, "--iteration needs --model")
-    cfg = run.read_config() if run is not None else None
-    scene_name = args.scene or (cfg.scene if cfg else BUILTIN_SCENE)
     out = args.out
-    scene = load_scene(scene_name, resolution=args.resolution or (cfg.resolution if cfg else None),
-                       cache_dir=(out or run.path) / "undistorted", test_every=cfg.test_every if cfg else 8,
-                       test_split=cfg.test_split if cfg else "llff",
-                       white_background=args.white_background or (cfg is not None and cfg.white_background))
     if run is not None:
+        cfg = run.read_config()
+        scene_name = args.scene or cfg.scene
+        scene = run.load_scene(cfg, scene=args.scene, resolution=args.resolution,
+                               white_background=args.white_background)
         iteration, model = run.load_model(args.iteration)
     else:
+        scene_name = args.scene or BUILTIN_SCENE
+        scene = load_scene(scene_name, resolution=args.resolution, cache_dir=out / "undistorted",
+                           white_background=args.white_background)
         model = read_ply(args.ply) if args.ply else initial_model(scene.points, scene.colors, np.random.default_rng(0))
     names = ["train", "test"] if args.split == "all" else [args.split]
     splits = {name: cams for name in names if (cams := getattr(scene, name))}
@@ -271,22 +307,13 @@ def print_stage_table(timings: list[dict[str, float]], width: int, height: int) 
     print(f"  {'total':12s} {total:9.2f} ms")
 
 
-DC4GS_FLAGS = {"dcc": "dcc", "dcs": "dcs", "dc_pooling": "pooling", "split_pick": "split_pick",
-               "split_candidates": "candidates", "dcc_reading": "dcc_reading", "dcs_track": "track",
-               "dcs_other_scale": "other_scale", "dcs_every": "cost_every"}
-
-
-def train_config(args, run):
+def train_config(args, run) -> TrainConfig:
     """The run's settings: from the arguments, or with --resume from the run's config.json (explicit
     arguments must then agree with it)."""
-    from dataclasses import fields, replace
-    from .config import TrainConfig
-    from .host.densify import DC4GSConfig
     if args.dc4gs:
         args.dcc = args.dcs = True
-    # the settings the command line gives (each flag defaults to None: "not given")
-    given = {f.name: getattr(args, f.name) for f in fields(TrainConfig) if getattr(args, f.name, None) is not None}
-    dc4gs_given = {field: getattr(args, flag) for flag, field in DC4GS_FLAGS.items() if getattr(args, flag) is not None}
+    # the settings the command line gives, named as in FLAGS (each flag defaults to None: "not given")
+    given = {setting: value for flag, setting in FLAGS.items() if (value := getattr(args, flag_key(flag))) is not None}
     for key in ("save_at", "eval_at"):
         if key in given:
             given[key] = tuple(given[key])
@@ -296,29 +323,27 @@ def train_config(args, run):
         if not run.config_path.is_file():
             raise InputError(run.path, "nothing to resume: no config.json from an earlier run")
         cfg = run.read_config()
-        clash = {k: (getattr(cfg, k), v) for k, v in given.items() if getattr(cfg, k) != v}
-        clash |= {f"dc4gs.{k}": (getattr(cfg.dc4gs, k), v) for k, v in dc4gs_given.items() if getattr(cfg.dc4gs, k) != v}
+        clash = {k: (saved, v) for k, v in given.items() if (saved := reduce(getattr, k.split("."), cfg)) != v}
         if clash:
             raise InputError(run.config_path, "--resume continues the saved settings; these differ: " +
                              ", ".join(f"{k} {a!r} (saved) vs {b!r}" for k, (a, b) in clash.items()))
         return cfg
     given.setdefault("scene", BUILTIN_SCENE)
     given.setdefault("iterations", BUILTIN_ITERATIONS if given["scene"] == BUILTIN_SCENE else RECIPE_ITERATIONS)
-    given["white_background"] = bool(given.get("white_background"))
-    given["alpha_mask"] = bool(given.get("alpha_mask"))
+    dc4gs_given = {k.removeprefix("dc4gs."): given.pop(k) for k in list(given) if k.startswith("dc4gs.")}
     try:
         dc4gs = DC4GSConfig(**dc4gs_given)
     except ValueError as e:   # every DC4GS setting is checked, DC4GS on or off: a mistyped flag never passes
         raise InputError(None, str(e)) from None
-    return replace(TrainConfig(**given), dc4gs=dc4gs)
+    return TrainConfig(**given, dc4gs=dc4gs)
 
 
 def cmd_train(args) -> int:
     import time
+
     from .evaluate import per_view_lines
     from .run_folder import RunFolder
     from .runtime import Runtime, describe
-    from .scene import load_scene
     from .train import Stopped, Trainer
     from .train.log import progress_mode
 
@@ -337,9 +362,7 @@ def cmd_train(args) -> int:
     if not args.resume and run.holds_run() and not args.force:
         raise InputError(run.path, "holds another run: continue it with --resume, or replace it with --force")
     cfg = train_config(args, run)
-    scene = load_scene(cfg.scene, resolution=cfg.resolution, cache_dir=run.path / "undistorted",
-                       test_every=cfg.test_every, test_split=cfg.test_split, white_background=cfg.white_background,
-                       alpha_mask=cfg.alpha_mask)
+    scene = run.load_scene(cfg)
     scene.read_all_images()
     rt = Runtime(args.device, profiling=True)   # stage times go to metrics.jsonl; no measurable cost on PoCL
     trainer = Trainer(cfg, scene, rt, run, check_finite=args.check_finite)
@@ -356,9 +379,9 @@ def cmd_train(args) -> int:
         if args.force:
             run.clear()
         run.write_settings(cfg, scene)
-    print(f"device: {describe(rt.device)}\nscene: {cfg.scene} ({len(scene.train)} train / {len(scene.test)} test views, "
-          f"{scene.train[0].width}x{scene.train[0].height}), strategy {trainer.strategy.label}, {cfg.iterations:,} iterations, "
-          f"{trainer.model.n:,} initial Gaussians\noutput: {run}", file=sys.stderr)
+    print(f"device: {describe(rt.device)}\nscene: {cfg.scene} ({len(scene.train)} train / {len(scene.test)} test "
+          f"views, {scene.train[0].width}x{scene.train[0].height}), strategy {trainer.strategy.label}, "
+          f"{cfg.iterations:,} iterations, {trainer.model.n:,} initial Gaussians\noutput: {run}", file=sys.stderr)
     start, first = time.perf_counter(), trainer.iteration
     if live is not None:
         print(f"viewer: {live.url}", file=sys.stderr)
@@ -393,14 +416,11 @@ def cmd_eval(args) -> int:
     from .render import DeviceGaussians, Renderer
     from .run_folder import RunFolder
     from .runtime import Runtime
-    from .scene import load_scene
 
     run = RunFolder(args.model)
     cfg = run.read_config()
     iteration, model = run.load_model(args.iteration)
-    scene = load_scene(cfg.scene, resolution=cfg.resolution, cache_dir=run.path / "undistorted",
-                       test_every=cfg.test_every, test_split=cfg.test_split, white_background=cfg.white_background,
-                       alpha_mask=cfg.alpha_mask)
+    scene = run.load_scene(cfg)
     if not scene.test:
         raise InputError(run.config_path, "the run has no test views (test_every = 0)")
     rt = Runtime(args.device)
@@ -415,7 +435,7 @@ def cmd_eval(args) -> int:
 
 COMMANDS = {"devices": cmd_devices, "render": cmd_render, "train": cmd_train, "eval": cmd_eval,
             "report": report.cmd_report, "view": viewer.cmd_view,
-            "export": export.cmd_export, "bench": bench.cmd_bench}
+            "export": export.cmd_export, "bench": cmd_bench}
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -1,5 +1,9 @@
 """A training run's settings: one frozen value, validated once, written to the run folder's config.json and
-read back by --resume and eval (run_folder.py)."""
+read back by --resume and eval (run_folder.py); with the densification settings it holds (DC4GSConfig) or a
+strategy takes (DensifyConfig), and the `train` flag that gives each setting (FLAGS).
+
+Device-free (no OpenCL, no strategy classes), so that `report` and `export` import without a device
+(tests/test_structure.py)."""
 from __future__ import annotations
 
 import json
@@ -8,15 +12,124 @@ from dataclasses import asdict, dataclass, fields
 
 from .constants import SH_MAX_DEGREE
 from .errors import InputError
-from .host.densify import STRATEGIES
-from .host.densify.dc4gs import DC4GSConfig
 from .scene.camera import TEST_SPLITS
 
 RECIPE_ITERATIONS = 30_000   # the 3DGS schedule is written for this many iterations; shorter runs scale it
 OUTPUT_SETTINGS = ("save_at", "checkpoint_every", "eval_at")   # settings that do not change the trained model
-# config.json of runs made before the DC4GS settings were nested: flat key -> DC4GSConfig field
-FLAT_DC4GS_KEYS = {"dcc": "dcc", "dcs": "dcs", "dc_pooling": "pooling", "split_pick": "split_pick",
-                   "split_candidates": "candidates", "dcc_reading": "dcc_reading", "dcs_track": "track"}
+DEFAULT_LINE_EVERY = 100     # --log-every: iterations between progress lines when the output is not a terminal
+# The strategies' names, spelled here so that settings are checked without importing the strategies (device
+# code); densify.STRATEGIES holds a class for each, in this order (tests/test_structure.py checks)
+STRATEGY_NAMES = ("3dgs", "absgs", "pixelgs")
+POOLINGS = ("view", "window")       # per view (the paper) or over the window (the authors' release)
+SPLIT_PICKS = ("poly", "argmin", "dense", "middle")   # middle: DCS' split at x = 0.5, no costs (an ablation)
+DCC_READINGS = ("abs", "base")
+FIVE_CANDIDATES = 5                 # the paper's candidate count
+DENSE_CANDIDATES = 59               # --split-pick dense without --split-candidates
+
+# `train`'s flags -> the setting each gives: a TrainConfig field, or "dc4gs.<field>" of its DC4GSConfig; in the
+# fields' order, which --resume's list of differing settings follows. cli.py reads the settings given through it,
+# and the checks below name a setting by its flag (FLAG_OF).
+FLAGS = {
+    "--scene": "scene", "--iterations": "iterations", "--strategy": "strategy", "--resolution": "resolution",
+    "--test-every": "test_every", "--test-split": "test_split", "--white-background": "white_background",
+    "--alpha-mask": "alpha_mask", "--seed": "seed", "--sh-degree": "sh_degree", "--save-at": "save_at",
+    "--checkpoint-every": "checkpoint_every", "--eval-at": "eval_at", "--densify-until": "densify_until",
+    "--split-threshold": "split_threshold", "--max-gaussians": "max_gaussians", "--low-memory": "low_memory",
+    "--dcc": "dc4gs.dcc", "--dcs": "dc4gs.dcs", "--dc-pooling": "dc4gs.pooling", "--split-pick": "dc4gs.split_pick",
+    "--split-candidates": "dc4gs.candidates", "--dcc-reading": "dc4gs.dcc_reading", "--dcs-track": "dc4gs.track",
+    "--dcs-other-scale": "dc4gs.other_scale", "--dcs-every": "dc4gs.cost_every"}
+FLAG_OF = {setting: flag for flag, setting in FLAGS.items()}
+
+
+def flag_key(flag: str) -> str:
+    """A flag's name as argparse stores it (--dc-pooling: dc_pooling)."""
+    return flag[2:].replace("-", "_")
+
+
+# config.json of runs made before the DC4GS settings were nested held them flat, under their flag's key
+FLAT_DC4GS_KEYS = {flag_key(flag): setting.removeprefix("dc4gs.") for flag, setting in FLAGS.items()
+                   if setting.startswith("dc4gs.")}
+
+
+def flagged_problems(checks: list[tuple[str, bool, str]]) -> list[str]:
+    """The messages of the failed checks, (setting, failed, what is wrong), each naming the setting's flag."""
+    return [f"{FLAG_OF[setting]} {text}" for setting, failed, text in checks if failed]
+
+
+@dataclass(frozen=True)
+class DensifyConfig:
+    """A strategy's densification hyperparameters (densify.strategy.Strategy.default_config); the run's
+    schedule scales them to its length (train.schedule)."""
+    densify_from: int = 500            # densify at iterations densify_from < it < densify_until ...
+    densify_until: int = 15_000        # ... that are multiples of densify_every; statistics gather up to the last
+    densify_every: int = 100
+    clone_threshold: float = 2e-4      # on the mean per-view criterion, NDC units
+    split_threshold: float = 2e-4
+    percent_dense: float = 0.01        # "small" = largest scale <= percent_dense * extent: clone, else split
+    prune_opacity: float = 0.005
+    big_world_after: int = 3_000       # after this iteration also prune largest scale > big_world_fraction * extent
+    big_world_fraction: float = 0.1
+    screen_size_px: float | None = None  # the 3DGS screen-size rule (radius > 20 px); off: never fires in the releases
+    opacity_reset_every: int = 3_000
+    opacity_reset_to: float = 0.01
+    opacity_clamp_every: int | None = None   # AbsGS: clamp opacities to <= opacity_clamp this often
+    opacity_clamp: float = 0.8
+    max_gaussians: int | None = None   # densification never grows the model past this (cap_growth)
+
+
+@dataclass(frozen=True)
+class DC4GSConfig:
+    """DC4GS' settings (densify/dc4gs.py: its criterion and split position); off unless dcc or dcs (every
+    setting is still checked, so that a mistyped flag never passes silently)."""
+    dcc: bool = False               # DC-weighted split criterion
+    dcs: bool = False               # DC-guided split placement
+    pooling: str = "view"
+    split_pick: str = "poly"
+    candidates: int | None = None   # odd; None: FIVE_CANDIDATES, or DENSE_CANDIDATES with split_pick "dense"
+    dcc_reading: str = "base"       # base: (1 - kappa) x the base's own per-view term; abs: (1 - kappa) |ghat|
+    track: float = 0.0              # split costs only while the running split criterion >= track x threshold (0: exact)
+    other_scale: float = 1.0        # DCS children's other two axes x this (1, the paper's: kept; release: const_scale)
+    cost_every: int = 1             # split costs from every this-many-th iteration's view only (1: every view, exact)
+
+    def __post_init__(self):
+        if problems := self.problems():
+            raise ValueError("; ".join(problems))
+
+    @property
+    def enabled(self) -> bool:
+        return self.dcc or self.dcs
+
+    @property
+    def costs_pick(self) -> bool:
+        """Whether DCS' split position comes from the candidates' costs (not with split_pick middle)."""
+        return self.dcs and self.split_pick != "middle"
+
+    @property
+    def candidate_count(self) -> int:
+        if self.candidates is not None:
+            return self.candidates
+        return DENSE_CANDIDATES if self.split_pick == "dense" else FIVE_CANDIDATES
+
+    @property
+    def label(self) -> str:
+        """DC4GS, DCC or DCS: what a strategy's name gets appended."""
+        return "DC4GS" if self.dcc and self.dcs else ("DCC" if self.dcc else "DCS")
+
+    def problems(self) -> list[str]:
+        """What is wrong with these settings, named by their command-line flags (empty: nothing)."""
+        return flagged_problems([
+            *((f"dc4gs.{name}", value not in allowed, f"{value!r} is not one of {', '.join(allowed)}")
+              for name, value, allowed in (("pooling", self.pooling, POOLINGS),
+                                           ("split_pick", self.split_pick, SPLIT_PICKS),
+                                           ("dcc_reading", self.dcc_reading, DCC_READINGS))),
+            ("dc4gs.candidates", self.candidate_count < 3 or self.candidate_count % 2 == 0,
+             f"{self.candidate_count} must be odd and at least 3"),
+            ("dc4gs.track", not 0 <= self.track <= 1, f"{self.track} must lie in [0, 1]"),
+            ("dc4gs.other_scale", not 0 < self.other_scale <= 1, f"{self.other_scale} must lie in (0, 1]"),
+            ("dc4gs.cost_every", self.cost_every < 1, f"{self.cost_every} must be at least 1"),
+            # window pooling costs the sides' running sums at every visible view, which a skipped view cannot add to
+            ("dc4gs.cost_every", self.cost_every > 1 and self.pooling == "window",
+             f"{self.cost_every} needs {FLAG_OF['dc4gs.pooling']} view")])
 
 
 @dataclass(frozen=True)
@@ -49,29 +162,26 @@ class TrainConfig:
     dc4gs: DC4GSConfig = DC4GSConfig()     # off unless dcc or dcs
 
     def __post_init__(self):
-        problems = []
-        if self.iterations < 1:
-            problems.append(f"--iterations {self.iterations} must be at least 1")
-        if self.strategy not in STRATEGIES:
-            problems.append(f"--strategy {self.strategy!r} is not one of {', '.join(STRATEGIES)}")
-        if any(s < 1 or s > self.iterations for s in self.save_at):
-            problems.append(f"--save-at {list(self.save_at)} must lie in 1..{self.iterations}")
-        if self.eval_at is not None and any(s < 1 or s > self.iterations for s in self.eval_at):
-            problems.append(f"--eval-at {list(self.eval_at)} must lie in 1..{self.iterations}")
-        if self.test_every < 0:
-            problems.append(f"--test-every {self.test_every} must be 0 (no test views) or positive")
-        if self.test_split not in TEST_SPLITS:
-            problems.append(f"--test-split {self.test_split!r} is not one of {', '.join(TEST_SPLITS)}")
-        if self.split_threshold is not None and not (math.isfinite(self.split_threshold) and self.split_threshold > 0):
-            problems.append(f"--split-threshold {self.split_threshold} must be a positive number")
-        if self.checkpoint_every < 1:
-            problems.append(f"--checkpoint-every {self.checkpoint_every} must be at least 1")
-        if self.densify_until is not None and self.densify_until < 0:
-            problems.append(f"--densify-until {self.densify_until} must be >= 0")
-        if self.max_gaussians is not None and self.max_gaussians < 1:
-            problems.append(f"--max-gaussians {self.max_gaussians} must be at least 1")
-        if not 0 <= self.sh_degree <= SH_MAX_DEGREE:
-            problems.append(f"--sh-degree {self.sh_degree} must be 0..{SH_MAX_DEGREE}")
+        problems = flagged_problems([
+            ("iterations", self.iterations < 1, f"{self.iterations} must be at least 1"),
+            ("strategy", self.strategy not in STRATEGY_NAMES,
+             f"{self.strategy!r} is not one of {', '.join(STRATEGY_NAMES)}"),
+            ("save_at", any(s < 1 or s > self.iterations for s in self.save_at),
+             f"{list(self.save_at)} must lie in 1..{self.iterations}"),
+            ("eval_at", self.eval_at is not None and any(s < 1 or s > self.iterations for s in self.eval_at),
+             f"{list(self.eval_at or ())} must lie in 1..{self.iterations}"),
+            ("test_every", self.test_every < 0, f"{self.test_every} must be 0 (no test views) or positive"),
+            ("test_split", self.test_split not in TEST_SPLITS,
+             f"{self.test_split!r} is not one of {', '.join(TEST_SPLITS)}"),
+            ("split_threshold", self.split_threshold is not None
+             and not (math.isfinite(self.split_threshold) and self.split_threshold > 0),
+             f"{self.split_threshold} must be a positive number"),
+            ("checkpoint_every", self.checkpoint_every < 1, f"{self.checkpoint_every} must be at least 1"),
+            ("densify_until", self.densify_until is not None and self.densify_until < 0,
+             f"{self.densify_until} must be >= 0"),
+            ("max_gaussians", self.max_gaussians is not None and self.max_gaussians < 1,
+             f"{self.max_gaussians} must be at least 1"),
+            ("sh_degree", not 0 <= self.sh_degree <= SH_MAX_DEGREE, f"{self.sh_degree} must be 0..{SH_MAX_DEGREE}")])
         if problems:
             raise InputError(None, "; ".join(problems))
 

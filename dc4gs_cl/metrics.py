@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .loss import Loss
+from .backward.loss import Loss
 from .render.stage import StageContext
 from .runtime import Runtime
 

@@ -10,7 +10,7 @@ Layout (one row per Gaussian, float32, C-contiguous):
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -92,6 +92,42 @@ def sigmoid(x: np.ndarray) -> np.ndarray:
 def logit(p: np.ndarray | float) -> np.ndarray:
     p = np.asarray(p, dtype=np.float64)
     return np.log(p / (1.0 - p))
+
+
+@dataclass
+class GaussianSet:
+    """The Gaussians in training, on the host (densification, checkpoints): everything per Gaussian that must
+    stay aligned: parameters (name -> (n, width) float32 arrays in PARAM_GROUPS order) and their Adam moments
+    m and v (same names and shapes)."""
+    params: dict[str, np.ndarray]
+    m: dict[str, np.ndarray]
+    v: dict[str, np.ndarray]
+    aux: dict[str, np.ndarray] = field(default_factory=dict)   # (n,) values copied to clones and children
+
+    @property
+    def n(self) -> int:
+        return len(self.params["means"])
+
+    def keep(self, mask: np.ndarray) -> None:
+        for group in (self.params, self.m, self.v, self.aux):
+            for k in group:
+                group[k] = group[k][mask]
+
+    def append(self, new: dict[str, np.ndarray], parents: np.ndarray) -> None:
+        """Add Gaussians with these parameters, zero moments, and the aux values of their parents."""
+        for k in self.params:
+            add = np.asarray(new[k], np.float32).reshape(-1, self.params[k].shape[1])
+            self.params[k] = np.concatenate([self.params[k], add])
+            self.m[k] = np.concatenate([self.m[k], np.zeros_like(add)])
+            self.v[k] = np.concatenate([self.v[k], np.zeros_like(add)])
+        for k in self.aux:
+            self.aux[k] = np.concatenate([self.aux[k], self.aux[k][parents]])
+
+    def scales(self) -> np.ndarray:
+        return np.exp(self.params["log_scales"].astype(np.float64))
+
+    def opacities(self) -> np.ndarray:
+        return sigmoid(self.params["opacity_logits"][:, 0].astype(np.float64))
 
 
 # initialisation --------------------------------------------------------------------------------

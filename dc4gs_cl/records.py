@@ -18,7 +18,7 @@ CAMERA = Record("CAMERA", [
 ])
 
 # Adam's step, fused into project_backward.cl (kernels/adam.h). The host owns the logic (step counts,
-# schedules, which groups step: host/adam.py); this is what the arithmetic needs.
+# schedules, which groups step: optim/adam.py); this is what the arithmetic needs.
 SH_REST_RATE = len(PARAM_GROUPS)   # lr[SH_REST_RATE]: the rate of the SH bands above the DC band
 ADAM_STEP = Record("ADAM", [
     ("lr", len(PARAM_GROUPS) + 1),  # rate of each group (PARAM_<GROUP>), then the SH bands above DC

@@ -26,11 +26,12 @@ from pathlib import Path
 
 import numpy as np
 
+from . import scene as scenes
+from .config import TrainConfig
 from .errors import InputError, OutputError
 from .files import write_atomic, write_json
 from .model import GaussianModel
 from .ply import read_ply, write_ply
-from .config import TrainConfig
 
 CONFIG = "config.json"
 CHECKPOINT, PREVIOUS_CHECKPOINT = "checkpoint.npz", "checkpoint.prev.npz"
@@ -40,6 +41,7 @@ RUN_FILES = (CONFIG, "cfg_args", "cameras.json", CHECKPOINT, PREVIOUS_CHECKPOINT
 RUN_DIRS = ("point_cloud", "test", "train")
 META = "meta"           # the checkpoint entry holding the JSON metadata
 CHECKSUM = "sha256"     # the metadata key holding checkpoint_checksum(arrays, meta)
+STATE_GROUPS = ("param", "m", "v", "window")   # TrainingState's array groups, "<group>/<name>", in its fields' order
 
 
 def checkpoint_checksum(arrays: dict[str, np.ndarray], meta: dict) -> str:
@@ -71,11 +73,60 @@ def _one_line(e: Exception) -> str:
 
 
 @dataclass
+class TrainingState:
+    """What a checkpoint holds: all a run needs to continue bit for bit. The arrays are stored in STATE_GROUPS,
+    the rest in the JSON metadata, with the Gaussian count."""
+    config: TrainConfig
+    params: dict[str, np.ndarray]   # the Gaussians' parameters (name -> (n, width)) ...
+    m: dict[str, np.ndarray]        # ... and Adam's moments, same names and shapes
+    v: dict[str, np.ndarray]
+    window: dict[str, np.ndarray]   # the densification window's columns
+    iteration: int
+    adam_steps: int
+    rng: dict                       # the NumPy bit generator's state
+    camera_stack: list[int]
+    train_cameras: list[str]        # their names: a run resumed with other images is refused
+    loss_sums: tuple[list[float], int] | None   # the loss's running sums and calls (None before metrics.jsonl)
+
+    def entries(self) -> tuple[dict[str, np.ndarray], dict]:
+        """The named arrays and metadata that RunFolder.write_checkpoint writes."""
+        groups = dict(zip(STATE_GROUPS, (self.params, self.m, self.v, self.window)))
+        arrays = {f"{group}/{k}": a for group, named in groups.items() for k, a in named.items()}
+        meta = {"iteration": self.iteration, "config": self.config.to_json(), "adam_steps": self.adam_steps,
+                "rng": self.rng, "camera_stack": self.camera_stack, "train_cameras": self.train_cameras,
+                "gaussians": len(self.params["means"]), "loss_sums": self.loss_sums}
+        return arrays, meta
+
+
+@dataclass
 class Checkpoint:
     path: Path                      # the file read
     arrays: dict[str, np.ndarray]
     meta: dict
     passed_over: list[InputError]   # newer checkpoints found corrupt
+
+    def training_state(self, loss_stats: int) -> TrainingState:
+        """The state the arrays and metadata hold (TrainingState.entries wrote them); InputError where they hold
+        none. loss_stats: how many running sums the loss keeps (loss.STAT_KEYS)."""
+        meta = self.meta
+        named = lambda group: {k.split("/", 1)[1]: a for k, a in self.arrays.items() if k.startswith(group + "/")}
+        params, m, v, window = map(named, STATE_GROUPS)
+        try:
+            loss_sums = meta.get("loss_sums")
+            if loss_sums is not None:   # checkpoints before metrics.jsonl have none
+                sums, calls = loss_sums
+                loss_sums = [float(x) for x in sums], int(calls)
+                if len(sums) != loss_stats:
+                    raise ValueError(f"loss_sums holds {len(sums)} sums")
+            state = TrainingState(TrainConfig.from_json(meta["config"]), params, m, v, window, meta["iteration"],
+                                  meta["adam_steps"], meta["rng"], meta["camera_stack"], meta["train_cameras"],
+                                  loss_sums)
+            n = meta["gaussians"]
+        except (KeyError, TypeError, ValueError, InputError) as e:
+            raise InputError(self.path, f"corrupt checkpoint ({e.__class__.__name__}: {e})") from None
+        if any(a.shape[:1] != (n,) for named in (params, m, v) for a in named.values()):
+            raise InputError(self.path, f"corrupt checkpoint (arrays of other lengths than its {n} Gaussians)")
+        return state
 
 
 class RunFolder:
@@ -141,6 +192,17 @@ class RunFolder:
         except (OSError, ValueError, TypeError, InputError) as e:   # ValueError covers bad JSON and bad UTF-8
             problem = e.problem if isinstance(e, InputError) else _one_line(e)
             raise InputError(self.config_path, f"unreadable run settings ({problem})") from None
+
+    def load_scene(self, cfg: TrainConfig | None = None, scene: str | None = None, resolution: int | None = None,
+                   white_background: bool = False) -> scenes.Scene:
+        """The scene as the run's settings load it (cfg, else config.json): its resolution, test views,
+        background and alpha masks, the undistorted images cached in the folder. scene and resolution replace
+        the run's, white_background makes it white (render's --scene, -r, --white-background)."""
+        cfg = self.read_config() if cfg is None else cfg
+        return scenes.load_scene(scene or cfg.scene, resolution=resolution or cfg.resolution,
+                                 cache_dir=self.path / "undistorted", test_every=cfg.test_every,
+                                 test_split=cfg.test_split, white_background=white_background or cfg.white_background,
+                                 alpha_mask=cfg.alpha_mask)
 
     # models ----------------------------------------------------------------------------------------------
     def save_model(self, iteration: int, model: GaussianModel) -> Path:

@@ -372,3 +372,51 @@ class Runtime:
         """Fill the first nbytes of buf with a 4-byte pattern (a float32, int32 or uint32 scalar)."""
         if nbytes:
             cl.enqueue_fill_buffer(self.queue, buf, value, 0, int(nbytes))
+
+
+class DeviceArrays:
+    """Named (n, width) float32 arrays on the device sharing one Gaussian count and capacity: spare capacity
+    (grown_size) so that densification does not reallocate every time. The parameters (render.gaussians), Adam's
+    moments (optim) and the densification window (densify) are such arrays."""
+
+    def __init__(self, rt: Runtime, widths: dict[str, int], n: int = 0):
+        self.rt, self.widths = rt, dict(widths)
+        self.n, self.capacity = 0, 0
+        self.buffers: dict[str, cl.Buffer] = {}
+        self.resize(n)
+
+    def resize(self, n: int) -> None:
+        """Set the count; growing past the capacity reallocates (contents are then undefined)."""
+        if max(n, 1) > self.capacity:
+            self.capacity = grown_size(max(n, 1), self.capacity)
+            # Growing keeps no contents, so each old buffer goes before its larger one is made.
+            for k, w in self.widths.items():
+                self.buffers[k] = None
+                self.buffers[k] = self.rt.buffer(4 * w * self.capacity)
+        self.n = n
+
+    @property
+    def nbytes(self) -> int:
+        """Device bytes held (capacity included)."""
+        return sum(b.size for b in self.buffers.values())
+
+    def upload(self, arrays: dict[str, np.ndarray]) -> None:
+        """Replace the contents (and the count) with host arrays of shape (n, ...)."""
+        n = len(next(iter(arrays.values())))
+        self.resize(n)
+        for name in self.widths:
+            self.rt.write(self.buffers[name], np.ascontiguousarray(arrays[name], dtype=np.float32))
+
+    def download(self) -> dict[str, np.ndarray]:
+        return {k: self.download_group(k) for k in self.widths}
+
+    def download_group(self, name: str) -> np.ndarray:
+        return self.rt.to_host(self.buffers[name], (self.n, self.widths[name]))
+
+    def upload_group(self, name: str, array: np.ndarray) -> None:
+        self.rt.write(self.buffers[name], np.ascontiguousarray(array, dtype=np.float32).reshape(self.n, self.widths[name]))
+
+    def zero(self, name: str | None = None) -> None:
+        """Zero every group (or only `name`) for the n Gaussians."""
+        for k in ([name] if name else self.widths):
+            self.rt.fill(self.buffers[k], np.float32(0), 4 * self.widths[k] * self.n)

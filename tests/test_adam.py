@@ -2,14 +2,15 @@
 rule fed with the same kernel's stored gradients; and the learning-rate schedule."""
 import numpy as np
 import pytest
-
-from dc4gs_cl.backward import GRADIENTS, ProjectBackward
-from dc4gs_cl.host.adam import Adam, AdamConfig, exponential_lr
-from dc4gs_cl.model import group_widths
-from dc4gs_cl.render import DeviceGaussians, Renderer
-from dc4gs_cl.render.gaussians import DeviceArrays
-from dc4gs_cl.scene.camera import Camera
 from helpers import random_model
+
+from dc4gs_cl.backward import ProjectBackward
+from dc4gs_cl.model import group_widths
+from dc4gs_cl.optim.adam import Adam, AdamConfig, exponential_lr
+from dc4gs_cl.render import DeviceGaussians, Renderer
+from dc4gs_cl.runtime import DeviceArrays
+from dc4gs_cl.scene.camera import Camera
+from dc4gs_cl.statistics import GRADIENTS
 
 
 def adam_reference(p, g, m, v, t, lr, b1=0.9, b2=0.999, eps=1e-15):

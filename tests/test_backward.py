@@ -2,16 +2,17 @@
 device kernels against the references on fresh random inputs."""
 import numpy as np
 import pytest
+from helpers import NARROW_SHAPE, SHAPES, random_camera, random_model
 
 from dc4gs_cl import constants as K
+from dc4gs_cl.backward import ProjectBackward, RasterizeBackward
+from dc4gs_cl.model import group_widths
 from dc4gs_cl.reference.isect import intersect_reference
 from dc4gs_cl.reference.rasterize import (_tile_blend, rasterize_backward_reference, rasterize_reference,
                                           undecided_pixels)
-from dc4gs_cl.backward import GRADIENTS, ProjectBackward, RasterizeBackward, SumsLayout
-from dc4gs_cl.model import group_widths
 from dc4gs_cl.render import DeviceGaussians, Renderer
 from dc4gs_cl.render.workspace import POISON
-from helpers import NARROW_SHAPE, SHAPES, random_camera, random_model
+from dc4gs_cl.statistics import GRADIENTS, SumsLayout
 
 
 def small_raster_case(rng, n=12, width=37, height=29):

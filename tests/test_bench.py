@@ -6,7 +6,7 @@ import math
 
 import pytest
 
-from dc4gs_cl import bench
+from dc4gs_cl.apps import bench
 from dc4gs_cl.cli import main
 
 

@@ -6,7 +6,7 @@ import pytest
 
 from dc4gs_cl.errors import InputError
 from dc4gs_cl.scene import load_scene
-from dc4gs_cl.scene.builtin import BUILTIN_SCENE, _cast, builtin_scene
+from dc4gs_cl.scene.builtin import BUILTIN_SCENE, builtin_scene, cast_rays
 from dc4gs_cl.scene.camera import Camera, split_train_test
 
 
@@ -60,7 +60,7 @@ def projection_errors(scene, mirror: bool = False):
         # occlusion: cast a ray from the camera centre to the point itself (no intrinsics involved)
         offset = scene.points[ok] - cam.center
         dist = np.linalg.norm(offset, axis=1)
-        _, hit = _cast(cam.center.astype(np.float32)[:, None], (offset / dist[:, None]).T.astype(np.float32))
+        _, hit = cast_rays(cam.center.astype(np.float32)[:, None], (offset / dist[:, None]).T.astype(np.float32))
         seen = np.abs(hit - dist) < 0.015 * scene.extent        # 5 sigma of the position noise
         pixels = scene.image(cam)[v[ok][seen].astype(int), u[ok][seen].astype(int)]  # pixel (i, j) spans [i, i+1)
         errors.append(np.abs(pixels - scene.colors[ok][seen]).max(axis=1))

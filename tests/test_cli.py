@@ -1,13 +1,21 @@
-"""The command line: help, devices, render, and bad input (exit code 2, the file named, no output)."""
+"""The command line: help, devices, render, and bad input (exit code 2, the file named, no output); every
+command loads a run's scene and settings as the run trained."""
+import argparse
 import shutil
 import subprocess
 import sys
 
 import numpy as np
 import pytest
+from helpers import load_tool
 
-from dc4gs_cl.cli import main
+from dc4gs_cl.apps import viewer
+from dc4gs_cl.cli import build_parser, main, train_config
+from dc4gs_cl.config import DC4GSConfig, TrainConfig
+from dc4gs_cl.files import write_json
 from dc4gs_cl.ply import write_ply
+from dc4gs_cl.run_folder import RunFolder
+from dc4gs_cl.scene import load_scene
 from dc4gs_cl.scene.images import read_image
 from dc4gs_cl.testing import random_model
 
@@ -81,3 +89,47 @@ def test_bad_input_exits_2_names_the_file_and_writes_nothing(tmp_path, rng, caps
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and named in err[0] and err[0].startswith("dc4gs-cl render: error:")
     assert not (out / "test").exists()
+
+
+class SceneLoaded(Exception):
+    """Stops a command once it has its scene, before it needs a device."""
+
+
+def test_every_command_loads_a_runs_scene_as_it_trained(tmp_path, rng, monkeypatch):
+    """render, eval, view, train and tools/bench_export load a run's scene through RunFolder.load_scene: its
+    test views (here interpolated) and its alpha masks, which render and the viewer once dropped."""
+    fuzz_inputs = load_tool("fuzz_inputs")
+    fuzz_inputs.nerf_scene(tmp_path / "scene", rng, channels=4)
+    cfg = TrainConfig(scene=str(tmp_path / "scene"), iterations=10, test_split="interpolated", alpha_mask=True)
+    run = RunFolder(tmp_path / "run")
+    write_json(run.config_path, cfg.to_json())
+    run.save_model(cfg.iterations, random_model(rng, 20, sh_degree=0))
+    expected = load_scene(cfg.scene, test_split="interpolated", alpha_mask=True)
+    assert [c.name for c in expected.test] != [c.name for c in load_scene(cfg.scene).test]   # not llff's views
+    loaded, load = [], RunFolder.load_scene
+
+    def loading(self, *args, **kwargs):
+        loaded.append(load(self, *args, **kwargs))
+        raise SceneLoaded
+    monkeypatch.setattr(RunFolder, "load_scene", loading)
+    monkeypatch.setattr(viewer, "_viser", lambda: None)   # the viewer stops at its scene: viser is never used
+    for argv in (["render", "--model", str(run)], ["eval", "--model", str(run)], ["view", str(run), "--port", "0"],
+                 ["train", "--scene", cfg.scene, "--out", str(tmp_path / "again"), "--test-split", "interpolated",
+                  "--alpha-mask"]):
+        with pytest.raises(SceneLoaded):
+            main(argv)
+    with pytest.raises(SceneLoaded):
+        load_tool("bench_export").load(argparse.Namespace(ply=None, run=run.path, iteration=None))
+    assert len(loaded) == 5
+    for scene in loaded:
+        assert [c.name for c in scene.test] == [c.name for c in expected.test]
+        assert all(scene.mask(c) is not None for c in scene.train)   # the alpha masks
+
+
+def test_resume_takes_the_flags_the_run_was_started_with(tmp_path):
+    """--resume with flags that agree with the saved settings continues them; --dc4gs (DCC and DCS) included."""
+    run = RunFolder(tmp_path)
+    cfg = TrainConfig(scene="builtin", iterations=100, dc4gs=DC4GSConfig(dcc=True, dcs=True))
+    write_json(run.config_path, cfg.to_json())
+    args = build_parser().parse_args(["train", "--out", str(tmp_path), "--resume", "--dc4gs", "--iterations", "100"])
+    assert train_config(args, run) == cfg

@@ -4,15 +4,16 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from helpers import SHAPES, random_camera, random_model
 
-from dc4gs_cl.backward import RasterizeBackward, SplitGeometry, SumsLayout, geometry_record
+from dc4gs_cl.backward import RasterizeBackward, SplitGeometry
 from dc4gs_cl.backward.rasterize_backward import tile_runs
-from dc4gs_cl.host.densify import AbsGS, DC4GSConfig
-from dc4gs_cl.host.densify.statistics import SPLIT_COSTS
+from dc4gs_cl.backward.sum_pairs import CARRY_ROWS, CARRY_TAKEN, RUN_MEMBERS, SPANNING
+from dc4gs_cl.densify import AbsGS, DC4GSConfig
 from dc4gs_cl.reference.dc4gs import split_costs_from_sums, split_geometry_reference
 from dc4gs_cl.reference.rasterize import rasterize_backward_reference
 from dc4gs_cl.render import DeviceGaussians, Renderer
-from helpers import SHAPES, random_camera, random_model
+from dc4gs_cl.statistics import SPLIT_COSTS, SumsLayout, geometry_record
 
 
 def axis_towards_camera(model, idx, cam):
@@ -183,8 +184,8 @@ def test_sum_pairs_folds_the_window_as_the_window_kernel_does(rt, rng, base, poo
     for a frame walked in one run and in runs of tiles (a Gaussian whose pairs span runs carries its partial sums
     from run to run). Over two views (the second adds to a window holding the first), both give the same window
     and gradients, bit for bit, as the full sums folded by the window's own kernel."""
-    from dc4gs_cl.backward import GRADIENTS
-    from dc4gs_cl.host.densify import STRATEGIES
+    from dc4gs_cl.densify import STRATEGIES
+    from dc4gs_cl.statistics import GRADIENTS
     model = random_model(rng, 700, spread=1.0, scale_range=(0.01, 0.12))
     g = DeviceGaussians(rt, model)
     bg = rng.uniform(0, 1, 3)
@@ -206,22 +207,22 @@ def test_sum_pairs_folds_the_window_as_the_window_kernel_does(rt, rng, base, poo
             args = (res, rt.to_device(dL_dimage), bg, gathering.layout, gathering.geometry)
             if name == "window kernel":
                 sums, layout = backwards[name](*args), gathering.layout
-                gathering.window.fold(res, sums, gathering.geometry)
+                backwards[name].densify_stats(res, sums, gathering.geometry, gathering.window)
             else:
                 sums, layout = backwards[name].folding(*args, window=gathering.window)
             assert layout == (GRADIENTS if name != "window kernel" else gathering.layout)
             if name == "runs":                   # a row for each Gaussian spanning runs, each taken once
                 ws = renderers[name].context.ws
-                carried = rt.to_host(ws.get("backward.carry_taken", 4), 1, np.uint32)[0]
+                carried = rt.to_host(ws.get(CARRY_TAKEN, 4), 1, np.uint32)[0]
                 spanning, runs, members = spanning_runs(rt, res, paths["runs"], len(model))
                 assert carried == spanning > 10 and len(runs) >= 4
-                assert ws.get("backward.carry_rows", 4).size >= 4 * gathering.layout.width * spanning
+                assert ws.get(CARRY_ROWS, 4).size >= 4 * gathering.layout.width * spanning
                 # run_spans and each run's members against the host's, on a counter and a list poisoned first
                 stage = backwards[name].sum_pairs
-                rt.fill(ws.get("backward.carry_taken", 4), np.uint32(0xFFFFFFFF), 4)
+                rt.fill(ws.get(SPANNING, 4), np.uint32(0xFFFFFFFF), 4)
                 assert stage.run_spans(res, gathering.layout, gathering.window, runs) == spanning
                 for run in range(1, len(runs)):
-                    rt.fill(ws.get("backward.run_members", 4), np.uint32(0xFFFFFFFF), 4 * len(model))
+                    rt.fill(ws.get(RUN_MEMBERS, 4), np.uint32(0xFFFFFFFF), 4 * len(model))
                     listed = stage.members(res, gathering.layout, gathering.window, run)
                     assert np.array_equal(np.sort(rt.to_host(listed.ids, listed.count, np.uint32)), members[run])
             grads[name] = rt.to_host(sums, (len(model), layout.width))[:, :GRADIENTS.width]
@@ -259,7 +260,7 @@ def test_tile_runs_cut_the_frame_into_runs_within_the_budget(rng):
 def one_view_window(rt, model, cam, target, background, strategy):
     """The window statistics of one view for a hand-built model, through the strategy's hooks (the device
     path training takes)."""
-    from dc4gs_cl.loss import Loss
+    from dc4gs_cl.backward.loss import Loss
     from dc4gs_cl.render.workspace import POISON
     renderer = Renderer(rt, poison=True)
     g = DeviceGaussians(rt, model)
@@ -268,8 +269,9 @@ def one_view_window(rt, model, cam, target, background, strategy):
     Loss(renderer.context)(res.raster.image, rt.to_device(target.astype(np.float32)), cam.width, cam.height, grad)
     strategy.attach(renderer.context, 1.0, len(model))
     gathering = strategy.gather(1, g, cam, res)
-    sums = RasterizeBackward(renderer.context)(res, grad, background, gathering.layout, gathering.geometry)
-    gathering.window.fold(res, sums, gathering.geometry)
+    backward = RasterizeBackward(renderer.context)
+    sums = backward(res, grad, background, gathering.layout, gathering.geometry)
+    backward.densify_stats(res, sums, gathering.geometry, gathering.window)
     return strategy.window.download(), gathering.layout.views(rt.to_host(sums, (len(model), gathering.layout.width)))
 
 
@@ -304,7 +306,7 @@ def two_objects(cam, sigma, boundary, scale_y):
 
 
 def test_dc_guided_split_cuts_where_two_objects_meet(rt):
-    from dc4gs_cl.host.densify.dc4gs import split_positions
+    from dc4gs_cl.densify.dc4gs import split_positions
     cam, model, to_sh = flat_scene(1)
     sigma = 0.5
     model.log_scales[0] = np.log([sigma, 0.05, 0.25])          # long along x: the principal axis
@@ -322,8 +324,8 @@ def test_dc_guided_split_cuts_where_two_objects_meet(rt):
 def test_directional_consistency_tells_a_shift_from_two_objects(rt):
     """Two Gaussians of one view: A's target is A itself shifted (its pixels agree: move), B covers two
     objects (its pixels disagree: split). DCC weights B's gradient by far more than A's."""
-    from dc4gs_cl.host.densify.statistics import ABS_PER_VIEW
     from dc4gs_cl.model import GaussianModel
+    from dc4gs_cl.statistics import ABS_PER_VIEW
     cam, model, to_sh = flat_scene(2)
     sigma = 0.35
     model.log_scales[:] = np.log([sigma, 0.05, 0.2])
@@ -343,10 +345,10 @@ def test_directional_consistency_tells_a_shift_from_two_objects(rt):
 
 
 def fake_view(rt, radius, depth, width, height):
-    """What DensifyStats.fold reads of a render result, for hand-made per-view sums."""
+    """What the window's fold (backward.DensifyStats) reads of a render result, for hand-made per-view sums."""
     from types import SimpleNamespace
-    return SimpleNamespace(width=width, height=height, proj=SimpleNamespace(radius=rt.to_device(radius.astype(np.int32)),
-                                                                            depth=rt.to_device(depth.astype(np.float32))))
+    return SimpleNamespace(width=width, height=height, proj=SimpleNamespace(
+        n=len(radius), radius=rt.to_device(radius.astype(np.int32)), depth=rt.to_device(depth.astype(np.float32))))
 
 
 @pytest.mark.parametrize("pooling", ["view", "window"])
@@ -354,14 +356,15 @@ def fake_view(rt, radius, depth, width, height):
 def test_densify_stats_kernel_matches_reference(rt, rng, pooling, track):
     """Random per-view sums folded by the device (kernels/densify_stats.cl) against the float64 reference of the
     spec (reference/densify_stats.py), view after view, every column of the window."""
-    from dc4gs_cl.host.densify.densify_stats import DensifyStats
-    from dc4gs_cl.host.densify.statistics import ABS_PER_VIEW, PIXELGS_DEPTH_FRACTION, StatisticsSpec
+    from dc4gs_cl.backward import DensifyStats
+    from dc4gs_cl.densify.window import Window
     from dc4gs_cl.reference.densify_stats import fold_view_reference
     from dc4gs_cl.render.stage import StageContext
+    from dc4gs_cl.statistics import ABS_PER_VIEW, PIXELGS_DEPTH_FRACTION, StatisticsSpec
     n, views, candidates, extent, width, height = 300, 7, 5, 3.0, 120, 80
     spec = StatisticsSpec(dc=True, split_candidates=candidates, window_pooling=pooling == "window", tracked=ABS_PER_VIEW)
     layout, geo_record = spec.sums, geometry_record(candidates)
-    stats = DensifyStats(StageContext(rt, poison=True), spec, extent, track_threshold=track)
+    stats, fold = Window(rt, spec, extent, track_threshold=track), DensifyStats(StageContext(rt, poison=True))
     stats.reset(n)
     want = {k: np.zeros((n, w)).squeeze(1) if w == 1 else np.zeros((n, w)) for k, w in spec.window.widths().items()}
     for _ in range(views):
@@ -378,7 +381,7 @@ def test_densify_stats_kernel_matches_reference(rt, rng, pooling, track):
         geometry = np.zeros((n, geo_record.width), np.float32)
         line = rng.random(n) < 0.8
         geometry[line, geo_record.offsets["dir"]] = 1.0
-        stats.fold(fake_view(rt, radius, depth, width, height), rt.to_device(sums), rt.to_device(geometry))
+        fold(fake_view(rt, radius, depth, width, height), rt.to_device(sums), rt.to_device(geometry), stats.fold)
         want = fold_view_reference(want, v, radius, depth, line, width, height, PIXELGS_DEPTH_FRACTION * extent,
                                    pooling == "window", track, (ABS_PER_VIEW.total, ABS_PER_VIEW.count))
     got = stats.download()
@@ -390,7 +393,7 @@ def test_densify_stats_kernel_matches_reference(rt, rng, pooling, track):
 
 
 def test_poly_split_position_is_the_exact_minimum_of_the_interpolating_quartic(rng):
-    from dc4gs_cl.host.densify.dc4gs import interpolating_polynomials, split_positions
+    from dc4gs_cl.densify.dc4gs import interpolating_polynomials, split_positions
     costs = rng.uniform(0, 1, (500, 5)) * 10.0 ** rng.uniform(-6, 2, (500, 1))
     x = split_positions(costs, "poly")
     coeffs = interpolating_polynomials(costs)
@@ -410,7 +413,7 @@ def test_poly_split_position_is_the_exact_minimum_of_the_interpolating_quartic(r
 def test_poly_finds_a_minimum_within_one_grid_cell_of_either_end():
     """A quartic's minimum 1e-4 inside an end of [1/12, 11/12], closer than the search grid's spacing: the
     grid's best point is the end itself, and the exact minimum must still be found."""
-    from dc4gs_cl.host.densify.dc4gs import split_positions
+    from dc4gs_cl.densify.dc4gs import split_positions
     candidates = np.arange(1, 6) / 6
     ends = np.array([1 / 12 + 1e-4, 11 / 12 - 1e-4])
     costs = (candidates[None, :] - ends[:, None]) ** 2 + 0.3          # parabolas: the quartic through them
@@ -418,7 +421,7 @@ def test_poly_finds_a_minimum_within_one_grid_cell_of_either_end():
 
 
 def test_argmin_dense_and_constant_costs():
-    from dc4gs_cl.host.densify.dc4gs import split_positions
+    from dc4gs_cl.densify.dc4gs import split_positions
     costs = np.array([[3.0, 1.0, 2.0, 5.0, 4.0], [0.0] * 5, [2.0] * 5, [1.0, np.nan, 1.0, 1.0, 1.0]])
     np.testing.assert_allclose(split_positions(costs, "argmin"), [2 / 6, 0.5, 0.5, 0.5])
     dense = np.abs(np.linspace(0, 1, 61)[1:-1] - 0.7)[None]       # 59 candidates, minimum nearest 0.7
@@ -430,8 +433,9 @@ def test_argmin_dense_and_constant_costs():
 def test_dc_guided_split_children(rng, shrink_others):
     """Children per the spec (section 5); with --dcs-other-scale F (drawn here) the other two axes are the
     parent's times F, the rest unchanged."""
+    from dc4gs_cl.densify.ops import split_at
     from dc4gs_cl.geometry import quat_to_rotmat
-    from dc4gs_cl.host.densify.ops import GaussianSet, split_at
+    from dc4gs_cl.model import GaussianSet
     n = 3
     q = rng.normal(size=(n, 4))
     params = {"means": rng.normal(size=(n, 3)), "log_scales": np.log([[0.2, 0.5, 0.1], [0.3, 0.3, 0.3], [0.1, 0.1, 0.4]]),
@@ -464,7 +468,7 @@ def test_dc_guided_split_children(rng, shrink_others):
 
 
 def test_noise_sized_costs_split_in_the_middle(rng):
-    from dc4gs_cl.host.densify.dc4gs import split_positions
+    from dc4gs_cl.densify.dc4gs import split_positions
     noise = rng.normal(0, 1e-16, (4, 5))         # vanishing gradients leave only rounding noise
     np.testing.assert_array_equal(split_positions(np.abs(noise), "poly"), 0.5)
 
@@ -472,12 +476,13 @@ def test_noise_sized_costs_split_in_the_middle(rng):
 def test_split_costs_stop_for_gaussians_whose_criterion_stays_low(rt, rng):
     """With tracking, a Gaussian whose running split criterion stays under track x threshold after its
     first views gets no split line (no costs); one above it keeps its line."""
-    from dc4gs_cl.host.densify.densify_stats import DensifyStats
-    from dc4gs_cl.host.densify.statistics import ABS_PER_VIEW, SKIP_SPLIT, TRACK_MIN_VIEWS, StatisticsSpec
+    from dc4gs_cl.backward import DensifyStats
+    from dc4gs_cl.densify.window import Window
+    from dc4gs_cl.statistics import ABS_PER_VIEW, SKIP_SPLIT, TRACK_MIN_VIEWS, StatisticsSpec
     n, candidates = 4, 5
     spec = StatisticsSpec(dc=True, split_candidates=candidates, tracked=ABS_PER_VIEW)
     renderer = Renderer(rt, poison=True)
-    window = DensifyStats(renderer.context, spec, 1.0, track_threshold=1.0)
+    window, fold = Window(rt, spec, 1.0, track_threshold=1.0), DensifyStats(renderer.context)
     window.reset(n)
     sums = np.zeros((n, spec.sums.width), np.float32)
     spec.sums.views(sums)["abs"][:, 0] = [0.1, 5.0, 0.1, 5.0]          # per-view |ghat| below / above 1
@@ -485,7 +490,7 @@ def test_split_costs_stop_for_gaussians_whose_criterion_stays_low(rt, rng):
     no_lines = rt.to_device(np.zeros((n, geometry_record(candidates).width), np.float32))
     for seen in range(TRACK_MIN_VIEWS + 1):
         assert np.array_equal(window.download()[SKIP_SPLIT], [0, 0, 0, 0] if seen < TRACK_MIN_VIEWS else [1, 0, 1, 0])
-        window.fold(view, rt.to_device(sums), no_lines)
+        fold(view, rt.to_device(sums), no_lines, window.fold)
 
     # split_geometry then gives the skipped Gaussians no line, and the others theirs
     cam, model, _ = flat_scene(n)
@@ -494,7 +499,7 @@ def test_split_costs_stop_for_gaussians_whose_criterion_stays_low(rt, rng):
     g = DeviceGaussians(rt, model)
     res = renderer.render(g, cam, 0)
     assert (rt.to_host(res.proj.radius, n, np.int32) > 0).all()
-    geometry = SplitGeometry(renderer.context)(g, cam, res, candidates, window=(window.buffer, window.record))
+    geometry = SplitGeometry(renderer.context)(g, cam, res, candidates, window=window.fold)
     geo = geometry_record(candidates).views(rt.to_host(geometry, (n, geometry_record(candidates).width)))
     np.testing.assert_array_equal(np.abs(geo["dir"]).sum(1) > 0, [False, True, False, True])
 
@@ -502,12 +507,12 @@ def test_split_costs_stop_for_gaussians_whose_criterion_stays_low(rt, rng):
 def test_views_that_dcs_skips_leave_the_split_costs_alone(rt):
     """--dcs-every K (an approximation): the split costs are the sum of what the exact run's every K-th iteration
     adds to them; every other statistic, and the parameters, are the exact run's."""
-    from dc4gs_cl.bench import frozen_trainer
+    from dc4gs_cl.apps.bench import frozen_trainer
     from dc4gs_cl.config import TrainConfig
     from dc4gs_cl.scene.builtin import builtin_scene
     from dc4gs_cl.train import Trainer
     scene = builtin_scene(resolution=4)
-    warm = Trainer(TrainConfig(scene="builtin", iterations=600), scene, rt, "/nonexistent")
+    warm = Trainer(TrainConfig(scene="builtin", iterations=600), scene, rt)
     for _ in range(40):
         warm.step()
     state, every, steps = warm.model.download(), 3, 7

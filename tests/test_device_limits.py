@@ -8,10 +8,10 @@ import numpy as np
 import pyopencl as cl
 import pytest
 
-from dc4gs_cl.bench import frozen_trainer
+from dc4gs_cl.apps.bench import frozen_trainer
 from dc4gs_cl.config import TrainConfig
+from dc4gs_cl.densify import DC4GSConfig
 from dc4gs_cl.errors import DeviceError
-from dc4gs_cl.host.densify import DC4GSConfig
 from dc4gs_cl.runtime import Capabilities, Runtime
 from dc4gs_cl.scene.builtin import builtin_scene
 from dc4gs_cl.train import Trainer
@@ -29,7 +29,7 @@ CONFIGS = {"3dgs": {"strategy": "3dgs"},
 def scene_and_state():
     """The built-in scene at 48x36 and a model trained 60 iterations on it (this device, its own shape)."""
     scene = builtin_scene(resolution=4)
-    warm = Trainer(TrainConfig(scene="builtin", iterations=600), scene, Runtime(), "/nonexistent")
+    warm = Trainer(TrainConfig(scene="builtin", iterations=600), scene, Runtime())
     for _ in range(60):
         warm.step()
     return scene, warm.model.download()
@@ -97,7 +97,8 @@ def test_growing_per_gaussian_arrays_are_never_held_twice(rt):
     old buffer released before its larger one is made: the peak is the old arrays but one, and the new one
     (holding both sets was the peak of a training run: 1,596 bytes per Gaussian with DC4GS, now 1,404)."""
     import gc
-    from dc4gs_cl.render.gaussians import DeviceArrays
+
+    from dc4gs_cl.runtime import DeviceArrays
     arrays = DeviceArrays(rt, {"a": 3, "b": 48, "c": 1}, 10_000)
     old = {k: b.size for k, b in arrays.buffers.items()}
     gc.collect()
@@ -132,6 +133,7 @@ def test_a_growing_scratch_buffer_is_never_held_twice(rt):
     """Growing keeps no contents, so the old buffer is released before the larger one is made: the peak
     is the larger one alone (holding both was the peak of a DC4GS training step)."""
     import gc
+
     from dc4gs_cl.render.workspace import Workspace
     ws = Workspace(rt, poison=True)
     small = ws.get("slots", 40_000).size

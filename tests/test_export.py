@@ -1,5 +1,5 @@
-"""Exports (dc4gs_cl.export): every format read back within its own quantisation bounds, each derived
-from the format's layout (the docstrings of dc4gs_cl/export/*.py); the .splat order and size; the files
+"""Exports (dc4gs_cl.apps.export): every format read back within its own quantisation bounds, each derived
+from the format's layout (the docstrings of dc4gs_cl/apps/export/*.py); the .splat order and size; the files
 read by a tool nobody here wrote: PlayCanvas's splat-transform, whose .spz reader and writer are Niantic's
 own library (skipped with the reason when it is not installed); bad input and unwritable output."""
 import argparse
@@ -12,14 +12,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from dc4gs_cl import export
+from dc4gs_cl.apps import export
+from dc4gs_cl.apps.export import FORMATS, READERS, export_model
+from dc4gs_cl.apps.export.common import SMALLEST_THREE_BITS, SQRT_HALF, dc_colour, unit_quats
+from dc4gs_cl.apps.export.compressed_ply import CHUNK_SIZE, COLOR_BITS, LOG_SCALE_LIMIT, SH_SPAN, XYZ_BITS, morton_order
+from dc4gs_cl.apps.export.splat import SPLAT_RECORD, read_splat
+from dc4gs_cl.apps.export.spz import (SPZ_COLOR_SCALE, SPZ_FRACTIONAL_BITS, SPZ_ROTATION_MAX, SPZ_SCALE_OFFSET,
+                                      SPZ_SCALE_STEPS, SPZ_SH_BUCKETS, SPZ_SH_STEPS, read_spz)
 from dc4gs_cl.errors import InputError, OutputError
-from dc4gs_cl.export import FORMATS, READERS, export_model
-from dc4gs_cl.export.common import SMALLEST_THREE_BITS, SQRT_HALF, dc_colour, unit_quats
-from dc4gs_cl.export.compressed_ply import CHUNK_SIZE, COLOR_BITS, LOG_SCALE_LIMIT, SH_SPAN, XYZ_BITS, morton_order
-from dc4gs_cl.export.splat import SPLAT_RECORD, read_splat
-from dc4gs_cl.export.spz import (SPZ_COLOR_SCALE, SPZ_FRACTIONAL_BITS, SPZ_ROTATION_MAX, SPZ_SCALE_OFFSET,
-                                 SPZ_SCALE_STEPS, SPZ_SH_BUCKETS, SPZ_SH_STEPS, read_spz)
 from dc4gs_cl.model import GaussianModel
 from dc4gs_cl.ply import read_ply, write_ply
 from dc4gs_cl.run_folder import RunFolder

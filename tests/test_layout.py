@@ -5,12 +5,12 @@ import numpy as np
 import pyopencl as cl
 import pytest
 
-from dc4gs_cl.backward import SumsLayout, geometry_record
+from dc4gs_cl.densify import STRATEGIES, DC4GSConfig
 from dc4gs_cl.errors import DeviceError
-from dc4gs_cl.host.densify import STRATEGIES, DC4GSConfig
 from dc4gs_cl.layout import Field, Record
 from dc4gs_cl.records import STRUCTS, records_header
 from dc4gs_cl.runtime import kernel_source
+from dc4gs_cl.statistics import SPLIT_LANES, SumsLayout, geometry_record
 
 PROBE = """
 __kernel void probe(__global uint *layout, const {type} value, __global uint *lanes) {{
@@ -73,17 +73,19 @@ def test_record_offsets_views_and_rows():
 def test_sums_and_window_derive_from_one_spec(strategy, dc4gs):
     """The backward's sums and the window are made from the strategy's one StatisticsSpec: the window has DC4GS'
     columns exactly when the sums carry DC4GS' sums, and the split costs' width is the sums' candidate count.
-    Every record kernels/densify_stats.cl sees gets distinct define names."""
+    Every record kernels/densify_stats.cl sees gets distinct define names, and the split lanes reach the kernels
+    with the layout's defines."""
     spec = STRATEGIES[strategy](dc4gs=dc4gs).statistics
     sums, window = spec.sums, spec.window
     assert ("dc" in sums.record) == ("dcc_abs" in window) == dc4gs.enabled
     assert ("split" in sums.record) == ("split_costs" in window) == dc4gs.dcs
     if dc4gs.dcs:
         assert window.widths()["split_costs"] == sums.split_candidates == dc4gs.candidate_count
-    defines = [sums.record.defines(), window.defines()] + ([geometry_record(sums.split_candidates).defines()]
-                                                           if sums.split_candidates else [])
+    split = [geometry_record(sums.split_candidates).defines(), SPLIT_LANES.defines()] if sums.split_candidates else []
+    defines = [sums.record.defines(), window.defines()] + split
     names = [k for d in defines for k in d]
     assert len(names) == len(set(names))
+    assert not sums.split_candidates or set(SPLIT_LANES.defines()) <= set(sums.defines())
     assert spec.defines()["TRACK_TOTAL"] == window.offsets[STRATEGIES[strategy](dc4gs=dc4gs).split_criterion.total]
 
 

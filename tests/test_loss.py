@@ -4,9 +4,9 @@ import numpy as np
 import pytest
 
 from dc4gs_cl import metrics
-from dc4gs_cl.loss import LAMBDA_DSSIM, Loss
-from dc4gs_cl.render.stage import StageContext
+from dc4gs_cl.backward.loss import LAMBDA_DSSIM, Loss
 from dc4gs_cl.reference import loss as ref
+from dc4gs_cl.render.stage import StageContext
 
 # Work shapes (seg, wg) run on PoCL: the CPU default, the GPUs' and an odd one in between.
 SHAPES = {"cpu": (2304, 1), "gpu": (1, 256), "mid": (7, 4)}

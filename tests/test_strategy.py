@@ -5,9 +5,10 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from dc4gs_cl.densify import AbsGS, DC4GSConfig, DensifyConfig, PixelGS, Strategy, ops
 from dc4gs_cl.geometry import quat_to_rotmat
-from dc4gs_cl.host.densify import AbsGS, DC4GSConfig, DensifyConfig, GaussianSet, PixelGS, Strategy, ops
-from dc4gs_cl.host.densify.statistics import ABS_PER_VIEW, BASE_COLUMNS, GRAD_PER_PIXEL, VIEWS
+from dc4gs_cl.model import GaussianSet
+from dc4gs_cl.statistics import ABS_PER_VIEW, BASE_COLUMNS, GRAD_PER_PIXEL, VIEWS
 
 EXTENT = 2.0
 
@@ -21,6 +22,12 @@ def hand_built(rng, n=6, sh=4):
     m = {k: v * 0 + idx + 100 for k, v in params.items()}
     v = {k: v * 0 + idx + 200 for k, v in params.items()}
     return GaussianSet({k: np.asarray(a, np.float32) for k, a in params.items()}, m, v)
+
+
+def at_extent(s: Strategy) -> Strategy:
+    """The strategy as attach() leaves it for a scene of EXTENT (less the device state, which densify does not use)."""
+    s.extent = EXTENT
+    return s
 
 
 def window(n, **columns):
@@ -63,22 +70,34 @@ def test_random_split_replaces_parent_by_two_children(rng):
 
 
 def test_densify_clones_small_splits_large_and_never_splits_clones(rng):
-    s = Strategy(DensifyConfig(percent_dense=0.01))
+    s = at_extent(Strategy(DensifyConfig(percent_dense=0.01)))
     gs = hand_built(rng)
     gs.params["log_scales"][3:] = np.log(0.1)          # 3, 4, 5 are large (> 0.01 * EXTENT)
     gs.params["opacity_logits"][:] = 2.0
     stats = window(6)
     stats["grad"][:] = 10 * np.array([3e-4, 1e-4, 2e-4, 3e-4, 1e-4, 2e-4])   # mean 3e-4, 1e-4, exactly 2e-4
-    report = s.densify(gs, stats, it=1000, extent=EXTENT, rng=rng)
+    report = s.densify(gs, stats, it=1000, rng=rng)
     assert (report.cloned, report.split, report.pruned) == (2, 2, 0)       # >= threshold, as the release
     # kept 0, 1, 2, 4; clones of 0, 2; children of 3, 5
     np.testing.assert_array_equal(gs.params["sh"][:, 0], [0, 1, 2, 4, 0, 2, 3, 3, 5, 5])
 
 
+def test_before_densify_observes_each_step_before_it_changes_anything(rng):
+    s = at_extent(Strategy())
+    gs = hand_built(rng)
+    gs.params["opacity_logits"][:] = 2.0
+    stats = window(6, grad=10 * 3e-4)                    # every one is cloned
+    seen = []
+    s.before_densify = lambda g, w, it: seen.append((g is gs, g.n, w is stats, it))
+    assert s.densify(gs, stats, it=1000, rng=rng).cloned == 6
+    assert seen == [(True, 6, True, 1000)] and gs.n == 12
+
+
 def test_dcs_middle_splits_at_the_middle_without_costs(rng):
     """--split-pick middle (an ablation): DCS' deterministic split at x = 0.5 (children at mu -/+ 1.5 sigma p,
     half the scale along the axis and half the opacity), no split costs gathered nor needed in the window."""
-    s = AbsGS(DensifyConfig(split_threshold=4e-4, percent_dense=0.01), DC4GSConfig(dcs=True, split_pick="middle"))
+    s = at_extent(AbsGS(DensifyConfig(split_threshold=4e-4, percent_dense=0.01),
+                        DC4GSConfig(dcs=True, split_pick="middle")))
     assert s.split_candidates == 0 and s.statistics.split_candidates == 0
     gs = hand_built(rng)
     gs.params["log_scales"][3] = np.log([0.02, 0.3, 0.1])         # large; its principal axis is y
@@ -86,7 +105,7 @@ def test_dcs_middle_splits_at_the_middle_without_costs(rng):
     parent = {k: v[3].astype(np.float64) for k, v in gs.params.items()}
     stats = window(6)
     stats["abs"][3] = 10 * 5e-4
-    report = s.densify(gs, stats, it=1000, extent=EXTENT, rng=rng)
+    report = s.densify(gs, stats, it=1000, rng=rng)
     assert report.split == 1 and gs.n == 7
     p = quat_to_rotmat(parent["quats"][None])[0][:, 1]
     np.testing.assert_allclose(gs.params["means"][5:], parent["means"] + np.outer([-1.5, 1.5], 0.3 * p), atol=1e-6)
@@ -101,37 +120,37 @@ def test_prune_rules(rng):
     gs.params["log_scales"][2] = np.log(0.3)                            # > 0.1 * EXTENT
     stats = window(6, max_radius=5.0)
     stats["max_radius"][4] = 30.0
-    early = Strategy(DensifyConfig(big_world_after=3000))
-    report = early.densify(gs, stats, it=2000, extent=EXTENT, rng=rng)
+    early = at_extent(Strategy(DensifyConfig(big_world_after=3000)))
+    report = early.densify(gs, stats, it=2000, rng=rng)
     assert report.pruned == 1 and gs.n == 5                             # opacity only before 3,000
-    late = Strategy(DensifyConfig(big_world_after=3000, screen_size_px=20))
+    late = at_extent(Strategy(DensifyConfig(big_world_after=3000, screen_size_px=20)))
     stats = window(5, max_radius=5.0)
     stats["max_radius"][3] = 30.0                                       # former index 4
-    report = late.densify(gs, stats, it=3100, extent=EXTENT, rng=rng)
+    report = late.densify(gs, stats, it=3100, rng=rng)
     assert report.pruned == 2
     np.testing.assert_array_equal(gs.params["sh"][:, 0], [1, 3, 5])
 
 
 @pytest.mark.parametrize("cls, column, threshold", [(Strategy, "grad", 2e-4), (AbsGS, "abs", 4e-4)])
 def test_split_criterion_of_each_base(rng, cls, column, threshold):
-    s = cls()
+    s = at_extent(cls())
     gs = hand_built(rng, n=2)
     gs.params["log_scales"][:] = np.log(0.5)
     gs.params["opacity_logits"][:] = 2.0
     stats = window(2)
     stats[column][:] = 10 * np.array([threshold * 1.01, threshold * 0.99])
-    assert s.densify(gs, stats, it=1000, extent=EXTENT, rng=rng).split == 1
+    assert s.densify(gs, stats, it=1000, rng=rng).split == 1
 
 
 def test_pixelgs_averages_over_pixels_not_views(rng):
-    s = PixelGS()
+    s = at_extent(PixelGS())
     gs = hand_built(rng, n=2)
     gs.params["log_scales"][:] = np.log(0.001)
     gs.params["opacity_logits"][:] = 2.0
     stats = window(2, views=1000.0)
     stats["pix_grad"][:] = [3e-4 * 50, 1e-4 * 50]
     stats["pix"][:] = 50
-    assert s.densify(gs, stats, it=1000, extent=EXTENT, rng=rng).cloned == 1
+    assert s.densify(gs, stats, it=1000, rng=rng).cloned == 1
 
 
 def test_cap_takes_the_highest_criteria_of_clones_and_splits_together(rng):
@@ -148,8 +167,8 @@ def test_cap_takes_the_highest_criteria_of_clones_and_splits_together(rng):
     stats["abs"][4:] = 10 * 4e-4 * ratios[4:]
     for room in (0, 1, 3, 5, 8, 20):
         g = GaussianSet({k: v.copy() for k, v in gs.params.items()}, dict(gs.m), dict(gs.v))
-        report = AbsGS(replace(AbsGS.default_config(), max_gaussians=n + room)).densify(
-            g, {k: v.copy() for k, v in stats.items()}, it=1000, extent=EXTENT, rng=rng)
+        report = at_extent(AbsGS(replace(AbsGS.default_config(), max_gaussians=n + room))).densify(
+            g, {k: v.copy() for k, v in stats.items()}, it=1000, rng=rng)
         taken = min(room, n)
         assert g.n == n + taken and report.cloned + report.split == taken and report.capped == n - taken
         winners = set(np.argsort(-ratios)[:taken])
@@ -204,17 +223,17 @@ class ToyBase(Strategy):
 
 
 def test_a_new_base_strategy_is_a_subclass(rng):
-    s = ToyBase()
+    s = at_extent(ToyBase())
     gs = hand_built(rng, n=4)
     gs.params["log_scales"][2:] = np.log(0.5)                       # 0, 1 small; 2, 3 large
     gs.params["opacity_logits"][:] = 2.0
     stats = window(4, pix=50.0)
     stats["pix_grad"][:] = 50 * np.array([3e-4, 1e-4, 3e-4, 3e-4])  # per pixel: clones 0 (2 is large)
     stats["abs"][:] = 10 * np.array([9e-4, 9e-4, 5e-4, 3e-4])       # per view: splits 2 (0, 1 are small)
-    report = s.densify(gs, stats, it=1000, extent=EXTENT, rng=rng)
+    report = s.densify(gs, stats, it=1000, rng=rng)
     assert (report.cloned, report.split) == (1, 1)
-    from dc4gs_cl.host.densify import DC4GSConfig
-    from dc4gs_cl.host.densify.statistics import DCC_ABS
+    from dc4gs_cl.densify import DC4GSConfig
+    from dc4gs_cl.statistics import DCC_ABS
     assert ToyBase(dc4gs=DC4GSConfig(dcc=True)).split_criterion.total == DCC_ABS   # DCC weights its own term
 
 

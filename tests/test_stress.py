@@ -3,15 +3,16 @@ parameters; and the emulated float atomic add is exact under contention."""
 import numpy as np
 import pytest
 
-from dc4gs_cl.backward import ProjectBackward, RasterizeBackward, SumsLayout
+from dc4gs_cl.backward import ProjectBackward, RasterizeBackward
+from dc4gs_cl.backward.loss import Loss
 from dc4gs_cl.constants import NEAR_PLANE
-from dc4gs_cl.host.adam import Adam
-from dc4gs_cl.loss import Loss
 from dc4gs_cl.model import group_widths
+from dc4gs_cl.optim.adam import Adam
 from dc4gs_cl.render import DeviceGaussians, Renderer
-from dc4gs_cl.render.gaussians import DeviceArrays
 from dc4gs_cl.render.workspace import POISON
+from dc4gs_cl.runtime import DeviceArrays
 from dc4gs_cl.scene.camera import Camera
+from dc4gs_cl.statistics import SumsLayout
 from dc4gs_cl.testing import random_model
 
 CASES = ["zero scales", "huge scales", "needles", "near plane", "behind camera", "coincident", "opacity +30",
@@ -98,6 +99,7 @@ def test_emulated_float_atomic_add_is_exact_under_contention(rt):
     """Many work-items hammer a few addresses with small half-integers (exact in float32 whatever the
     order), so any lost update shows up as a wrong total."""
     import pyopencl as cl
+
     from dc4gs_cl.runtime import kernel_source
     source = kernel_source("common.h") + ATOMIC_TEST.replace('#include "common.h"', "")
     prg = cl.Program(rt.context, source).build(options=rt.build_options())
@@ -123,6 +125,7 @@ def extreme_scene(rng, extent_scale: float):
     """A few cameras around the origin, some with extreme intrinsics, and all-black, all-white or noise images."""
     from dataclasses import replace
     from pathlib import Path
+
     from dc4gs_cl.scene.camera import Scene
     cams = []
     for i, angle in enumerate(rng.uniform(0, 2 * np.pi, 4)):
@@ -182,8 +185,8 @@ def fuzz_training(rt, rng, strategy: str, dc4gs: bool, cases: int, out) -> None:
     """Forward, loss, backward, Adam and a densification step on random extreme states: every stage's outputs
     are checked (--check-finite) and the parameters after each step must be finite."""
     from dc4gs_cl.config import TrainConfig
+    from dc4gs_cl.densify import DC4GSConfig
     from dc4gs_cl.finite import NonFiniteError
-    from dc4gs_cl.host.densify import DC4GSConfig
     from dc4gs_cl.train import Trainer
     for case in range(cases):
         extent_scale = float(10.0 ** rng.uniform(-3, 3))

@@ -1,7 +1,9 @@
 """The package's layering, read from the import statements of every module: render knows nothing of the
 backward or of training, the backward nothing of training, and production code never uses the float64
-test references."""
+test references; the settings, the run folder, report and export import without an OpenCL runtime."""
 import ast
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -29,9 +31,14 @@ def modules(folder: str = "") -> dict[str, set[str]]:
     return {str(p.relative_to(ROOT)): imported_modules(p) for p in sorted((ROOT / folder).rglob("*.py"))}
 
 
-FORBIDDEN = {   # folder -> packages its modules must not import
-    "render": ("dc4gs_cl.backward", "dc4gs_cl.host", "dc4gs_cl.train", "dc4gs_cl.config", "dc4gs_cl.run_folder"),
-    "backward": ("dc4gs_cl.host", "dc4gs_cl.train", "dc4gs_cl.config", "dc4gs_cl.run_folder"),
+COMMANDS = ("dc4gs_cl.apps", "dc4gs_cl.cli")
+LOOP = ("dc4gs_cl.train", "dc4gs_cl.run_folder") + COMMANDS
+FORBIDDEN = {   # folder -> packages its modules must not import: the layers above it
+    "render": ("dc4gs_cl.backward", "dc4gs_cl.optim", "dc4gs_cl.densify", "dc4gs_cl.config") + LOOP,
+    "backward": ("dc4gs_cl.optim", "dc4gs_cl.densify", "dc4gs_cl.config") + LOOP,
+    "optim": ("dc4gs_cl.densify",) + LOOP,
+    "densify": LOOP,
+    "train": COMMANDS,
 }
 
 
@@ -41,7 +48,7 @@ def test_lower_layers_do_not_import_higher_ones(folder):
     assert not {m: i for m, i in bad.items() if i}
 
 
-REFERENCE_USERS = {"bench.py"}   # `dc4gs-cl bench` reports each stage's error against the references
+REFERENCE_USERS = {"apps/bench.py"}   # `dc4gs-cl bench` reports each stage's error against the references
 
 
 def test_production_code_does_not_import_the_references():
@@ -53,5 +60,24 @@ def test_production_code_does_not_import_the_references():
 def test_the_import_reader_sees_imports():
     """The checks above are only as good as this reader: it finds relative imports of each form."""
     trainer = imported_modules(ROOT / "train" / "trainer.py")
-    assert {"dc4gs_cl.backward", "dc4gs_cl.host.trainable", "dc4gs_cl.run_folder"} <= trainer
-    assert "dc4gs_cl.host.densify.ops" in imported_modules(ROOT / "host" / "densify" / "strategy.py")
+    assert {"dc4gs_cl.backward", "dc4gs_cl.optim.trainable", "dc4gs_cl.run_folder"} <= trainer
+    assert "dc4gs_cl.densify.ops" in imported_modules(ROOT / "densify" / "strategy.py")
+
+
+DEVICE_FREE = ("dc4gs_cl.config", "dc4gs_cl.statistics", "dc4gs_cl.run_folder", "dc4gs_cl.apps.report",
+               "dc4gs_cl.apps.export", "dc4gs_cl.cli")
+
+
+def test_settings_run_folder_report_and_export_import_without_opencl():
+    """`report` and `export` need no device: what they import, the command line's included, must not reach
+    pyopencl (here made unimportable)."""
+    code = f"import sys; sys.modules['pyopencl'] = None\nfor name in {DEVICE_FREE!r}: __import__(name)"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+
+
+def test_the_strategies_are_the_settings_strategy_names():
+    """config.STRATEGY_NAMES validates --strategy without importing the strategies; it must name each of them."""
+    from dc4gs_cl.config import STRATEGY_NAMES
+    from dc4gs_cl.densify import STRATEGIES
+    assert tuple(STRATEGIES) == STRATEGY_NAMES

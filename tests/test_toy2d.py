@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from dc4gs_cl import constants as K
-from dc4gs_cl.host.densify.dc4gs import split_positions
+from dc4gs_cl.densify.dc4gs import split_positions
 
 _PATH = Path(__file__).resolve().parents[1] / "tools" / "toy2d.py"
 _spec = importlib.util.spec_from_file_location("toy2d", _PATH)

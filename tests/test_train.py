@@ -13,11 +13,11 @@ import numpy as np
 import pytest
 
 from dc4gs_cl.cli import main
-from dc4gs_cl.metrics import psnr
-from dc4gs_cl.scene import load_scene
 from dc4gs_cl.config import TrainConfig
-from dc4gs_cl.host.densify import DC4GSConfig
+from dc4gs_cl.densify import DC4GSConfig
+from dc4gs_cl.metrics import psnr
 from dc4gs_cl.run_folder import CHECKPOINT, RunFolder
+from dc4gs_cl.scene import load_scene
 from dc4gs_cl.train import Trainer
 from dc4gs_cl.train.schedule import Schedule
 
@@ -249,6 +249,17 @@ def test_split_threshold_replaces_the_strategys(rt, tmp_path):
     assert sum(r.cloned for r in done[1e6]) > 0
 
 
+def test_a_trainer_without_a_run_folder_steps_and_says_what_needs_one(rt):
+    """Benchmarks step a trainer made without a run folder; what reads or writes one says that it needs one."""
+    scene = load_scene("builtin", resolution=4)
+    trainer = Trainer(TrainConfig(scene="builtin", iterations=50, resolution=4, save_at=(2,)), scene, rt)
+    trainer.step()
+    with pytest.raises(RuntimeError, match="saving a model needs a run folder"):
+        trainer.step()                                    # --save-at 2
+    for needs_one in (trainer.save_checkpoint, trainer.resume, lambda: trainer.run(progress="none")):
+        with pytest.raises(RuntimeError, match="needs a run folder, and this trainer was made without one"):
+            needs_one()
+
 def test_a_saved_iteration_precedes_its_opacity_reset(rt, tmp_path):
     """--save-at N writes the model after iteration N's optimiser step and before its density control (as
     the Inria code saves), so a PLY saved at a reset iteration is not the reset, transparent model."""
@@ -269,6 +280,7 @@ def test_check_finite_names_stage_iteration_and_buffer(rt, tmp_path):
     it (the forward's clamps keep it out of the image; the optimiser step writes the parameter back), one
     injected into the target image at the loss's gradient; each error names stage, iteration and buffer."""
     from dataclasses import replace
+
     from dc4gs_cl.finite import NonFiniteError
     scene = load_scene("builtin", resolution=4)
     cfg = TrainConfig(scene="builtin", iterations=50, resolution=4, densify_until=0)

@@ -20,17 +20,15 @@ from __future__ import annotations
 
 import argparse
 import sys
-from pathlib import Path
 
 import numpy as np
 
-from dc4gs_cl.bench import frozen_trainer
+from dc4gs_cl.apps.bench import frozen_trainer
 from dc4gs_cl.config import TrainConfig
-from dc4gs_cl.host.densify import DC4GSConfig
+from dc4gs_cl.densify import DC4GSConfig
 from dc4gs_cl.runtime import Runtime, describe
 from dc4gs_cl.scene import load_scene
 from dc4gs_cl.train import Trainer
-
 
 CONFIGURATIONS = {   # name -> DC4GSConfig settings; "_" keys are the benchmark's own switches
     "base": {}, "+DCC": {"dcc": True}, "+DCS": {"dcs": True}, "+DC4GS": {"dcc": True, "dcs": True},
@@ -67,7 +65,7 @@ def main(argv=None) -> int:
     rt = Runtime(args.device, profiling=True)
     scene = load_scene(args.scene, resolution=args.resolution)
     warm = Trainer(TrainConfig(scene="bench", iterations=max(args.warm_iterations * 2, 2), strategy=args.base,
-                               resolution=args.resolution), scene, rt, Path("/nonexistent"))
+                               resolution=args.resolution), scene, rt)
     for _ in range(args.warm_iterations):
         warm.step()
     state = warm.model.download()

@@ -7,7 +7,7 @@ markdown table.
 
 RUN: a training output folder: its saved model (the last, or --iteration) and its scene's test views (its
 training views when it holds none out). --ply: a 3DGS PLY, seen from --scene's test views (default: the
-built-in scene). Each format is written to a temporary folder and read back with dc4gs_cl.export's readers,
+built-in scene). Each format is written to a temporary folder and read back with dc4gs_cl.apps.export's readers,
 which decode as the formats' reference readers do; a read-back model renders with the SH degree its file
 holds (.splat: colour only, as its viewers show it).
 """
@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from dc4gs_cl.export import FORMATS, READERS, export_model
+from dc4gs_cl.apps.export import FORMATS, READERS, export_model
 from dc4gs_cl.metrics import psnr
 from dc4gs_cl.ply import read_ply
 from dc4gs_cl.render import DeviceGaussians, Renderer
@@ -36,10 +36,8 @@ def load(args):
         scene = load_scene(args.scene)
         return str(args.ply), read_ply(args.ply), scene, scene.test or scene.train
     run = RunFolder(args.run)
-    cfg = run.read_config()
     iteration, model = run.load_model(args.iteration)
-    scene = load_scene(cfg.scene, resolution=cfg.resolution, cache_dir=run.path / "undistorted",
-                       test_every=cfg.test_every, white_background=cfg.white_background)
+    scene = run.load_scene()
     return f"{run} (iteration {iteration})", model, scene, scene.test or scene.train
 
 

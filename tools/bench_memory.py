@@ -14,12 +14,12 @@ from __future__ import annotations
 import argparse
 import gc
 import sys
-from pathlib import Path
 
 import numpy as np
 
 from dc4gs_cl.config import TrainConfig
-from dc4gs_cl.host.densify import DC4GSConfig, GaussianSet
+from dc4gs_cl.densify import DC4GSConfig
+from dc4gs_cl.model import GaussianSet
 from dc4gs_cl.runtime import Runtime, describe
 from dc4gs_cl.scene.builtin import builtin_scene
 from dc4gs_cl.testing import random_model
@@ -38,7 +38,7 @@ def trained_state(rt: Runtime, scene, n: int, iterations: int, settings: dict) -
     gc.collect()
     rt.reset_memory_peak()
     before = rt.memory_in_use
-    trainer = Trainer(TrainConfig(scene="bench", strategy="absgs", **settings), scene, rt, Path("/nonexistent"))
+    trainer = Trainer(TrainConfig(scene="bench", strategy="absgs", **settings), scene, rt)
     model = random_model(np.random.default_rng(0), n, sh_degree=3, spread=1.5, scale_range=(0.005, 0.03))
     params = model.groups()
     moments = lambda: {k: np.zeros_like(v) for k, v in params.items()}

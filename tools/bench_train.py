@@ -47,11 +47,11 @@ from collections import Counter
 from pathlib import Path
 
 from dc4gs_cl.config import TrainConfig
+from dc4gs_cl.densify import STRATEGIES, DC4GSConfig
+from dc4gs_cl.densify.ops import SPLIT_SCALE_DIVISOR
 from dc4gs_cl.errors import InputError
 from dc4gs_cl.evaluate import evaluate
 from dc4gs_cl.files import write_json
-from dc4gs_cl.host.densify import STRATEGIES, DC4GSConfig
-from dc4gs_cl.host.densify.ops import SPLIT_SCALE_DIVISOR
 from dc4gs_cl.run_folder import RunFolder
 from dc4gs_cl.runtime import Runtime, choose_device, describe
 from dc4gs_cl.scene import Scene, load_scene

@@ -25,22 +25,21 @@ from __future__ import annotations
 
 import argparse
 import sys
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
 from dc4gs_cl.config import TrainConfig
+from dc4gs_cl.densify import STRATEGIES, DC4GSConfig
+from dc4gs_cl.densify.dc4gs import search_interval, split_positions
 from dc4gs_cl.files import write_atomic, write_json
 from dc4gs_cl.geometry import principal_axis
-from dc4gs_cl.host.densify import STRATEGIES, DC4GSConfig
-from dc4gs_cl.host.densify.dc4gs import search_interval, split_positions
-from dc4gs_cl.host.densify.statistics import SPLIT_COSTS
 from dc4gs_cl.model import GaussianModel
 from dc4gs_cl.render import DeviceGaussians
 from dc4gs_cl.runtime import Runtime, describe
 from dc4gs_cl.scene import builtin, load_scene
 from dc4gs_cl.scene.camera import TEST_SPLITS
+from dc4gs_cl.statistics import SPLIT_COSTS
 from dc4gs_cl.train import Trainer
 
 SAMPLES = 61          # points along a candidate's axis, -3 to 3 sigma
@@ -64,7 +63,7 @@ def axis_profiles(means: np.ndarray, sigma: np.ndarray, direction: np.ndarray, c
             continue
         rays = points[sees].reshape(-1, 3) - cam.center
         rays /= np.linalg.norm(rays, axis=1, keepdims=True)
-        colour, _ = builtin._cast(cam.center.astype(np.float32)[:, None], rays.T.astype(np.float32))
+        colour, _ = builtin.cast_rays(cam.center.astype(np.float32)[:, None], rays.T.astype(np.float32))
         colour = colour.T.reshape(-1, SAMPLES, 3)
         steps[sees] += np.abs(np.diff(colour, axis=1)).sum(axis=2)
         seen[sees] += 1
@@ -76,21 +75,20 @@ def quartiles(x: np.ndarray) -> str:
 
 
 class Recorder:
-    """Wraps the strategy's densify: records each step's decisions before it densifies."""
+    """The strategy's observer (Strategy.before_densify): records each step's decisions before it densifies."""
 
     def __init__(self, trainer: Trainer, known_geometry: bool):
         self.trainer, self.known_geometry, self.steps, self.snapshot = trainer, known_geometry, [], None
         self.uniform = np.random.default_rng(0)   # the baseline of cuts drawn uniformly over DCS' search interval
-        self.densify = trainer.strategy.densify
-        trainer.strategy.densify = self
+        trainer.strategy.before_densify = self.record
         c = trainer.strategy.config
         self.show_at = (c.densify_from + c.densify_until) // 2   # the panels: the first step from here on
 
-    def __call__(self, gs, window, it, extent, rng):
+    def record(self, gs, window, it) -> None:
         s = self.trainer.strategy
         c = s.config
         base_v, dcc_v = s.base_split_criterion(window), s.split_criterion(window)
-        large = gs.scales().max(axis=1) > c.percent_dense * extent
+        large = s.large(gs)
         candidates = large & (base_v >= c.split_threshold)
         split = large & (dcc_v >= c.split_threshold)
         withheld = candidates & ~split
@@ -126,7 +124,6 @@ class Recorder:
         self.steps.append(step)
         if self.snapshot is None and it >= self.show_at:
             self.snapshot = (it, self.trainer.sh_degree, {k: v.copy() for k, v in gs.params.items()}, withheld, split)
-        return self.densify(gs, window, it, extent, rng)
 
 
 def render_panels(rt: Runtime, trainer: Trainer, sh_degree: int, params: dict, withheld: np.ndarray,
@@ -219,11 +216,10 @@ def main(argv=None) -> int:
     rt = Runtime(args.device)
     cfg = TrainConfig(scene=args.scene, iterations=args.iterations, resolution=args.resolution, strategy=args.base,
                       test_split=args.test_split, dc4gs=DC4GSConfig(dcc=True, dcs=True))
-    with tempfile.TemporaryDirectory(prefix="decisions-") as tmp:
-        trainer = Trainer(cfg, scene, rt, Path(tmp))
-        recorder = Recorder(trainer, known_geometry=args.scene == builtin.BUILTIN_SCENE)
-        while trainer.iteration < cfg.iterations:
-            trainer.step()
+    trainer = Trainer(cfg, scene, rt)   # steps alone: no checkpoint nor model to write
+    recorder = Recorder(trainer, known_geometry=args.scene == builtin.BUILTIN_SCENE)
+    while trainer.iteration < cfg.iterations:
+        trainer.step()
     cam = scene.train[0]
     report = {"device": describe(rt.device), "scene": args.scene, "size": f"{cam.width}x{cam.height}",
               "strategy": trainer.strategy.label, "iterations": args.iterations,

@@ -37,9 +37,9 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import bench_train  # noqa: E402 (a module of tools/, found through the line above)
 
+from dc4gs_cl.densify import STRATEGIES  # noqa: E402
 from dc4gs_cl.errors import InputError  # noqa: E402
 from dc4gs_cl.files import write_atomic, write_json  # noqa: E402
-from dc4gs_cl.host.densify import STRATEGIES  # noqa: E402
 from dc4gs_cl.runtime import Runtime, describe  # noqa: E402
 from dc4gs_cl.scene.builtin import BUILTIN_SCENE  # noqa: E402
 from dc4gs_cl.scene.camera import TEST_SPLITS  # noqa: E402

@@ -40,12 +40,12 @@ import numpy as np
 import pyopencl as cl
 
 from dc4gs_cl.backward import ProjectBackward, RasterizeBackward
+from dc4gs_cl.backward.loss import Loss
 from dc4gs_cl.config import TrainConfig
+from dc4gs_cl.densify import AbsGS, DC4GSConfig, PixelGS, Strategy
 from dc4gs_cl.errors import DeviceError
-from dc4gs_cl.host.densify import AbsGS, DC4GSConfig, PixelGS, Strategy
-from dc4gs_cl.host.trainable import TrainableGaussians
-from dc4gs_cl.loss import Loss
 from dc4gs_cl.model import group_widths
+from dc4gs_cl.optim.trainable import TrainableGaussians
 from dc4gs_cl.render import DeviceGaussians, Renderer, RenderOptions
 from dc4gs_cl.render.stage import StageContext
 from dc4gs_cl.runtime import Runtime, list_devices

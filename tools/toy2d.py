@@ -42,7 +42,7 @@ Protocol per case:
    a pixel takes part when blended and |g| > 0, it is left of candidate k when (end - x_k).(q - x_k) < 0,
    J = split_costs_from_sums (cost_side = (1 - kappa_side) |ghat_side|). Gradients are in pixel units
    (the trainer's NDC scaling is isotropic on a square image and changes no position).
-3. Split positions from dc4gs_cl.host.densify.dc4gs.split_positions: "dense" with 59 candidates (our dense pick
+3. Split positions from dc4gs_cl.densify.dc4gs.split_positions: "dense" with 59 candidates (our dense pick
    takes an odd count; the paper says 60), "poly" and "argmin" with 5. References: the middle x = 0.5,
    the true crossing x = x*, the unsplit parent, and the random 3DGS split (host.ops.split_random: two
    children at mu + R S eps, scales / 1.6, opacity copied).
@@ -67,10 +67,11 @@ from multiprocessing import Pool
 import numpy as np
 
 from dc4gs_cl import constants as K
+from dc4gs_cl.config import DENSE_CANDIDATES
+from dc4gs_cl.densify.dc4gs import search_interval, split_positions
+from dc4gs_cl.densify.ops import split_at, split_random
 from dc4gs_cl.geometry import quat_to_rotmat
-from dc4gs_cl.host.densify.dc4gs import DENSE_CANDIDATES, search_interval, split_positions
-from dc4gs_cl.host.densify.ops import GaussianSet, split_at, split_random
-from dc4gs_cl.model import logit
+from dc4gs_cl.model import GaussianSet, logit
 from dc4gs_cl.reference.dc4gs import candidate_points, split_costs_from_sums
 from dc4gs_cl.reference.loss import loss_gradient, ssim_map
 from dc4gs_cl.reference.loss import loss_value as train_loss

@@ -1,6 +1,6 @@
 """Projection backward stage (kernels/project_backward.cl): from this view's per-Gaussian sums to the
 parameters' gradients, or, in training, straight to Adam's step on the parameters (the gradients never
-stored; the step's record is records.ADAM_STEP, filled by host/adam.py)."""
+stored; the step's record is records.ADAM_STEP, filled by optim/adam.py)."""
 from __future__ import annotations
 
 import numpy as np
@@ -8,11 +8,12 @@ import pyopencl as cl
 
 from ..model import PARAM_GROUPS
 from ..records import camera_value, param_group_defines
-from ..render.gaussians import DeviceArrays, DeviceGaussians
+from ..render.gaussians import DeviceGaussians
 from ..render.renderer import RenderResult
 from ..render.stage import PER_GAUSSIAN_WG, Stage
+from ..runtime import DeviceArrays
 from ..scene.camera import Camera
-from .sums import SumsLayout
+from ..statistics import SumsLayout
 
 
 class ProjectBackward(Stage):

@@ -1,5 +1,6 @@
 """Rasterizer backward stage (kernels/rasterize_backward.cl): per-Gaussian sums of this view's gradients
-and of the densification statistics the layout asks for (backward/sums.py)."""
+and of the densification statistics the layout asks for (statistics.SumsLayout), folded into the window
+where one is given (WindowFold: by sum_pairs, or by the window's own kernel)."""
 from __future__ import annotations
 
 import math
@@ -11,8 +12,13 @@ from ..constants import TILE_SIZE
 from ..render.rasterize import background_value, raster_defines
 from ..render.renderer import RenderResult
 from ..render.stage import Stage, visible_rows
-from .sum_pairs import SumPairs, WindowFold
-from .sums import GRADIENTS, SumsLayout
+from ..statistics import GRADIENTS, SumsLayout
+from .densify_stats import DensifyStats, WindowFold
+from .sum_pairs import SumPairs
+
+# Workspace buffers (render/workspace.py)
+SUMS = "backward.sums"              # [N*width] the view's per-Gaussian sums (returned)
+PAIR_SUMS = "backward.pair_sums"    # [pairs of a run * layout.width] one slot per (tile, Gaussian) pair
 
 
 class RasterizeBackward(Stage):
@@ -21,6 +27,7 @@ class RasterizeBackward(Stage):
     def __init__(self, ctx):
         super().__init__(ctx)
         self.sum_pairs = SumPairs(ctx)
+        self.densify_stats = DensifyStats(ctx)
 
     def fitted_kernels(self, variant: dict) -> dict[str, cl.Kernel]:
         """A variant's kernels whose local arrays (a batch of Gaussians, their split geometry and, in the
@@ -58,9 +65,9 @@ class RasterizeBackward(Stage):
                 runs = tile_runs(rt.to_host(res.isect.ranges, (tiles, 2), np.uint32), budget, tuning.min_run_tiles)
         fused = window is not None and tuning.pair_sums and len(runs) <= tuning.max_folded_runs
         out_layout = GRADIENTS if fused else layout
-        sums = self.ws.get("backward.sums", 4 * out_layout.width * max(n, 1))
+        sums = self.ws.get(SUMS, 4 * out_layout.width * max(n, 1))
         if tuning.pair_sums:
-            target = self.ws.get("backward.pair_sums", 4 * layout.width * max(max(r[3] - r[2] for r in runs), 1))
+            target = self.ws.get(PAIR_SUMS, 4 * layout.width * max(max(r[3] - r[2] for r in runs), 1))
         else:
             target = sums
             rt.fill(sums, np.float32(0), 4 * layout.width * n)
@@ -83,7 +90,7 @@ class RasterizeBackward(Stage):
         self.check(lambda: {"sums": visible_rows(rt, sums, rt.to_host(res.proj.radius, n, np.int32),
                                                  out_layout.width)})
         if window is not None and not fused:
-            window.fold(res, sums, geometry)
+            self.densify_stats(res, sums, geometry, window)
         return sums, out_layout
 
 

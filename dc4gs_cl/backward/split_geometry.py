@@ -11,36 +11,29 @@ from ..render.gaussians import DeviceGaussians
 from ..render.renderer import RenderResult
 from ..render.stage import PER_GAUSSIAN_WG, Stage
 from ..scene.camera import Camera
+from ..statistics import NO_WINDOW, geometry_record
+from .densify_stats import WindowFold
 
-
-def geometry_record(candidates: int) -> Record:
-    """Per Gaussian, px: the first candidate's pixel (origin), the unit direction of the projected axis
-    (dir; (0, 0): no split line in this view) and t_1 .. t_{N-1}, the other candidates' positions along it
-    (t_0 = 0)."""
-    return Record("GEO", [("origin", 2), ("dir", 2), ("t", candidates - 1)])
-
-
-# The densification window's column (host/densify/statistics.py) whose non-zero value withholds a Gaussian's
-# split line: DCS' tracking stops gathering split costs for Gaussians that cannot reach the split threshold.
-SKIP_SPLIT = "skip_split"
-NO_WINDOW = Record("WIN", [(SKIP_SPLIT, 1)])   # no window: every Gaussian tracked (its skip flag 0)
+# Workspace buffers (render/workspace.py)
+SPLIT_GEOMETRY = "backward.split_geometry"   # [N*GEO_WIDTH] the view's split geometry (returned)
+NO_WINDOW_ROWS = "backward.no_window"        # [N] zeros: the skip flags when no window is given
 
 
 class SplitGeometry(Stage):
     FILE, KERNELS = "split_geometry.cl", ("split_geometry",)
 
     def __call__(self, g: DeviceGaussians, cam: Camera, res: RenderResult, candidates: int, min_scale: float = 0.0,
-                 window: tuple[cl.Buffer, Record] | None = None) -> cl.Buffer:
+                 window: WindowFold | None = None) -> cl.Buffer:
         """Per visible Gaussian whose largest scale exceeds min_scale (only those can be split) and that the
-        window still tracks (window: the densification window's buffer and record, host/densify; None:
-        every one), where its split candidates fall in this view: geometry_record(candidates) rows."""
+        window still tracks (its skip_split column; None: every one), where its split candidates fall in this
+        view: geometry_record(candidates) rows."""
         n, record = g.n, geometry_record(candidates)
-        geometry = self.ws.get("backward.split_geometry", 4 * record.width * max(n, 1))
+        geometry = self.ws.get(SPLIT_GEOMETRY, 4 * record.width * max(n, 1))
         if window is None:
-            no_window = self.ws.get("backward.no_window", 4 * max(n, 1))
-            self.rt.fill(no_window, np.float32(0), 4 * n)
-            window = (no_window, NO_WINDOW)
-        buffer, window_record = window
+            buffer, window_record = self.ws.get(NO_WINDOW_ROWS, 4 * max(n, 1)), NO_WINDOW
+            self.rt.fill(buffer, np.float32(0), 4 * n)
+        else:
+            buffer, window_record = window.rows, window.record
         if n:
             variant = {"SPLIT_CANDIDATES": candidates, **record.defines(), **window_record.defines()}
             b = g.buffers

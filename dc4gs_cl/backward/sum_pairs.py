@@ -3,29 +3,25 @@ fixed order, and, when a densification window is given, that view's statistics f
 way (kernels/window_fold.h), so the per-Gaussian sums that reach memory are the gradients alone."""
 from __future__ import annotations
 
-from typing import NamedTuple, Protocol
+from typing import NamedTuple
 
 import numpy as np
 import pyopencl as cl
 
 from ..render.renderer import RenderResult
 from ..render.stage import PER_GAUSSIAN_WG, Stage
-from .sums import GRADIENTS, SumsLayout
+from ..statistics import GRADIENTS, SumsLayout
+from .densify_stats import WindowFold
 
-
-class WindowFold(Protocol):
-    """A densification window (host/densify/densify_stats.py) as the backward sees it: what its fold kernel is
-    built with, the arguments it takes for a view, and its own fold of a view's sums."""
-
-    buffer: cl.Buffer   # the window's rows
-
-    def defines(self) -> dict: ...
-
-    def fold_args(self, res: RenderResult) -> list: ...
-
-    def fold(self, res: RenderResult, sums: cl.Buffer, split_geometry: cl.Buffer | None = None) -> None: ...
-
-    def folded(self) -> None: ...
+# Workspace buffers of a view walked in runs of tiles (render/workspace.py)
+RUN_ENDS = "backward.run_ends"             # [runs] uint: each run's end pair
+RUN_SPANS = "backward.run_spans"           # [N] uint: each Gaussian's first and last run, 16 bits each
+SPANNING = "backward.spanning"             # [1] uint: how many Gaussians have pairs in more than one run
+RUN_MEMBERS = "backward.run_members"       # [N] uint: the Gaussians with a pair in one run
+RUN_COUNT = "backward.run_count"           # [1] uint: how many
+CARRY_SLOT = "backward.carry_slot"         # Carry's buffers
+CARRY_TAKEN = "backward.carry_taken"
+CARRY_ROWS = "backward.carry_rows"
 
 
 class Carry(NamedTuple):
@@ -49,7 +45,7 @@ class SumPairs(Stage):
     def variant(self, layout: SumsLayout, window: WindowFold | None) -> dict[str, cl.Kernel]:
         """The kernels that sum these sums and fold them into this window (None: no fold)."""
         fold = {"FOLD_WINDOW": int(window is not None), "GRADIENT_WIDTH": GRADIENTS.width,
-                **(window.defines() if window is not None else {})}
+                **(window.defines if window is not None else {})}
         return self.kernels({**layout.defines(), **fold})
 
     def run_spans(self, res: RenderResult, layout: SumsLayout, window: WindowFold | None, runs: list[tuple]) -> int:
@@ -59,33 +55,32 @@ class SumPairs(Stage):
         rt, n = self.rt, res.proj.n
         if len(runs) >= 1 << 16:
             raise ValueError(f"{len(runs)} runs of tiles: a Gaussian's runs are kept in 16 bits each")
-        spanning = self.ws.get("backward.carry_taken", 4)
-        run_ends = self.ws.get("backward.run_ends", 4 * len(runs))
+        spanning = self.ws.get(SPANNING, 4)
+        run_ends = self.ws.get(RUN_ENDS, 4 * len(runs))
         rt.write(run_ends, np.array([r[3] for r in runs], np.uint32))
         rt.fill(spanning, np.uint32(0), 4)
         rt.launch_items("sum_pairs", self.variant(layout, window)["run_spans"], n, PER_GAUSSIAN_WG, np.uint32(n),
                         np.uint32(len(runs)), run_ends, res.proj.tiles_touched, res.isect.pair_first,
-                        res.isect.pair_of_emission, self.ws.get("backward.run_spans", 4 * max(n, 1)), spanning)
+                        res.isect.pair_of_emission, self.ws.get(RUN_SPANS, 4 * max(n, 1)), spanning)
         return int(rt.to_host(spanning, 1, np.uint32)[0])
 
     def members(self, res: RenderResult, layout: SumsLayout, window: WindowFold | None, run: int) -> Members:
         """The Gaussians with a pair in run `run`, from the last run_spans (listed on the device, counted back)."""
         rt, n = self.rt, res.proj.n
-        ids, count = self.ws.get("backward.run_members", 4 * max(n, 1)), self.ws.get("backward.run_count", 4)
+        ids, count = self.ws.get(RUN_MEMBERS, 4 * max(n, 1)), self.ws.get(RUN_COUNT, 4)
         rt.fill(count, np.uint32(0), 4)
         rt.launch_items("sum_pairs", self.variant(layout, window)["run_members"], n, PER_GAUSSIAN_WG, np.uint32(n),
-                        np.uint32(run), self.ws.get("backward.run_spans", 4 * max(n, 1)), ids, count)
+                        np.uint32(run), self.ws.get(RUN_SPANS, 4 * max(n, 1)), ids, count)
         return Members(ids, int(rt.to_host(count, 1, np.uint32)[0]))
 
     def carry(self, layout: SumsLayout, n: int, spanning: int) -> Carry:
         """The carry of a view walked in runs of tiles, with a row for each of the `spanning` Gaussians whose pairs
         span runs (run_spans), none taken yet; with none (one run), sum_pairs touches no carry."""
-        taken = self.ws.get("backward.carry_taken", 4)
+        taken = self.ws.get(CARRY_TAKEN, 4)
         if not spanning:
             return Carry(taken, taken, taken)
         self.rt.fill(taken, np.uint32(0), 4)
-        return Carry(self.ws.get("backward.carry_slot", 4 * max(n, 1)), taken,
-                     self.ws.get("backward.carry_rows", 4 * layout.width * spanning))
+        return Carry(self.ws.get(CARRY_SLOT, 4 * max(n, 1)), taken, self.ws.get(CARRY_ROWS, 4 * layout.width * spanning))
 
     def __call__(self, res: RenderResult, layout: SumsLayout, pair_sums: cl.Buffer, pair0: int, pair_end: int,
                  split_geometry: cl.Buffer, sums: cl.Buffer, window: WindowFold | None = None,
@@ -97,11 +92,11 @@ class SumPairs(Stage):
         n = res.proj.n
         items = members.count if members is not None else n
         if items:
-            folding = [*window.fold_args(res), window.buffer, *carry] if window is not None else []
+            folding = [*window.args(res), window.rows, *carry] if window is not None else []
             listed = [np.int32(members is not None), np.uint32(items), members.ids if members is not None else sums]
             self.rt.launch_items("sum_pairs", self.variant(layout, window)["sum_pairs"], items, PER_GAUSSIAN_WG,
                                  np.uint32(n), np.uint32(pair0), np.uint32(pair_end), np.int32(pair0 > 0), *listed,
                                  res.proj.tiles_touched, res.isect.pair_first, res.isect.pair_of_emission, pair_sums,
                                  split_geometry, *folding, sums)
         if window is not None and pair_end == res.isect.n_pairs:
-            window.folded()
+            self.check(lambda: window.download(self.rt, n))

@@ -8,7 +8,7 @@
 //              SUM_PIXELS; with DC4GS SUM_DC and SUM_SPLIT; see that file)
 //   in  split_geometry [N*GEO_WIDTH]: from split_geometry.cl (with SPLIT_CANDIDATES)
 //   io  window [N*WIN_WIDTH] float, accumulated since the last densification step (the WIN record: offsets
-//              are -D options from dc4gs_cl/host/densify/statistics.py, derived, with the SUM record's,
+//              are -D options from dc4gs_cl/statistics.py, derived, with the SUM record's,
 //              from one StatisticsSpec):
 //         WIN_GRAD       sum over visible views of |sum_j g_j|, NDC units (3DGS)
 //         WIN_ABS        sum over visible views of |(sum_j |g_x|, sum_j |g_y|)|   (AbsGS)

@@ -3,7 +3,7 @@
 // Images x (rendered, not clamped) and y (target): [H][W][3] float32, row-major interleaved RGB,
 // nominally in [0, 1]. A row is n3w = 3W floats and a pixel's same-channel neighbour is 3 floats away,
 // so a 1D blur along a row (taps at +-3k floats) blurs the three channels at once. M = H * n3w floats.
-// SSIM per channel: (2 SSIM_RADIUS + 1)-tap Gaussian SSIM_WEIGHTS (normalised, -D from dc4gs_cl/loss.py), zero
+// SSIM per channel: (2 SSIM_RADIUS + 1)-tap Gaussian SSIM_WEIGHTS (normalised, -D from dc4gs_cl/backward/loss.py), zero
 // padding (outside pixels count 0 in every blurred moment), constants SSIM_C1, SSIM_C2.
 //
 // Two passes, each a vertical blur into local memory followed by a horizontal blur from it:

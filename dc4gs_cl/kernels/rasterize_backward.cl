@@ -4,8 +4,8 @@
 //       keep [H*W] uchar, -D PIXEL_MASK=1 only: 0 where the view is masked out; such a pixel is treated as
 //       one outside the image: it adds no gradient and no statistic (the loss also ignores it, loss.cl)
 //   out sums: per Gaussian, its terms summed over this view's pixels where it was blended (the SUM record:
-//       offsets SUM_<FIELD> and SUM_WIDTH are -D options from dc4gs_cl/backward/rasterize_backward.py,
-//       SumsLayout). Two designs (-D PAIR_SUMS):
+//       offsets SUM_<FIELD> and SUM_WIDTH are -D options from dc4gs_cl/statistics.py, SumsLayout). Two designs
+//       (-D PAIR_SUMS):
 //         0: sums [N*SUM_WIDTH], added to with float atomics (the host zeroes it first);
 //         1: sums [(pair_end - pair0)*SUM_WIDTH], one slot per pair of this launch's tiles (pair p at slot
 //            p - pair0), written in full (zeros for pairs past the walk) except the split sums of a Gaussian
@@ -22,8 +22,9 @@
 //         SUM_ABS    +0,1   sum |g_x|, |g_y|                      (-D STATS)
 //         SUM_PIXELS        pixels where blended (Pixel-GS)         (-D STATS)
 //         SUM_DC     +0,1,2 sum of g/|g| and the count, |g| > 0     (-D DC_STATS)
-//         SUM_SPLIT  +5k+0..4 for split candidate k: the same five sums (u_x, u_y, count, |g_x|, |g_y|)
-//                    over the pixels left of it (-D SPLIT_CANDIDATES = N > 0; split_geometry [N*GEO_WIDTH]
+//         SUM_SPLIT  +SPLIT_WIDTH k + SPLIT_<LANE> for split candidate k: the dc and abs sums (the lanes
+//                    SPLIT_UX, SPLIT_UY, SPLIT_COUNT, SPLIT_ABS_X, SPLIT_ABS_Y: statistics.SPLIT_LANES) over the
+//                    pixels left of it (-D SPLIT_CANDIDATES = N > 0; split_geometry [N*GEO_WIDTH]
 //                    from split_geometry.cl, the GEO record, says where the candidates fall; a pair's walk tests
 //                    only the candidates whose line crosses its pixels, crossing_range); -D
 //                    SPLIT_SUMS_PER_BLOCK=1 adds them per column block after its pixels (Tuning.split_sums_per_block)
@@ -71,7 +72,8 @@ typedef float floatB;
 
 // One pair: this work-item's pixels within the Gaussian's reach, walked back past the Gaussian; its terms
 // summed per lane of a column block into lanes. n_split, a constant at each call, adds the split terms of that
-// many candidates, at t_split[0 .. n_split - 1], into split_lanes (5 per candidate): each call then compiles to
+// many candidates, at t_split[0 .. n_split - 1], into split_lanes (SPLIT_WIDTH per candidate): each call then
+// compiles to
 // its own vectorised loop (a run-time test or trip count inside the loop stops vectorisation: 6x slower).
 ALWAYS_INLINE void backward_pair(const float2 m, const float4 co, const float3 c, const int idx, const int4 span,
                                  const int row0, const int col0, const float ndc_x, const float ndc_y,
@@ -81,7 +83,7 @@ ALWAYS_INLINE void backward_pair(const float2 m, const float4 co, const float3 c
                                  float lanes[][COL_BLOCK], float split_lanes[][COL_BLOCK]) {
     FOR_BLOCKS_IN_REACH(span, row0, col0)
 #if SPLIT_CANDIDATES && SPLIT_SUMS_PER_BLOCK
-    float sv[6][COL_BLOCK];          // the block's pixels: t along the candidate line, then the five split terms
+    float sv[1 + SPLIT_WIDTH][COL_BLOCK];   // the block's pixels: t along the candidate line, then the split lanes
 #endif
     FOR_PIXELS_IN_BLOCK(m, co, px, py)
         float G = exp_nonpositive(power);
@@ -126,8 +128,10 @@ ALWAYS_INLINE void backward_pair(const float2 m, const float4 co, const float3 c
         float has_g = g2 > 0.f ? 1.f : 0.f;
         float ux = gx * inv, uy = gy * inv, ax = ABSF(gx), ay = ABSF(gy);
 #if SPLIT_SUMS_PER_BLOCK
-        sv[0][cc - c0] = t_q; sv[1][cc - c0] = has_g * ux; sv[2][cc - c0] = has_g * uy; sv[3][cc - c0] = has_g;
-        sv[4][cc - c0] = has_g * ax; sv[5][cc - c0] = has_g * ay;
+        sv[0][cc - c0] = t_q;
+        sv[1 + SPLIT_UX][cc - c0] = has_g * ux; sv[1 + SPLIT_UY][cc - c0] = has_g * uy;
+        sv[1 + SPLIT_COUNT][cc - c0] = has_g;
+        sv[1 + SPLIT_ABS_X][cc - c0] = has_g * ax; sv[1 + SPLIT_ABS_Y][cc - c0] = has_g * ay;
 #else
         // Fully unrolled: a loop here keeps the compiler from vectorising the pixel loop (11x slower).
         // A literal trip count, unrolled before the call is inlined; the candidates past n_split then fold away.
@@ -135,11 +139,11 @@ ALWAYS_INLINE void backward_pair(const float2 m, const float4 co, const float3 c
         for (int k = 0; k < SPLIT_CANDIDATES; ++k) {
             if (k >= n_split) break;
             float left = t_q < t_split[k] ? has_g : 0.f;
-            split_lanes[5 * k][cc - c0] += left * ux;
-            split_lanes[5 * k + 1][cc - c0] += left * uy;
-            split_lanes[5 * k + 2][cc - c0] += left;
-            split_lanes[5 * k + 3][cc - c0] += left * ax;
-            split_lanes[5 * k + 4][cc - c0] += left * ay;
+            split_lanes[SPLIT_WIDTH * k + SPLIT_UX][cc - c0] += left * ux;
+            split_lanes[SPLIT_WIDTH * k + SPLIT_UY][cc - c0] += left * uy;
+            split_lanes[SPLIT_WIDTH * k + SPLIT_COUNT][cc - c0] += left;
+            split_lanes[SPLIT_WIDTH * k + SPLIT_ABS_X][cc - c0] += left * ax;
+            split_lanes[SPLIT_WIDTH * k + SPLIT_ABS_Y][cc - c0] += left * ay;
         }
 #endif
         }
@@ -156,8 +160,8 @@ ALWAYS_INLINE void backward_pair(const float2 m, const float4 co, const float3 c
         for (int k = 0; k < SPLIT_CANDIDATES; ++k) {
             if (k >= n_split) break;
             #pragma unroll
-            for (int v = 0; v < 5; ++v) {
-                float *lane = split_lanes[5 * k + v];
+            for (int v = 0; v < SPLIT_WIDTH; ++v) {
+                float *lane = split_lanes[SPLIT_WIDTH * k + v];
                 STOREB(LOADB(lane) + (t_q < t_split[k] ? LOADB(sv[1 + v]) : zero), lane);
             }
         }
@@ -347,7 +351,7 @@ void rasterize_backward(const int width, const int height, const int tiles_x, co
             if (cross.y - cross.x > MAX_FEW_CROSSING) cross = (int2)(0, SPLIT_CANDIDATES);   // the walk over all
             const int n_cross = cross.y - cross.x;
             float (*split_lanes)[COL_BLOCK] = lanes + SUM_SPLIT;
-            for (int k = 0; k < 5 * n_cross; ++k)
+            for (int k = 0; k < SPLIT_WIDTH * n_cross; ++k)
                 for (int cc = 0; cc < COL_BLOCK; ++cc) split_lanes[k][cc] = 0.f;
             // One call per crossing count, each its own vectorised loop (see backward_pair).
 #define WALK(n_split) backward_pair(m, co, c, idx, span, row0, col0, ndc_x, ndc_y, line, tk + cross.x, n_split, px, \
@@ -365,11 +369,13 @@ void rasterize_backward(const int width, const int height, const int tiles_x, co
             // order; the walk's contracted mul-adds may round the total's u terms one ulp apart), one with none zeros.
             const int used = split_ok ? SUM_WIDTH : SUM_SPLIT;
             if (split_ok) {
-                const float total[5] = {acc[SUM_DC], acc[SUM_DC + 1], acc[SUM_DC + 2], acc[SUM_ABS], acc[SUM_ABS + 1]};
+                SPLIT_TOTALS(total, acc);
                 for (int k = 0; k < SPLIT_CANDIDATES; ++k)
-                    for (int v = 0; v < 5; ++v) acc[SUM_SPLIT + 5 * k + v] = k < cross.x ? 0.f : total[v];
+                    for (int v = 0; v < SPLIT_WIDTH; ++v)
+                        acc[SUM_SPLIT + SPLIT_WIDTH * k + v] = k < cross.x ? 0.f : total[v];
                 for (int k = 0; k < n_cross; ++k)
-                    for (int v = 0; v < 5; ++v) acc[SUM_SPLIT + 5 * (cross.x + k) + v] = lane_total(split_lanes[5 * k + v]);
+                    for (int v = 0; v < SPLIT_WIDTH; ++v)
+                        acc[SUM_SPLIT + SPLIT_WIDTH * (cross.x + k) + v] = lane_total(split_lanes[SPLIT_WIDTH * k + v]);
             }
 #else
             const float no_split[1] = {0.f};

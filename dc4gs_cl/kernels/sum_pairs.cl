@@ -1,6 +1,6 @@
 // sum_pairs.cl: the rasterizer backward's per-pair slots (rasterize_backward.cl, -D PAIR_SUMS=1) reduced to
 // per-Gaussian sums (the SUM record: offsets SUM_<FIELD>, SUM_WIDTH, SPLIT_CANDIDATES and the GEO record's
-// offsets are -D options from dc4gs_cl/backward/sums.py), in a fixed order: the deterministic design.
+// offsets are -D options from dc4gs_cl/statistics.py), in a fixed order: the deterministic design.
 
 #include "common.h"
 

@@ -26,8 +26,8 @@ ALWAYS_INLINE void fold_view_sums(const uint i, const float *s, const float ndc_
                                   __global const int *radius, __global const float *depth,
                                   __global const float *split_geometry, __global float *window) {
 #if DC_WINDOW
-    // Window pooling rewrites 5 x (SPLIT_CANDIDATES + 1) more running sums per Gaussian: for an unseen one that
-    // costs more than vectorising saves (2.1 against 1.6 ms at 48k Gaussians), so it returns here.
+    // Window pooling rewrites SPLIT_WIDTH x (SPLIT_CANDIDATES + 1) more running sums per Gaussian: for an unseen
+    // one that costs more than vectorising saves (2.1 against 1.6 ms at 48k Gaussians), so it returns here.
     if (radius[i] <= 0) return;
 #endif
     const float seen = radius[i] > 0 ? 1.f : 0.f;
@@ -59,20 +59,22 @@ ALWAYS_INLINE void fold_view_sums(const uint i, const float *s, const float ndc_
 #if SPLIT_CANDIDATES
     __global const float *geo = split_geometry + (size_t)i * GEO_WIDTH;
     float line = seen * (HAS_SPLIT_LINE(geo) ? 1.f : 0.f);
-    float total[5] = {s[SUM_DC], s[SUM_DC + 1], s[SUM_DC + 2], s[SUM_ABS], s[SUM_ABS + 1]};
+    SPLIT_TOTALS(total, s);
 #if DC_WINDOW
-    for (int v = 0; v < 5; ++v) total[v] = w[WIN_SIDE_TOTAL + v] += line * total[v];
-    for (int k = 0; k < 5 * SPLIT_CANDIDATES; ++k) w[WIN_SIDE_LEFT + k] += line * s[SUM_SPLIT + k];
+    for (int v = 0; v < SPLIT_WIDTH; ++v) total[v] = w[WIN_SIDE_TOTAL + v] += line * total[v];
+    for (int k = 0; k < SPLIT_WIDTH * SPLIT_CANDIDATES; ++k) w[WIN_SIDE_LEFT + k] += line * s[SUM_SPLIT + k];
     line = seen;                     // the accumulated sums are costed at every visible view
-#define LEFT(k, v) w[WIN_SIDE_LEFT + 5 * (k) + (v)]
+#define LEFT(k, v) w[WIN_SIDE_LEFT + SPLIT_WIDTH * (k) + SPLIT_##v]
 #else
-#define LEFT(k, v) s[SUM_SPLIT + 5 * (k) + (v)]
+#define LEFT(k, v) s[SUM_SPLIT + SPLIT_WIDTH * (k) + SPLIT_##v]
 #endif
+#define RIGHT(k, v) (total[SPLIT_##v] - LEFT(k, v))
     for (int k = 0; k < SPLIT_CANDIDATES; ++k) {
-        w[WIN_SPLIT_COSTS + k] += line * (side_cost(LEFT(k, 0), LEFT(k, 1), LEFT(k, 2), LEFT(k, 3), LEFT(k, 4))
-            + side_cost(total[0] - LEFT(k, 0), total[1] - LEFT(k, 1), total[2] - LEFT(k, 2), total[3] - LEFT(k, 3),
-                        total[4] - LEFT(k, 4)));
+        w[WIN_SPLIT_COSTS + k] += line * (
+            side_cost(LEFT(k, UX), LEFT(k, UY), LEFT(k, COUNT), LEFT(k, ABS_X), LEFT(k, ABS_Y))
+            + side_cost(RIGHT(k, UX), RIGHT(k, UY), RIGHT(k, COUNT), RIGHT(k, ABS_X), RIGHT(k, ABS_Y)));
     }
+#undef RIGHT
 #undef LEFT
     w[WIN_SKIP_SPLIT] = (w[WIN_VIEWS] >= (float)TRACK_MIN_VIEWS
                          && w[TRACK_TOTAL] < track_threshold * w[TRACK_COUNT]) ? 1.f : 0.f;

@@ -5,9 +5,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..backward.sums import SPLIT_SUMS
-from ..host.densify.statistics import (ABS, DC_WINDOW_COLUMNS, DCC_ABS, DCC_GRAD, DCC_PIX, GRAD, MAX_RADIUS, PIX,
-                                       PIX_GRAD, SIDE_LEFT, SIDE_TOTAL, SKIP_SPLIT, SPLIT_COSTS, VIEWS)
+from ..statistics import (ABS, DC_WINDOW_COLUMNS, DCC_ABS, DCC_GRAD, DCC_PIX, GRAD, MAX_RADIUS, PIX, PIX_GRAD,
+                           SIDE_LEFT, SIDE_TOTAL, SKIP_SPLIT, SPLIT_COSTS, SPLIT_SUMS, VIEWS)
 from .dc4gs import directional_consistency, side_cost
 
 

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..loss import LAMBDA_DSSIM, SSIM_C1, SSIM_C2, SSIM_SIGMA, SSIM_WINDOW
+from ..backward.loss import LAMBDA_DSSIM, SSIM_C1, SSIM_C2, SSIM_SIGMA, SSIM_WINDOW
 
 
 def gaussian_window(size: int = SSIM_WINDOW, sigma: float = SSIM_SIGMA) -> np.ndarray:

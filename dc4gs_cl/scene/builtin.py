@@ -175,8 +175,9 @@ SOLIDS = (
 SKY = np.float32([0.55, 0.65, 0.80])     # also the scene's background colour
 
 
-def _cast(o: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Unit rays d (3, N) from o (3, 1) -> (colour (3, N) float32, distance (N,), inf for the sky)."""
+def cast_rays(o: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """What the scene shows along rays: unit directions d (3, N) from origin o (3, 1) -> (colour (3, N) float32,
+    distance to the nearest surface (N,), inf for the sky)."""
     ts = np.stack([s.intersect(o, d) for s in SOLIDS])
     nearest, t = ts.argmin(axis=0), ts.min(axis=0)
     color = np.repeat(SKY[:, None], d.shape[1], axis=1)
@@ -207,7 +208,7 @@ def render(cam: Camera) -> np.ndarray:
     offsets = (np.arange(SUPERSAMPLE) + 0.5) / SUPERSAMPLE
     u = np.arange(cam.width)[None, :, None, None] + offsets[None, None, None, :]
     v = np.arange(cam.height)[:, None, None, None] + offsets[None, None, :, None]
-    color, _ = _cast(*_rays(cam, *np.broadcast_arrays(u, v)))
+    color, _ = cast_rays(*_rays(cam, *np.broadcast_arrays(u, v)))
     return np.ascontiguousarray(color.reshape(3, cam.height, cam.width, -1).mean(axis=3).transpose(1, 2, 0))
 
 
@@ -228,7 +229,7 @@ def _points(cams: list[Camera], extent: float, rng: np.random.Generator) -> tupl
     for k, cam in enumerate(cams):
         m = int((which == k).sum())
         o, d = _rays(cam, rng.uniform(0, cam.width, m), rng.uniform(0, cam.height, m))
-        color, t = _cast(o, d)
+        color, t = cast_rays(o, d)
         keep = np.isfinite(t)
         hits.append((o + t[keep] * d[:, keep]).T)
         colors.append(color[:, keep].T)

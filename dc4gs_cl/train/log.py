@@ -17,11 +17,11 @@ import sys
 import time
 from typing import Callable
 
+from ..config import DEFAULT_LINE_EVERY
 from ..run_folder import RunFolder
 
 SAMPLE_EVERY = 10           # iterations between samples (the loss is read back this often anyway)
 PROGRESS_MODES = ("bar", "lines", "none")
-DEFAULT_LINE_EVERY = 100    # iterations between progress lines when the output is not a terminal
 
 
 def progress_mode(no_progress: bool) -> str:

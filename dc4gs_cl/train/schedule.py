@@ -4,9 +4,9 @@ from __future__ import annotations
 
 from dataclasses import replace
 
-from ..host.adam import exponential_lr
-from ..host.densify import STRATEGIES, Strategy
 from ..config import RECIPE_ITERATIONS, TrainConfig
+from ..densify import STRATEGIES, Strategy
+from ..optim.adam import exponential_lr
 
 MIN_DENSIFY_STEPS = 10   # a short run still densifies about this often
 SH_DEGREE_EVERY = 1_000  # one more SH degree every this many (scaled) iterations

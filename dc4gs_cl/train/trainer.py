@@ -1,12 +1,13 @@
 """The training loop: the 3DGS recipe on the device, the host owning the schedules, Adam's logic and the
-density control (a strategy, host/densify); checkpoints through the run folder, so that an interrupted
+density control (a strategy, densify/); checkpoints through the run folder, so that an interrupted
 run resumes to the same model.
 
 One iteration (docs/architecture.md draws it module by module):
-    render (render/) -> loss and dL/dimage (loss.py) -> what the strategy gathers this view (its split
-    geometry, for DCS) -> rasterizer backward into per-Gaussian sums (backward/) -> the strategy folds the
-    view's statistics into its window -> projection backward with Adam's step fused in, where the recipe
-    steps -> the strategy densifies and limits opacities where its schedule says.
+    render (render/) -> loss and dL/dimage (backward/loss.py) -> what the strategy gathers this view and where
+    it folds it (plain data; its split geometry, for DCS) -> rasterizer backward into per-Gaussian sums
+    (backward/), the view's statistics folded into the strategy's window on the way -> projection backward
+    with Adam's step fused in, where the recipe steps -> the strategy densifies and limits opacities where its
+    schedule says.
 Per iteration the host uploads the target image and reads back two counts (visible Gaussians, pairs); the
 loss is read every few iterations for the metrics file and the progress display (log.py).
 """
@@ -20,19 +21,18 @@ from pathlib import Path
 import numpy as np
 
 from ..backward import ProjectBackward, RasterizeBackward
+from ..backward.loss import STAT_KEYS, Loss
+from ..config import DEFAULT_LINE_EVERY, TrainConfig
+from ..densify import Actions, Strategy
 from ..errors import DeviceError, InputError
-from ..host.densify import GaussianSet, Strategy
-from ..host.trainable import TrainableGaussians
-from ..loss import STAT_KEYS, Loss
-from ..model import initial_model
+from ..model import GaussianSet, initial_model
+from ..optim.trainable import TrainableGaussians
 from ..render import DeviceGaussians, Renderer, Tuning
-from ..run_folder import Checkpoint, RunFolder
+from ..run_folder import Checkpoint, RunFolder, TrainingState
 from ..runtime import Runtime, describe
 from ..scene.camera import Camera, Scene
-from ..config import TrainConfig
-from .log import DEFAULT_LINE_EVERY, SAMPLE_EVERY, TrainingLog
+from .log import SAMPLE_EVERY, TrainingLog
 from .schedule import Schedule
-
 
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 
@@ -46,10 +46,13 @@ class Stopped(KeyboardInterrupt):
 
 
 class Trainer:
-    def __init__(self, cfg: TrainConfig, scene: Scene, rt: Runtime, out: str | Path | RunFolder,
-                 strategy: Strategy | None = None, check_finite: bool = False):
-        """strategy: the density control (default: the configuration's, its schedule scaled to the run);
-        check_finite: every stage checks its outputs and the first NaN or Inf stops the run (finite.py)."""
+    def __init__(self, cfg: TrainConfig, scene: Scene, rt: Runtime, out: str | Path | RunFolder | None = None,
+                 strategy: Strategy | None = None, check_finite: bool = False, frozen: bool = False):
+        """out: the run folder, which checkpoints, saved models and run() need (None: none, for a trainer that
+        only steps); strategy: the density control (default: the configuration's, its schedule scaled to the
+        run); check_finite: every stage checks its outputs and the first NaN or Inf stops the run (finite.py);
+        frozen: the strategy gathers its statistics but never densifies nor limits opacities, so that
+        benchmarks step the same model again and again."""
         if not scene.train:
             raise InputError(scene.root, "the scene has no training cameras")
         if rt.caps.loop_limit:   # runtime.LOOP_LIMITED_DRIVERS: its renders are right, its gradients of busy views not
@@ -58,7 +61,8 @@ class Trainer:
                               "of busy views wrong: train on another device (see `dc4gs-cl devices`; PoCL comes with "
                               "dc4gs-cl) or with Mesa 25 or later. Rendering and eval work on it.")
         self.cfg, self.scene, self.rt = cfg, scene, rt
-        self.run_folder = out if isinstance(out, RunFolder) else RunFolder(out)
+        self.run_folder = out if isinstance(out, RunFolder) or out is None else RunFolder(out)
+        self.frozen = frozen
         self.schedule = Schedule(cfg)
         tuning = Tuning.for_device(rt.caps)
         if cfg.low_memory:   # float-atomic sums instead of per-pair slots
@@ -112,7 +116,7 @@ class Trainer:
         res = self.renderer.render(self.params, cam, self.sh_degree, background)
         self.loss(res.raster.image, target_buf, cam.width, cam.height, dL_dimage, keep=keep_buf,
                   kept=np.count_nonzero(keep) if keep is not None else 0)
-        actions = s.actions(it)
+        actions = Actions() if self.frozen else s.actions(it)
         gathering = s.gather(it, self.params, cam, res)
         sums, layout = self.rasterize_backward.folding(res, dL_dimage, background, gathering.layout,
                                                        gathering.geometry, keep_buf, gathering.window)
@@ -140,60 +144,48 @@ class Trainer:
                 "window statistics": self.strategy.window.rows.nbytes, **self.context.ws.held()}
 
     # checkpoints --------------------------------------------------------------------------------------
+    def _folder_for(self, purpose: str) -> RunFolder:
+        """The run folder, which `purpose` needs."""
+        if self.run_folder is None:
+            raise RuntimeError(f"{purpose} needs a run folder, and this trainer was made without one (out=None)")
+        return self.run_folder
+
     def save_checkpoint(self) -> None:
         gs = self.model.download()
-        arrays = {f"{part}/{k}": v for part, group in (("param", gs.params), ("m", gs.m), ("v", gs.v))
-                  for k, v in group.items()}
-        arrays |= {f"window/{k}": v for k, v in self.strategy.window.download().items()}
-        meta = {"iteration": self.iteration, "config": self.cfg.to_json(), "adam_steps": self.model.adam.steps,
-                "rng": self.rng.bit_generator.state, "camera_stack": self.camera_stack,
-                "train_cameras": [c.name for c in self.scene.train], "gaussians": self.model.n,
-                "loss_sums": self.loss.running_sums()}   # so the first metrics sample after --resume is the same
-        self.run_folder.write_checkpoint(arrays, meta)
+        state = TrainingState(config=self.cfg, params=gs.params, m=gs.m, v=gs.v,
+                              window=self.strategy.window.download(), iteration=self.iteration,
+                              adam_steps=self.model.adam.steps, rng=self.rng.bit_generator.state,
+                              camera_stack=self.camera_stack, train_cameras=[c.name for c in self.scene.train],
+                              # so that the first metrics sample after --resume is the same
+                              loss_sums=self.loss.running_sums())
+        self._folder_for("a checkpoint").write_checkpoint(*state.entries())
 
     def resume(self) -> Checkpoint:
         """Continue from the run folder's newest intact checkpoint (returned: which file, and the corrupt ones
         passed over), which must come from these settings and images."""
-        checkpoint = self.run_folder.read_checkpoint()
-        arrays, meta, path = checkpoint.arrays, checkpoint.meta, checkpoint.path
-        try:
-            saved = TrainConfig.from_json(meta["config"])
-            group = lambda prefix: {k.split("/", 1)[1]: v for k, v in arrays.items() if k.startswith(prefix + "/")}
-            gs = GaussianSet(group("param"), group("m"), group("v"))
-            window = group("window")
-            steps, state, stack, iteration = meta["adam_steps"], meta["rng"], meta["camera_stack"], meta["iteration"]
-            cameras, n = meta["train_cameras"], meta["gaussians"]
-            loss_sums = meta.get("loss_sums")
-            if loss_sums is not None:
-                sums, calls = loss_sums
-                loss_sums = [float(x) for x in sums], int(calls)
-                if len(sums) != len(STAT_KEYS):
-                    raise ValueError(f"loss_sums holds {len(sums)} sums")
-        except (KeyError, TypeError, ValueError, InputError) as e:
-            raise InputError(path, f"corrupt checkpoint ({e.__class__.__name__}: {e})") from None
-        if diffs := saved.differences(self.cfg):
+        checkpoint = self._folder_for("resuming").read_checkpoint()
+        state, path = checkpoint.training_state(len(STAT_KEYS)), checkpoint.path
+        if diffs := state.config.differences(self.cfg):
             raise InputError(path, "checkpoint is from other settings (" + ", ".join(
                 f"{k}: checkpoint {a!r} vs now {b!r}" for k, (a, b) in diffs.items()) + ")")
-        if cameras != [c.name for c in self.scene.train]:
+        if state.train_cameras != [c.name for c in self.scene.train]:
             raise InputError(path, "checkpoint was made with other training images")
         try:
-            if gs.n != n:
-                raise ValueError
-            self.model.upload(gs)
+            self.model.upload(GaussianSet(state.params, state.m, state.v))
         except (ValueError, KeyError):
             raise InputError(path, "checkpoint arrays do not match the model layout") from None
-        self.strategy.window.upload(window)
-        self.model.adam.steps = steps
-        self.rng.bit_generator.state = state
-        self.camera_stack = stack
-        self.iteration = iteration
-        if loss_sums is not None:   # checkpoints before metrics.jsonl have none
-            self.loss.restore_sums(*loss_sums)
+        self.strategy.window.upload(state.window)
+        self.model.adam.steps = state.adam_steps
+        self.rng.bit_generator.state = state.rng
+        self.camera_stack = state.camera_stack
+        self.iteration = state.iteration
+        if state.loss_sums is not None:
+            self.loss.restore_sums(*state.loss_sums)
         return checkpoint
 
     # outputs ------------------------------------------------------------------------------------------
     def save_model(self) -> Path:
-        return self.run_folder.save_model(self.iteration, self.params.download_model())
+        return self._folder_for("saving a model").save_model(self.iteration, self.params.download_model())
 
     def evaluate_test(self, render_dir: Path | None = None) -> dict:
         """Evaluate the test views now (evaluate.evaluate; with render_dir, their PNGs too) and log it; the
@@ -216,11 +208,12 @@ class Trainer:
         progress: "bar", "lines" (one every line_every iterations) or "none" (train/log.py). Ctrl-C (SIGINT)
         or SIGTERM (what job schedulers send) stops at the next iteration boundary after a checkpoint,
         raising Stopped. viewer: a viewer.Viewer shown the model between iterations (live training)."""
+        run_folder = self._folder_for("run() (its metrics file, checkpoints and model)")
         stop = {"signal": None}
         main_thread = threading.current_thread() is threading.main_thread()
         previous = {sig: signal.signal(sig, lambda signum, _: stop.update(signal=signum))
                     for sig in STOP_SIGNALS} if main_thread else {}
-        self.log = TrainingLog(self.run_folder, self.cfg.iterations, self.iteration, progress, line_every,
+        self.log = TrainingLog(run_folder, self.cfg.iterations, self.iteration, progress, line_every,
                                self.rt.stage_times if self.rt.profiling else None)
         evaluate_at = {i for i in self.schedule.evaluations() if i < self.cfg.iterations} if self.scene.test else set()
         try:

@@ -3,8 +3,9 @@ gradients do not cancel) with its own threshold, clone on the 3DGS one; a smalle
 opacity clamp at 0.8 every 500 iterations."""
 from __future__ import annotations
 
-from .statistics import ABS_PER_VIEW
-from .strategy import DensifyConfig, Strategy
+from ..config import DensifyConfig
+from ..statistics import ABS_PER_VIEW
+from .strategy import Strategy
 
 
 class AbsGS(Strategy):

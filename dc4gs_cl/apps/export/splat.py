@@ -15,8 +15,8 @@ import os
 
 import numpy as np
 
-from ..errors import InputError
-from ..model import GaussianModel, rgb_to_sh_dc
+from ...errors import InputError
+from ...model import GaussianModel, rgb_to_sh_dc
 from .common import dc_colour, read_bytes, read_model, to_bytes, unit_quats, write_bytes
 
 SPLAT_RECORD = np.dtype([("position", "<f4", 3), ("scale", "<f4", 3), ("rgba", "u1", 4), ("rotation", "u1", 4)])

@@ -12,8 +12,7 @@ import numpy as np
 
 from ..model import PARAM_GROUPS
 from ..records import ADAM_STEP, SH_REST_RATE
-from ..render.gaussians import DeviceArrays
-from ..runtime import Runtime
+from ..runtime import DeviceArrays, Runtime
 
 
 @dataclass(frozen=True)

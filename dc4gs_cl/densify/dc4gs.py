@@ -1,83 +1,18 @@
-"""DC4GS on the host (../shared/docs/dc4gs-spec.md sections 3 to 5): its settings, the DC-weighted split
-criterion (DCC), and the split position from the candidates' costs (DCS; the split itself is ops.split_at).
+"""DC4GS on the host (../shared/docs/dc4gs-spec.md sections 3 to 5): the DC-weighted split criterion (DCC),
+and the split position from the candidates' costs (DCS; the split itself is ops.split_at). Its settings are
+config.DC4GSConfig.
 
 The statistics are gathered on the device (kernels/rasterize_backward.cl, kernels/densify_stats.cl, what
 statistics.StatisticsSpec asks for); a strategy reads the window at a densification step.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
-from .statistics import DC_WEIGHTED, DCC_ABS, VIEWS, Criterion
+from ..statistics import DC_WEIGHTED, DCC_ABS, VIEWS, Criterion
 
-POOLINGS = ("view", "window")       # per view (the paper) or over the window (the authors' release)
-SPLIT_PICKS = ("poly", "argmin", "dense", "middle")   # middle: DCS' split at x = 0.5, no costs (an ablation)
-DCC_READINGS = ("abs", "base")
-FIVE_CANDIDATES = 5                 # the paper's candidate count
-DENSE_CANDIDATES = 59               # --split-pick dense without --split-candidates
 CONSTANT_COSTS = 1e-7               # relative spread below which the costs carry no preference: split in the middle
 NEGLIGIBLE_COSTS = 1e-12            # ... and costs this small are float noise of vanishing gradients
-
-
-@dataclass(frozen=True)
-class DC4GSConfig:
-    """DC4GS' settings; off unless dcc or dcs (every setting is still checked, so that a mistyped flag never
-    passes silently)."""
-    dcc: bool = False               # DC-weighted split criterion
-    dcs: bool = False               # DC-guided split placement
-    pooling: str = "view"
-    split_pick: str = "poly"
-    candidates: int | None = None   # odd; None: FIVE_CANDIDATES, or DENSE_CANDIDATES with split_pick "dense"
-    dcc_reading: str = "base"       # base: (1 - kappa) x the base's own per-view term; abs: (1 - kappa) |ghat|
-    track: float = 0.0              # split costs only while the running split criterion >= track x threshold (0: exact)
-    other_scale: float = 1.0        # DCS children's other two axes x this (1, the paper's: kept; release: const_scale)
-    cost_every: int = 1             # split costs from every this-many-th iteration's view only (1: every view, exact)
-
-    def __post_init__(self):
-        if problems := self.problems():
-            raise ValueError("; ".join(problems))
-
-    @property
-    def enabled(self) -> bool:
-        return self.dcc or self.dcs
-
-    @property
-    def costs_pick(self) -> bool:
-        """Whether DCS' split position comes from the candidates' costs (not with split_pick middle)."""
-        return self.dcs and self.split_pick != "middle"
-
-    @property
-    def candidate_count(self) -> int:
-        if self.candidates is not None:
-            return self.candidates
-        return DENSE_CANDIDATES if self.split_pick == "dense" else FIVE_CANDIDATES
-
-    @property
-    def label(self) -> str:
-        """DC4GS, DCC or DCS: what a strategy's name gets appended."""
-        return "DC4GS" if self.dcc and self.dcs else ("DCC" if self.dcc else "DCS")
-
-    def problems(self) -> list[str]:
-        """What is wrong with these settings, named by their command-line flags (empty: nothing)."""
-        out = [f"{flag} {value!r} is not one of {', '.join(allowed)}"
-               for flag, value, allowed in (("--dc-pooling", self.pooling, POOLINGS),
-                                            ("--split-pick", self.split_pick, SPLIT_PICKS),
-                                            ("--dcc-reading", self.dcc_reading, DCC_READINGS))
-               if value not in allowed]
-        if self.candidate_count < 3 or self.candidate_count % 2 == 0:
-            out.append(f"--split-candidates {self.candidate_count} must be odd and at least 3")
-        if not 0 <= self.track <= 1:
-            out.append(f"--dcs-track {self.track} must lie in [0, 1]")
-        if not 0 < self.other_scale <= 1:
-            out.append(f"--dcs-other-scale {self.other_scale} must lie in (0, 1]")
-        if self.cost_every < 1:
-            out.append(f"--dcs-every {self.cost_every} must be at least 1")
-        elif self.cost_every > 1 and self.pooling == "window":
-            # window pooling costs the sides' running sums at every visible view, which a skipped view cannot add to
-            out.append(f"--dcs-every {self.cost_every} needs --dc-pooling view")
-        return out
 
 
 def dcc_criterion(base: Criterion, reading: str) -> Criterion:

@@ -2,12 +2,13 @@
 and what the device must gather for it.
 
 A strategy owns its hyperparameters and its statistics (the window on the device, and DCS' split geometry
-stage), as gsplat's strategies do; the trainer calls only its hooks, once per iteration, in this order:
+stage), as gsplat's strategies do; the trainer calls attach() once, then its hooks once per iteration, in
+this order:
 
     actions = strategy.actions(it)                        what this iteration does after its backward
-    gathering = strategy.gather(it, params, cam, result)  what the rasterizer backward must gather this view
-    ... rasterizer backward -> sums ...
-    strategy.fold(gathering, result, sums)                this view's statistics into the window
+    gathering = strategy.gather(it, params, cam, result)  what the rasterizer backward gathers this view, and
+                                                          where it folds the view's statistics (plain data)
+    ... rasterizer backward -> sums, the view folded into the window on the way ...
     ... optimiser step where actions say so ...
     report = strategy.apply(actions, it, model, rng)      densify and limit opacities; report
 
@@ -18,41 +19,25 @@ subclass that sets its name, criteria and default_config (tests/test_strategy.py
 """
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from functools import cached_property
 
 import numpy as np
 import pyopencl as cl
 
-from ...backward import GRADIENTS, SplitGeometry, SumsLayout
-from ...render.gaussians import DeviceGaussians
-from ...render.renderer import RenderResult
-from ...render.stage import StageContext
-from ...scene.camera import Camera
+from ..backward import SplitGeometry, WindowFold
+from ..config import DC4GSConfig, DensifyConfig
+from ..model import GaussianSet
+from ..render.gaussians import DeviceGaussians
+from ..render.renderer import RenderResult
+from ..render.stage import StageContext
+from ..scene.camera import Camera
+from ..statistics import GRAD_PER_VIEW, GRADIENTS, MAX_RADIUS, SPLIT_COSTS, Criterion, StatisticsSpec, SumsLayout
 from . import ops
-from .dc4gs import DC4GSConfig, dcc_criterion, split_positions
-from .densify_stats import DensifyStats
-from .ops import SPLIT_GROWTH, GaussianSet
-from .statistics import GRAD_PER_VIEW, MAX_RADIUS, SPLIT_COSTS, Criterion, StatisticsSpec
-
-
-@dataclass(frozen=True)
-class DensifyConfig:
-    densify_from: int = 500            # densify at iterations densify_from < it < densify_until ...
-    densify_until: int = 15_000        # ... that are multiples of densify_every; statistics gather up to the last
-    densify_every: int = 100
-    clone_threshold: float = 2e-4      # on the mean per-view criterion, NDC units
-    split_threshold: float = 2e-4
-    percent_dense: float = 0.01        # "small" = largest scale <= percent_dense * extent: clone, else split
-    prune_opacity: float = 0.005
-    big_world_after: int = 3_000       # after this iteration also prune largest scale > big_world_fraction * extent
-    big_world_fraction: float = 0.1
-    screen_size_px: float | None = None  # the 3DGS screen-size rule (radius > 20 px); off: it never fires in the releases
-    opacity_reset_every: int = 3_000
-    opacity_reset_to: float = 0.01
-    opacity_clamp_every: int | None = None   # AbsGS: clamp opacities to <= opacity_clamp this often
-    opacity_clamp: float = 0.8
-    max_gaussians: int | None = None   # densification never grows the model past this (cap_growth)
+from .dc4gs import dcc_criterion, split_positions
+from .ops import SPLIT_GROWTH
+from .window import Window
 
 
 @dataclass
@@ -83,10 +68,10 @@ class Actions:
 @dataclass
 class Gathering:
     """What the rasterizer backward gathers this view: the sums' layout, for DCS the view's split geometry, and
-    the window it folds the view's statistics into (None once the window has closed)."""
+    where it folds the view's statistics (None once the window has closed)."""
     layout: SumsLayout
     geometry: cl.Buffer | None = None
-    window: DensifyStats | None = None
+    window: WindowFold | None = None
 
 
 class Strategy:
@@ -99,11 +84,13 @@ class Strategy:
     def __init__(self, config: DensifyConfig | None = None, dc4gs: DC4GSConfig | None = None):
         self.config = config or self.default_config()
         self.dc4gs = dc4gs if dc4gs is not None and dc4gs.enabled else None
-        self.window: DensifyStats | None = None        # attach() makes the device state
-        self.window_without_split: DensifyStats | None = None   # the views DCS skips fold with it (cost_every)
+        self.window: Window | None = None        # attach() makes the device state
+        self.window_without_split: Window | None = None   # the views DCS skips fold with it (cost_every)
         self.split_geometry: SplitGeometry | None = None
         self.extent = 1.0
         self.white_background = False
+        # an observer of the steps (a tool recording their decisions): densify calls it first, with (gs, window, it)
+        self.before_densify: Callable[[GaussianSet, dict[str, np.ndarray], int], None] | None = None
 
     @staticmethod
     def default_config() -> DensifyConfig:
@@ -177,7 +164,7 @@ class Strategy:
         """Make the device state for a scene of this extent and n Gaussians: the window and, for DCS, the
         split geometry stage (sharing the trainer's stage context)."""
         self.extent, self.white_background = extent, white_background
-        self.window = DensifyStats(ctx, self.statistics, extent, self.track_threshold)
+        self.window = Window(ctx.rt, self.statistics, extent, self.track_threshold)
         self.window.reset(n)
         self.split_geometry = SplitGeometry(ctx) if self.split_candidates else None
         # DCS gathering split costs from every K-th view only: the others fold through this
@@ -191,14 +178,13 @@ class Strategy:
         if not self.collecting(it):
             return Gathering(GRADIENTS)
         if self.window_without_split is not None and it % self.dc4gs.cost_every:   # a view DCS skips
-            return Gathering(self.window_without_split.spec.sums, None, self.window_without_split)
-        spec = self.statistics
+            return Gathering(self.window_without_split.spec.sums, None, self.window_without_split.fold)
+        fold = self.window.fold
         geometry = None
         if self.split_geometry is not None:
             geometry = self.split_geometry(params, cam, res, self.split_candidates,
-                                           self.config.percent_dense * self.extent,
-                                           (self.window.buffer, self.window.record))
-        return Gathering(spec.sums, geometry, self.window)
+                                           self.config.percent_dense * self.extent, fold)
+        return Gathering(self.statistics.sums, geometry, fold)
 
     def apply(self, actions: Actions, it: int, model, rng: np.random.Generator) -> DensifyReport | None:
         """Densify (on the device model: host.trainable.TrainableGaussians) and limit the opacities as the
@@ -206,7 +192,7 @@ class Strategy:
         report = None
         if actions.densify:
             gs = model.download()
-            report = self.densify(gs, self.window.download(), it, self.extent, rng)
+            report = self.densify(gs, self.window.download(), it, rng)
             model.upload(gs)
             self.window.reset(gs.n)
         if actions.opacity_ceiling is not None:
@@ -223,14 +209,20 @@ class Strategy:
         return ops.split_at(gs, idx, split_positions(window[SPLIT_COSTS][idx], self.dc4gs.split_pick),
                             self.dc4gs.other_scale)
 
-    def densify(self, gs: GaussianSet, window: dict[str, np.ndarray], it: int, extent: float,
+    def large(self, gs: GaussianSet) -> np.ndarray:
+        """The Gaussians a step would split rather than clone: largest scale above percent_dense x extent."""
+        return gs.scales().max(axis=1) > self.config.percent_dense * self.extent
+
+    def densify(self, gs: GaussianSet, window: dict[str, np.ndarray], it: int,
                 rng: np.random.Generator) -> DensifyReport:
         """Clone, then split (clones are never split), then prune, as the 3DGS code orders them."""
+        if self.before_densify is not None:
+            self.before_densify(gs, window, it)
         c = self.config
         n = gs.n
         clone_v, split_v = self.clone_criterion(window), self.split_criterion(window)
         gs.aux[MAX_RADIUS] = window[MAX_RADIUS].astype(np.float32)
-        large = gs.scales().max(axis=1) > c.percent_dense * extent
+        large = self.large(gs)
         report = DensifyReport()
         clone_mask = (clone_v >= c.clone_threshold) & ~large
         split_mask = (split_v >= c.split_threshold) & large
@@ -243,7 +235,7 @@ class Strategy:
         report.split = self.split(gs, np.concatenate([split_mask, np.zeros(gs.n - n, bool)]), rng, window)
         prune = gs.opacities() < c.prune_opacity
         if it > c.big_world_after:
-            prune |= gs.scales().max(axis=1) > c.big_world_fraction * extent
+            prune |= gs.scales().max(axis=1) > c.big_world_fraction * self.extent
         if c.screen_size_px is not None:
             prune |= gs.aux[MAX_RADIUS] > c.screen_size_px
         report.pruned = ops.prune(gs, prune)

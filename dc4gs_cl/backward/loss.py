@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pyopencl as cl
 
-from .render.stage import Stage, StageContext, halvings
+from ..render.stage import Stage, StageContext, halvings
 
 LAMBDA_DSSIM = 0.2      # L = (1 - LAMBDA_DSSIM) L1 + LAMBDA_DSSIM (1 - SSIM)
 SSIM_C1 = 0.01 ** 2

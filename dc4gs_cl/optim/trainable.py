@@ -2,12 +2,14 @@
 out of the host as a GaussianSet (densification, checkpoints)."""
 from __future__ import annotations
 
-from ..model import GaussianModel, group_widths
+import math
+
+import numpy as np
+
+from ..model import GaussianModel, GaussianSet, group_widths
 from ..render.gaussians import DeviceGaussians
 from ..runtime import Runtime
 from .adam import Adam
-from .densify import ops
-from .densify.ops import GaussianSet
 
 
 class TrainableGaussians:
@@ -31,8 +33,9 @@ class TrainableGaussians:
         self.adam.v.upload(gs.v)
 
     def limit_opacity(self, ceiling: float) -> None:
-        """Opacities above the ceiling drop to it and the opacities' Adam moments restart (ops.limit_opacity)."""
+        """Opacities above the ceiling drop to it (the 3DGS reset to 0.01, AbsGS' clamp to 0.8) and the opacities'
+        Adam moments restart."""
         name = "opacity_logits"
-        self.params.upload_group(name, ops.limit_opacity(self.params.download_group(name), ceiling))
+        self.params.upload_group(name, np.minimum(self.params.download_group(name), math.log(ceiling / (1 - ceiling))))
         self.adam.m.zero(name)
         self.adam.v.zero(name)

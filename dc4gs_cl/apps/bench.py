@@ -18,7 +18,6 @@ B against A line by line.
 """
 from __future__ import annotations
 
-import argparse
 import gc
 import json
 import os
@@ -34,28 +33,28 @@ from pathlib import Path
 import numpy as np
 import pyopencl as cl
 
-from . import __version__
-from .backward import GRADIENTS, ProjectBackward, RasterizeBackward
-from .config import TrainConfig
-from .errors import InputError, OutputError
-from .files import write_atomic, write_json
-from .host.densify import DC4GSConfig, GaussianSet
-from .loss import Loss
-from .model import GaussianModel, group_widths
-from .reference import loss as loss_reference
-from .reference.isect import intersect_reference
-from .reference.project import project_backward_reference, project_reference
-from .reference.rasterize import rasterize_backward_reference, rasterize_reference, undecided_pixels
-from .render import DeviceGaussians, Renderer
-from .runtime import Capabilities, Runtime, describe
-from .scene.builtin import builtin_scene
-from .scene.camera import Camera, Scene
-from .testing import random_camera, random_model
-from .train import Trainer
-from .train.schedule import Schedule
+from .. import __version__
+from ..backward import ProjectBackward, RasterizeBackward
+from ..backward.loss import Loss
+from ..config import TrainConfig
+from ..densify import DC4GSConfig
+from ..errors import InputError, OutputError
+from ..files import write_atomic, write_json
+from ..model import GaussianModel, GaussianSet, group_widths
+from ..reference import loss as loss_reference
+from ..reference.isect import intersect_reference
+from ..reference.project import project_backward_reference, project_reference
+from ..reference.rasterize import rasterize_backward_reference, rasterize_reference, undecided_pixels
+from ..render import DeviceGaussians, Renderer
+from ..runtime import Capabilities, Runtime, describe
+from ..scene.builtin import builtin_scene
+from ..scene.camera import Camera, Scene
+from ..statistics import GRADIENTS
+from ..testing import random_camera, random_model
+from ..train import Trainer
+from ..train.schedule import Schedule
 
 SUITE_VERSION = 1
-NEVER = 10 ** 9                       # an opacity reset interval no run reaches
 
 
 @dataclass(frozen=True)
@@ -93,18 +92,9 @@ def frozen_trainer(cfg: TrainConfig, scene: Scene, rt: Runtime, state: GaussianS
     Gaussian, not only those large enough to split."""
     scaled = Schedule(cfg).strategy()
     c = scaled.config
-
-    class Frozen(type(scaled)):
-        def densify_now(self, it: int) -> bool:
-            return False
-
-        def collecting(self, it: int) -> bool:      # the whole window, though no step reads it
-            return it < self.config.densify_until
-
-    strategy = Frozen(replace(c, opacity_reset_every=NEVER, opacity_clamp_every=None,
-                              densify_until=0 if closed else c.densify_until,
-                              percent_dense=0.0 if split_costs_for_all else c.percent_dense), cfg.dc4gs)
-    trainer = Trainer(cfg, scene, rt, Path("/nonexistent"), strategy=strategy)
+    strategy = type(scaled)(replace(c, densify_until=0 if closed else c.densify_until,
+                                    percent_dense=0.0 if split_costs_for_all else c.percent_dense), cfg.dc4gs)
+    trainer = Trainer(cfg, scene, rt, strategy=strategy, frozen=True)
     trainer.start_from(state, iteration)
     return trainer
 
@@ -161,7 +151,7 @@ def builtin_cases(rt: Runtime, suite: Suite, say) -> list[dict]:
     """The built-in scene: one model trained at the first size, measured at every size."""
     scenes = [builtin_scene(base_size=size) for size in suite.builtin_sizes]
     say(f"training the built-in scene {suite.warm_iterations} iterations at {suite.builtin_sizes[0]} ...")
-    warm = Trainer(TrainConfig(scene="builtin", iterations=suite.schedule), scenes[0], rt, Path("/nonexistent"))
+    warm = Trainer(TrainConfig(scene="builtin", iterations=suite.schedule), scenes[0], rt)
     for _ in range(suite.warm_iterations):
         warm.step()
     state = warm.model.download()
@@ -402,15 +392,8 @@ def report_stem(env: dict) -> str:
 
 
 # command line ---------------------------------------------------------------------------------------------
-def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--out", type=Path, default=Path("."),
-                   help="folder for the report: bench-<platform>-<device>.json and .md (default: here)")
-    p.add_argument("--quick", action="store_true", help="a tiny version of the suite (seconds; checks that it runs)")
-    p.add_argument("--compare", nargs=2, type=Path, metavar=("A.json", "B.json"), default=None,
-                   help="print B's numbers against A's, line by line, and run nothing")
-
-
 def cmd_bench(args) -> int:
+    """`dc4gs-cl bench` (its arguments: cli.py)."""
     if args.compare:
         print("\n".join(compare(*(read_report(p) for p in args.compare))))
         return 0

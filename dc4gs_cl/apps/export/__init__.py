@@ -19,10 +19,10 @@ import argparse
 import os
 from pathlib import Path
 
-from ..errors import InputError
-from ..model import GaussianModel
-from ..ply import read_ply, write_ply
-from ..run_folder import RunFolder
+from ...errors import InputError
+from ...model import GaussianModel
+from ...ply import read_ply, write_ply
+from ...run_folder import RunFolder
 from .compressed_ply import read_compressed_ply, write_compressed_ply
 from .splat import read_splat, write_splat
 from .spz import read_spz, write_spz

@@ -2,7 +2,7 @@
 near the camera), averaged over those pixels rather than over views, for both clone and split."""
 from __future__ import annotations
 
-from .statistics import GRAD_PER_PIXEL
+from ..statistics import GRAD_PER_PIXEL
 from .strategy import Strategy
 
 

@@ -7,10 +7,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ..constants import QUAT_NORM_MIN, SH_C0
-from ..errors import InputError
-from ..files import write_atomic
-from ..model import GaussianModel, logit
+from ...constants import QUAT_NORM_MIN, SH_C0
+from ...errors import InputError
+from ...files import write_atomic
+from ...model import GaussianModel, logit
 
 # Readers clamp a decoded opacity into [ALPHA_FLOOR, 1 - ALPHA_FLOOR]: a byte of 0 or 255 keeps a finite
 # logit, and half a byte step stays within the quantisation error.

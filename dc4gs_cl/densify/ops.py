@@ -6,51 +6,15 @@ the result in one go. New Gaussians start with zero Adam moments (as the 3DGS co
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
 
 import numpy as np
 
-from ...geometry import principal_axis, quat_to_rotmat
-from ...model import logit, sigmoid
+from ..geometry import principal_axis, quat_to_rotmat
+from ..model import GaussianSet, logit, sigmoid
 
 SPLIT_CHILDREN = 2
 SPLIT_SCALE_DIVISOR = 1.6   # = 0.8 * SPLIT_CHILDREN in the 3DGS code
 SPLIT_GROWTH = SPLIT_CHILDREN - 1   # Gaussians a split adds (its children replace it); a clone adds one
-
-
-@dataclass
-class GaussianSet:
-    """Everything per Gaussian that must stay aligned: parameters (name -> (n, width) float32 arrays in
-    model.PARAM_GROUPS order) and their Adam moments m and v (same names and shapes)."""
-    params: dict[str, np.ndarray]
-    m: dict[str, np.ndarray]
-    v: dict[str, np.ndarray]
-    aux: dict[str, np.ndarray] = field(default_factory=dict)   # (n,) values copied to clones and children
-
-    @property
-    def n(self) -> int:
-        return len(self.params["means"])
-
-    def keep(self, mask: np.ndarray) -> None:
-        for group in (self.params, self.m, self.v, self.aux):
-            for k in group:
-                group[k] = group[k][mask]
-
-    def append(self, new: dict[str, np.ndarray], parents: np.ndarray) -> None:
-        """Add Gaussians with these parameters, zero moments, and the aux values of their parents."""
-        for k in self.params:
-            add = np.asarray(new[k], np.float32).reshape(-1, self.params[k].shape[1])
-            self.params[k] = np.concatenate([self.params[k], add])
-            self.m[k] = np.concatenate([self.m[k], np.zeros_like(add)])
-            self.v[k] = np.concatenate([self.v[k], np.zeros_like(add)])
-        for k in self.aux:
-            self.aux[k] = np.concatenate([self.aux[k], self.aux[k][parents]])
-
-    def scales(self) -> np.ndarray:
-        return np.exp(self.params["log_scales"].astype(np.float64))
-
-    def opacities(self) -> np.ndarray:
-        return sigmoid(self.params["opacity_logits"][:, 0].astype(np.float64))
 
 
 def cap_growth(budget: int, candidates: list[tuple[np.ndarray, np.ndarray, int]]) -> list[np.ndarray]:
@@ -136,9 +100,3 @@ def replace_with_children(gs: GaussianSet, idx: np.ndarray, children: dict[str, 
 def prune(gs: GaussianSet, mask: np.ndarray) -> int:
     gs.keep(~mask)
     return int(mask.sum())
-
-
-def limit_opacity(logits: np.ndarray, ceiling: float) -> np.ndarray:
-    """Opacity logits with every opacity above `ceiling` lowered to it (the 3DGS reset to 0.01, AbsGS' clamp
-    to 0.8). The opacities' Adam moments restart with it; the caller zeroes them."""
-    return np.minimum(logits, math.log(ceiling / (1 - ceiling)))

@@ -32,15 +32,15 @@ from typing import TYPE_CHECKING, Callable
 
 import numpy as np
 
-from .errors import InputError
-from .scene.camera import Camera, scene_extent
-from .scene.images import resize
+from ..errors import InputError
+from ..scene.camera import Camera, scene_extent
+from ..scene.images import resize
 
 if TYPE_CHECKING:
     import viser
 
-    from .render import DeviceGaussians, Renderer
-    from .runtime import Runtime
+    from ..render import DeviceGaussians, Renderer
+    from ..runtime import Runtime
 
 DEFAULT_PORT = 8080
 DEFAULT_HOST = "127.0.0.1"       # this machine only: the viewer has no password
@@ -414,31 +414,26 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def cmd_view(args) -> int:
     _viser()
     check_address(args.host, args.port)   # before loading: a large model takes a while
-    from .ply import read_ply
-    from .render import DeviceGaussians, Renderer
-    from .run_folder import RunFolder
-    from .runtime import Runtime, describe
-    from .scene import load_scene
+    from ..ply import read_ply
+    from ..render import DeviceGaussians, Renderer
+    from ..run_folder import RunFolder
+    from ..runtime import Runtime, describe
+    from ..scene import load_scene
 
     source = Path(args.source)
     if not source.exists():
         raise InputError(source, "not found: expected a training output folder or a .ply file")
-    white = args.white_background
     if source.is_dir():
         run = RunFolder(source)
         cfg = run.read_config()
         iteration, model = run.load_model(args.iteration)
-        scene_name, cache_dir = args.scene or cfg.scene, run.path / "undistorted"
-        resolution, white = cfg.resolution, white or cfg.white_background
-        test_every, test_split = cfg.test_every, cfg.test_split
+        scene = run.load_scene(cfg, scene=args.scene, white_background=args.white_background)
     else:
         if args.iteration is not None:
             raise InputError(None, "--iteration needs a training output folder")
         iteration, model = None, read_ply(source)
-        scene_name, cache_dir, resolution, test_every, test_split = args.scene, None, None, 8, "llff"
-    scene = (load_scene(scene_name, resolution=resolution, cache_dir=cache_dir, test_every=test_every, test_split=test_split,
-                        white_background=white) if scene_name else None)
-    background = scene.background if scene else np.full(3, 1.0 if white else 0.0, np.float32)
+        scene = load_scene(args.scene, white_background=args.white_background) if args.scene else None
+    background = scene.background if scene else np.full(3, 1.0 if args.white_background else 0.0, np.float32)
     rt = Runtime(args.device)
     with Viewer(rt, Renderer(rt), scene.train if scene else [], port=args.port, host=args.host,
                 background=background, images=scene.image if scene else None, points=model.means) as viewer:

@@ -31,8 +31,8 @@ import zlib
 
 import numpy as np
 
-from ..errors import InputError
-from ..model import GaussianModel
+from ...errors import InputError
+from ...model import GaussianModel
 from .common import (SMALLEST_THREE_BITS, SQRT_HALF, from_smallest_three, pack_bits, read_bytes, read_model,
                      smallest_three, to_bytes, unit_quats, unpack_bits, write_bytes)
 

@@ -20,9 +20,9 @@ import os
 
 import numpy as np
 
-from ..errors import InputError
-from ..model import GaussianModel, rgb_to_sh_dc
-from ..ply import read_header
+from ...errors import InputError
+from ...model import GaussianModel, rgb_to_sh_dc
+from ...ply import read_header
 from .common import (SMALLEST_THREE_BITS, SQRT_HALF, dc_colour, from_smallest_three, pack_bits, read_model,
                      smallest_three, to_bytes, unit_quats, unorm, unpack_bits, unpack_unorm, write_bytes)
 

@@ -15,9 +15,9 @@ import json
 from dataclasses import dataclass
 from pathlib import Path
 
-from .errors import InputError
-from .files import write_atomic
-from .run_folder import PER_VIEW, RunFolder
+from ..errors import InputError
+from ..files import write_atomic
+from ..run_folder import PER_VIEW, RunFolder
 
 REPORT_VIEWS = 4   # test views shown beside their ground truth
 CURVES = (          # (metrics key, axis label, log scale)
@@ -48,7 +48,7 @@ class RunMetrics:
         label = run.path.resolve().name
         if run.config_path.is_file():
             cfg = run.read_config()
-            from .train.schedule import Schedule
+            from ..train.schedule import Schedule
             label += f" ({Schedule(cfg).strategy().label})"
         return RunMetrics(label, run, [r for r in rows if "loss" in r], [r for r in rows if "test_psnr" in r])
 
