@@ -208,6 +208,7 @@ class Capabilities:
     fp64: bool
     loop_limit: int | None = None   # a driver defect: see LOOP_LIMITED_DRIVERS
     platform: str = ""              # the OpenCL platform's name: some shapes suit one implementation's compiler
+    subgroups: str | None = None    # how 32 work-items exchange values (SUBGROUP_SOURCES), None: they cannot
 
     @staticmethod
     def of(device: cl.Device) -> "Capabilities":
@@ -221,15 +222,31 @@ class Capabilities:
             fp64="cl_khr_fp64" in ext,
             loop_limit=loop_limit(device),
             platform=device.platform.name,
+            subgroups=subgroup_source(device),
         )
 
     def summary(self) -> str:
         return (f"work-groups up to {self.max_work_group_size}, {self.local_mem_size // 1024} KiB local memory, "
                 f"float atomics: {'native' if self.float_atomic_add else 'none (compare-and-swap emulation)'}, "
-                f"fp64: {'yes' if self.fp64 else 'no'}"
+                f"fp64: {'yes' if self.fp64 else 'no'}, "
+                f"subgroups: {self.subgroups or 'none (the backward takes its portable twin)'}"
                 + (f", loops cut after {self.loop_limit:,} iterations per work-item (a driver defect, gone in "
                    f"Mesa 25.0: renders take short-loop shapes; training is refused, its backward would be wrong)"
                    if self.loop_limit else ""))
+
+
+# How 32 work-items exchange values (kernels/rasterize_backward.cl, -D SUBGROUP_SOURCE): NVIDIA's OpenCL has no
+# subgroup functions but takes inline PTX (shfl.sync, vote.sync); elsewhere cl_khr_subgroup_shuffle (OpenCL C 2.0
+# or later), in subgroups of a multiple of 32 (Intel's required size where it has one, AMD's 32 or 64: the backward
+# checks the size it is given).
+SUBGROUP_SOURCES = {"khr": 1, "ptx": 2}
+
+
+def subgroup_source(device: cl.Device) -> str | None:
+    if "nvidia" in device.platform.name.lower():
+        return "ptx"
+    version = tuple(int(v) for v in re.findall(r"\d+", device.opencl_c_version)[:2])
+    return "khr" if "cl_khr_subgroup_shuffle" in device.extensions.split() and version >= (2, 0) else None
 
 
 class KernelLimits(NamedTuple):
@@ -269,16 +286,17 @@ class Runtime:
         return f"Runtime({self.device_key} {describe(self.device)})"
 
     # programs -----------------------------------------------------------------------------------
-    def build_options(self, defines: dict | None = None) -> list[str]:
+    def build_options(self, defines: dict | None = None, language: str = "CL1.2") -> list[str]:
+        """-D options and flags; language: the OpenCL C version (CL1.2 but where a kernel needs subgroups)."""
         merged = {k: _format_define(v) for k, v in {**kernel_defines(), **(defines or {})}.items()}
         flags = ["-cl-fast-relaxed-math"] if merged.get(RELAXED_MATH) == "1" else []
-        return [f"-D{k}={v}" for k, v in sorted(merged.items())] + ["-cl-std=CL1.2"] + flags
+        return [f"-D{k}={v}" for k, v in sorted(merged.items())] + [f"-cl-std={language}"] + flags
 
-    def program(self, file: str, defines: dict | None = None) -> cl.Program:
-        key = (file, tuple(sorted((defines or {}).items())))
+    def program(self, file: str, defines: dict | None = None, language: str = "CL1.2") -> cl.Program:
+        key = (file, tuple(sorted((defines or {}).items())), language)
         prg = self._programs.get(key)
         if prg is None:
-            options = self.build_options(defines)
+            options = self.build_options(defines, language)
             try:
                 prg = cl.Program(self.context, kernel_source(file)).build(options=options)
             except cl.RuntimeError as e:

@@ -127,6 +127,49 @@ def test_rasterize_backward_kernel_matches_reference(rt, rng, shape, dc, pair_su
     assert_sums_match(rt, sums, layout, res.proj.n, ref)
 
 
+@pytest.mark.parametrize("dc", [False, True])
+def test_subgroup_reduction_gives_its_portable_twins_bits(rt, rng, dc):
+    """The GPU shape reduces each pair's sums over subgroups of 32 work-items by a butterfly (cl_khr_subgroup_shuffle
+    on Intel's runtime, NVIDIA's inline PTX on its GPUs); its portable twin, 32 pixels per work-item, sums them in
+    the same tree. Both give the same bits, so the twin's tests on every CPU implementation cover the subgroup
+    paths' arithmetic."""
+    if rt.caps.subgroups is None:
+        pytest.skip("needs subgroups: cl_khr_subgroup_shuffle with Intel's required subgroup size (Intel's CPU "
+                    'runtime: DC4GS_DEVICE="Intel(R) OpenCL") or NVIDIA\'s inline PTX')
+    from dataclasses import replace
+
+    from dc4gs_cl.render import StageContext
+    tuning = replace(SHAPES["gpu"], subgroups=rt.caps.subgroups)
+    renderer, res, cam, bg, dL_dimage = backward_case(rt, rng, tuning, opaque=300)
+    layout = SumsLayout(stats=True, dc_stats=dc)
+    subgroups, twin = RasterizeBackward(renderer.context), RasterizeBackward(StageContext(rt, SHAPES["gpu"]))
+    got = {name: rt.to_host(backward(res, rt.to_device(dL_dimage), bg, layout), (res.proj.n, layout.width))
+           for name, backward in (("subgroups", subgroups), ("twin", twin))}
+    assert (subgroups.subgroups, twin.subgroups) == (rt.caps.subgroups, None)   # built: no fallback to the twin
+    assert np.array_equal(got["subgroups"].view(np.uint32), got["twin"].view(np.uint32))
+    reference = backward_reference(rt, res, cam, bg, dL_dimage)
+    assert_sums_match(rt, rt.to_device(got["twin"]), layout, res.proj.n, reference)
+
+
+def test_a_subgroup_path_that_does_not_build_falls_back_to_the_twin(rt, rng):
+    """NVIDIA's inline PTX on another device does not build: the backward says so in a warning and takes the
+    portable twin, for this variant and every later one, with the twin's bits."""
+    if rt.caps.subgroups != "khr":
+        pytest.skip("needs a compiler that refuses NVIDIA's PTX when the program is built (Intel's CPU runtime: "
+                    'DC4GS_DEVICE="Intel(R) OpenCL")')
+    from dataclasses import replace
+
+    from dc4gs_cl.render import StageContext
+    renderer, res, cam, bg, dL_dimage = backward_case(rt, rng, replace(SHAPES["gpu"], subgroups="ptx"))
+    layout = SumsLayout(stats=True)
+    ptx, twin = RasterizeBackward(renderer.context), RasterizeBackward(StageContext(rt, SHAPES["gpu"]))
+    with pytest.warns(UserWarning, match="ptx subgroup path did not build"):
+        got = rt.to_host(ptx(res, rt.to_device(dL_dimage), bg, layout), (res.proj.n, layout.width))
+    assert ptx.subgroups is None
+    want = rt.to_host(twin(res, rt.to_device(dL_dimage), bg, layout), (res.proj.n, layout.width))
+    assert np.array_equal(got.view(np.uint32), want.view(np.uint32))
+
+
 @pytest.mark.parametrize("pixels_per_item", [2, 4])
 def test_rasterize_backward_with_narrow_column_blocks_matches_reference(rt, rng, pixels_per_item):
     """Work-items of 2 or 4 pixels (devices with small work-groups) sum their pixels in column blocks of that
@@ -296,6 +339,6 @@ def test_rasterize_backward_fits_a_small_local_memory(rt, rng, monkeypatch, shap
     sums = backward(res, rt.to_device(dL_dimage), bg, layout)
     variant = {**layout.defines(), "PIXEL_MASK": 0}
     needed = lambda kernels: rt.kernel_limits(kernels["rasterize_backward"]).local_bytes
-    assert needed(backward.kernels({**variant, "BATCH": 256})) > limit   # needs fitting
+    assert needed(backward.kernels({**variant, **backward.shape(variant), "BATCH": 256})) > limit   # needs fitting
     assert needed(backward.fitted_kernels(variant)) <= limit
     assert_sums_match(rt, sums, layout, res.proj.n, backward_reference(rt, res, cam, bg, dL_dimage))

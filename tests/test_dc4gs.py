@@ -161,6 +161,34 @@ def test_split_sums_of_candidates_out_of_order(rt, rng, shape):
     assert (np.abs(unreversed - got["in order"]) <= 1e-5 * scale).all()
 
 
+@pytest.mark.parametrize("candidates", [5, 15])   # 40 sums, padded to 64 (2 per lane), and 90, to 128 (4)
+def test_split_sums_of_the_subgroup_reduction_are_its_twins(rt, rng, candidates):
+    """DC4GS' split sums in the GPU shape: reduced over 32-lane subgroups (KHR or PTX), each lane
+    testing its own pixel against the crossing candidates, they are the bits of the portable twin (32 pixels per
+    work-item, whose crossing ranges span two rows), split sums and all; and the same bits again when the frame is
+    launched in runs of tiles (other work-groups, other launches)."""
+    if rt.caps.subgroups is None:
+        pytest.skip("needs subgroups: cl_khr_subgroup_shuffle with Intel's required subgroup size (Intel's CPU "
+                    'runtime: DC4GS_DEVICE="Intel(R) OpenCL") or NVIDIA\'s inline PTX')
+    from dc4gs_cl.render import StageContext
+    model = random_model(rng, 900, spread=1.0, scale_range=(0.02, 0.2))
+    cam = random_camera(rng, int(rng.integers(80, 130)), int(rng.integers(60, 100)))
+    bg = rng.uniform(0, 1, 3)
+    dL_dimage = rt.to_device(rng.normal(size=(cam.height, cam.width, 3)).astype(np.float32))
+    layout = SumsLayout(stats=True, dc_stats=True, split_candidates=candidates)
+    renderer = Renderer(rt, replace(SHAPES["gpu"], subgroups=rt.caps.subgroups), poison=True)
+    g = DeviceGaussians(rt, model)
+    res = renderer.render(g, cam, 3, bg)
+    geometry = SplitGeometry(renderer.context)(g, cam, res, candidates)
+    runs = replace(SHAPES["gpu"], subgroups=rt.caps.subgroups, pair_chunk=0.1, min_run_tiles=1)   # 4 runs or more
+    got = {name: rt.to_host(RasterizeBackward(ctx)(res, dL_dimage, bg, layout, geometry), (len(model), layout.width))
+           for name, ctx in (("subgroups", renderer.context), ("twin", StageContext(rt, SHAPES["gpu"])),
+                             ("subgroups in runs", StageContext(rt, runs)))}
+    assert np.count_nonzero(layout.views(got["twin"])["split"]) > 1000
+    assert np.array_equal(got["subgroups"].view(np.uint32), got["twin"].view(np.uint32))
+    assert np.array_equal(got["subgroups in runs"].view(np.uint32), got["twin"].view(np.uint32))
+
+
 def spanning_runs(rt, res, tuning, n: int) -> tuple[int, list, list]:
     """From the isect arrays: how many Gaussians have pairs in more than one of the frame's runs of tiles, the
     runs, and each run's Gaussians (those whose first and last pairs' runs enclose it)."""

@@ -4,14 +4,17 @@ where one is given (WindowFold: by sum_pairs, or by the window's own kernel)."""
 from __future__ import annotations
 
 import math
+import warnings
 
 import numpy as np
 import pyopencl as cl
 
 from ..constants import TILE_SIZE
+from ..errors import DeviceError
 from ..render.rasterize import background_value, raster_defines
 from ..render.renderer import RenderResult
 from ..render.stage import Stage, visible_rows
+from ..runtime import SUBGROUP_SOURCES
 from ..statistics import GRADIENTS, SumsLayout
 from .densify_stats import DensifyStats, WindowFold
 from .sum_pairs import SumPairs
@@ -19,6 +22,14 @@ from .sum_pairs import SumPairs
 # Workspace buffers (render/workspace.py)
 SUMS = "backward.sums"              # [N*width] the view's per-Gaussian sums (returned)
 PAIR_SUMS = "backward.pair_sums"    # [pairs of a run * layout.width] one slot per (tile, Gaussian) pair
+
+SUBGROUP = 32             # lanes that reduce a pair's sums in the GPU shape (NVIDIA's warp)
+TWIN = {"PIXELS_PER_ITEM": SUBGROUP, "COL_BLOCK": TILE_SIZE, "SUBGROUP": 0}   # its portable twin (see the kernel)
+# The cooperative shapes' partial sums: PART_CHUNK pairs' worth at a time, in at most PART_BYTES of local memory
+# and at most PART_CHUNK_MAX pairs (a barrier per chunk). In the GPU shape at its batch of 256 a work-group holds
+# 25.6 KB for 3DGS' sums with statistics (as with the local float adds before) and 36.9 KB with DC4GS' (62.5 KB
+# before): on a 228 KB NVIDIA H100 / H200 multiprocessor 8 work-groups of 256 (its 2,048 threads) and 6 (3 before).
+PART_BYTES, PART_CHUNK_MAX = 16 * 1024, 32
 
 
 class RasterizeBackward(Stage):
@@ -28,11 +39,65 @@ class RasterizeBackward(Stage):
         super().__init__(ctx)
         self.sum_pairs = SumPairs(ctx)
         self.densify_stats = DensifyStats(ctx)
+        # the GPU shape's subgroup source, until a variant fails to build with it (then the twin)
+        self.subgroups = ctx.tuning.subgroups if ctx.tuning.pixels_per_item == 1 else None
+        self._fitted: dict[tuple, dict[str, cl.Kernel]] = {}
 
     def fitted_kernels(self, variant: dict) -> dict[str, cl.Kernel]:
         """A variant's kernels whose local arrays (a batch of Gaussians, their split geometry and, in the
-        cooperative shapes, their sums: 62 KB with DC4GS' split sums at the GPU shape's 256) fit the device."""
-        return self.batch_fitted_kernels(variant, "rasterize_backward")
+        cooperative shapes, the partial sums) fit the device; the twin's where the subgroup path fails to build.
+        Built and checked once per variant."""
+        key = tuple(sorted(variant.items()))
+        if key not in self._fitted:
+            self._fitted[key] = self._fit(variant)
+        return self._fitted[key]
+
+    def _fit(self, variant: dict) -> dict[str, cl.Kernel]:
+        try:
+            kernels = self.batch_fitted_kernels({**variant, **self.shape(variant)}, "rasterize_backward")
+            if self.subgroups == "khr":   # the device's subgroups (or the size it grants) must hold whole 32s
+                try:
+                    size = kernels["rasterize_backward"].get_sub_group_info(
+                        self.rt.device, cl.kernel_sub_group_info.MAX_SUB_GROUP_SIZE_FOR_NDRANGE,
+                        [TILE_SIZE * TILE_SIZE])
+                except cl.Error as e:   # an OpenCL 2.0 device may not answer (the query is 2.1's)
+                    raise DeviceError(f"its subgroup size is not known ({e})") from None
+                if size % SUBGROUP:
+                    raise DeviceError(f"subgroups of {size} work-items, not a multiple of {SUBGROUP}")
+            return kernels
+        except DeviceError as e:
+            if self.subgroups is None:
+                raise
+            warnings.warn(f"the rasterizer backward's {self.subgroups} subgroup path did not build on this device; "
+                          f"using its portable twin (the same sums, slower): {str(e).splitlines()[0]}")
+            self.subgroups = None
+            self._fitted.clear()   # every variant takes the twin's shape from now on
+            return self.batch_fitted_kernels({**variant, **self.shape(variant)}, "rasterize_backward")
+
+    def shape(self, variant: dict) -> dict:
+        """The work shape: the rasterizer's, except that the GPU shape (a pixel per item) reduces a pair's sums over
+        subgroups of SUBGROUP items, or, where the device has none, takes SUBGROUP pixels per item (the twin);
+        PART_CHUNK: the pairs whose partial sums the cooperative shapes hold at once."""
+        tuning = self.ctx.tuning
+        shape = {"SUBGROUP": 0}
+        if tuning.pixels_per_item == 1:
+            width = variant["SUM_WIDTH"]   # padded to a power of two, at least 16, for the transposed butterfly
+            shape = ({"SUBGROUP": SUBGROUP, "SUBGROUP_SOURCE": SUBGROUP_SOURCES[self.subgroups],
+                      "SUM_PAD": max(16, 1 << (width - 1).bit_length())} if self.subgroups else TWIN)
+        items = self.items(shape)
+        owners = items // (shape["SUBGROUP"] or 1)   # partial rows per pair
+        fitting = PART_BYTES // (4 * owners * variant["SUM_WIDTH"])
+        return {**shape, "PART_CHUNK": tuning.batch if items == 1 else max(1, min(PART_CHUNK_MAX, fitting))}
+
+    def with_batch(self, variant: dict, batch: int) -> dict:
+        return {"PART_CHUNK": min(variant["PART_CHUNK"], batch)}
+
+    def items(self, shape: dict) -> int:
+        """Work-items per tile."""
+        return TILE_SIZE * TILE_SIZE // shape.get("PIXELS_PER_ITEM", self.ctx.tuning.pixels_per_item)
+
+    def language(self, variant: dict) -> str:
+        return "CL3.0" if variant.get("SUBGROUP_SOURCE") == SUBGROUP_SOURCES["khr"] else "CL1.2"
 
     def defines(self) -> dict:
         # pair_sums: one slot per (tile, Gaussian) pair, summed per Gaussian in a fixed order (deterministic);
@@ -75,8 +140,9 @@ class RasterizeBackward(Stage):
         # Past the first run, sum_pairs covers only the Gaussians with a pair in the run (members).
         spanning = self.sum_pairs.run_spans(res, layout, fold, runs) if len(runs) > 1 and n else 0
         carry = self.sum_pairs.carry(layout, n, spanning) if fused else None
-        k = self.fitted_kernels({**layout.defines(), "PIXEL_MASK": int(keep is not None)})
-        items = TILE_SIZE * TILE_SIZE // tuning.pixels_per_item
+        variant = {**layout.defines(), "PIXEL_MASK": int(keep is not None)}
+        k = self.fitted_kernels(variant)
+        items = self.items(self.shape(variant))
         split_geometry = geometry if geometry is not None else sums
         for run, (t0, t1, p0, p1) in enumerate(runs):
             rt.launch("rasterize_backward", k["rasterize_backward"], (t1 - t0) * items, items,

@@ -15,8 +15,11 @@ REQUIRE_DEFINED(FAST_EXP);
 #define ITEMS_PER_TILE (TILE_PIXELS / PIXELS_PER_ITEM)
 #define ROWS_PER_ITEM (PIXELS_PER_ITEM >= TILE_SIZE ? PIXELS_PER_ITEM / TILE_SIZE : 1)
 #define COLS_PER_ITEM (PIXELS_PER_ITEM >= TILE_SIZE ? TILE_SIZE : PIXELS_PER_ITEM)
-// Columns go in blocks of COL_BLOCK (one CPU vector), each skipped when out of a Gaussian's reach.
+// Columns go in blocks of COL_BLOCK (one CPU vector), each skipped when out of a Gaussian's reach; the backward's
+// portable twin of the subgroup reduction takes whole 16-column rows (-D COL_BLOCK=16, rasterize_backward.cl).
+#ifndef COL_BLOCK
 #define COL_BLOCK (COLS_PER_ITEM < 8 ? COLS_PER_ITEM : 8)
+#endif
 
 // exp(x) for x <= 0: ours (FAST_EXP) or the driver's; below -87 it is exp(-87) ~ 1.6e-38, far under any
 // alpha threshold.

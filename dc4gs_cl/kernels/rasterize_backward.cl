@@ -29,7 +29,22 @@
 //                    only the candidates whose line crosses its pixels, crossing_range); -D
 //                    SPLIT_SUMS_PER_BLOCK=1 adds them per column block after its pixels (Tuning.split_sums_per_block)
 // Per pair, each work-item sums its pixels' terms privately; the sums reach `sums` once per (tile,
-// Gaussian) pair (-D ITEMS_PER_TILE > 1 first combines the items' partial sums in local memory).
+// Gaussian) pair. With several items per tile (-D ITEMS_PER_TILE > 1, the cooperative shapes), the pair's sums
+// are combined in a fixed order whatever the schedule, with no float atomics (bit-reproducible):
+//   -D SUBGROUP=32: the 32 items of a subgroup (one pixel each) reduce each sum by a butterfly over the lanes,
+//      xor masks 16, 8, 4, 2, 1 (pixel index bits 4..0); -D SUBGROUP_SOURCE says how the lanes exchange values:
+//      SUBGROUP_PTX (NVIDIA's inline PTX shfl.sync, vote.sync) or SUBGROUP_KHR (cl_khr_subgroup_shuffle, in
+//      subgroups of a multiple of 32: the xor masks stay within 32 lanes).
+//   -D SUBGROUP=0: each item sums its own pixels (its lanes: rows added in order, then a column block's lanes
+//      pairwise by halves), which for 32 pixels per item in 16-column blocks is the same tree as the butterfly:
+//      the portable twin, computing the subgroup path's bits.
+//   Each subgroup (or item) writes its sums of PART_CHUNK pairs to its row of l_part; after the chunk the rows
+//   are added in subgroup order (0, 1, ...) and the pair's slot written. Multiply-adds are not contracted
+//   (FP_CONTRACT OFF) in these shapes, so a pixel's terms round alike however the items are laid out.
+
+#if PIXELS_PER_ITEM < TILE_SIZE * TILE_SIZE     // ITEMS_PER_TILE > 1 (raster.h), before any code
+#pragma OPENCL FP_CONTRACT OFF
+#endif
 
 #include "raster.h"
 
@@ -39,9 +54,91 @@ REQUIRE_DEFINED(SPLIT_CANDIDATES);
 REQUIRE_DEFINED(PAIR_SUMS);
 REQUIRE_DEFINED(PIXEL_MASK);
 REQUIRE_DEFINED(SPLIT_SUMS_PER_BLOCK);
+REQUIRE_DEFINED(SUBGROUP);
+REQUIRE_DEFINED(PART_CHUNK);
+
+#define SUBGROUP_KHR 1
+#define SUBGROUP_PTX 2
+#if SUBGROUP
+REQUIRE_DEFINED(SUBGROUP_SOURCE);
+#if SUBGROUP != 32 || PIXELS_PER_ITEM != 1
+#error "the subgroup reduction takes 32 lanes of one pixel each (the twin's tree)"
+#endif
+#define SUBGROUP_MASK_BITS 5
+#if SUBGROUP_SOURCE == SUBGROUP_PTX
+// NVIDIA's OpenCL has no subgroup functions; its inline PTX has the warp's (32 lanes, all active here).
+inline float shuffle_xor(const float v, const int mask) {
+    float out;
+    asm volatile("shfl.sync.bfly.b32 %0, %1, %2, 0x1f, 0xffffffff;" : "=f"(out) : "f"(v), "r"(mask));
+    return out;
+}
+inline int subgroup_any(const int predicate) {
+    int out;
+    asm volatile("{\n\t.reg .pred p_in, p_any;\n\tsetp.ne.s32 p_in, %1, 0;\n\t"
+                 "vote.sync.any.pred p_any, p_in, 0xffffffff;\n\tselp.s32 %0, 1, 0, p_any;\n\t}"
+                 : "=r"(out) : "r"(predicate));
+    return out;
+}
+#define SUBGROUP_SIZE_ATTRIBUTE
+#elif SUBGROUP_SOURCE == SUBGROUP_KHR
+#pragma OPENCL EXTENSION cl_khr_subgroups : enable
+#pragma OPENCL EXTENSION cl_khr_subgroup_shuffle : enable
+#define shuffle_xor(v, mask) sub_group_shuffle_xor((v), (uint)(mask))
+#define subgroup_any(predicate) sub_group_any(predicate)
+#ifdef cl_intel_required_subgroup_size
+#define SUBGROUP_SIZE_ATTRIBUTE __attribute__((intel_reqd_sub_group_size(SUBGROUP)))
+#else
+#define SUBGROUP_SIZE_ATTRIBUTE   // the device's own size: a multiple of SUBGROUP (the host checks)
+#endif
+#else
+#error "SUBGROUP_SOURCE must be SUBGROUP_KHR or SUBGROUP_PTX"
+#endif
+#define PART_OWNERS (ITEMS_PER_TILE / SUBGROUP)
+// -D SUM_PAD: SUM_WIDTH padded to a power of two (at least 16) for the transposed butterfly (subgroup_sums); each
+// lane keeps SUM_PAD / SUBGROUP sums after the halving steps, or, narrower, SUBGROUP / SUM_PAD lanes hold each sum.
+REQUIRE_DEFINED(SUM_PAD);
+#define SUMS_PER_LANE (SUM_PAD > SUBGROUP ? SUM_PAD / SUBGROUP : 1)
+#define LANES_PER_SUM (SUM_PAD < SUBGROUP ? SUBGROUP / SUM_PAD : 1)
+
+// A pair's SUM_WIDTH sums (acc, those past `used` zero) over the subgroup's lanes into its partial row `part`,
+// each sum by the butterfly's tree (xor masks 16 .. 1), in 62 shuffles for 64 sums, not 5 per sum: at each step
+// a lane keeps half of its values (the upper half where its lane bit is set), sends the other half to its partner
+// and adds what it receives to what it keeps (the same two partial sums the plain butterfly adds); once it holds
+// one value the remaining steps reduce that one. Lane l ends with sums base .. base + SUMS_PER_LANE - 1.
+ALWAYS_INLINE void subgroup_sums(const float *acc, const int used, const int lane, __local float *part) {
+    float v[SUM_PAD];
+    for (int k = 0; k < SUM_PAD; ++k) v[k] = k < used ? acc[k] : 0.f;
+    int base = 0;
+    #pragma unroll
+    for (int step = 0; step < SUBGROUP_MASK_BITS; ++step) {
+        const int mask = (SUBGROUP / 2) >> step, kept = (SUM_PAD >> step) / 2;
+        if (kept >= 1) {
+            const int upper = (lane & mask) != 0;
+            #pragma unroll
+            for (int i = 0; i < kept; ++i) {
+                const float keep = upper ? v[i + kept] : v[i], send = upper ? v[i] : v[i + kept];
+                v[i] = keep + shuffle_xor(send, mask);
+            }
+            base += upper ? kept : 0;
+        } else {
+            v[0] += shuffle_xor(v[0], mask);
+        }
+    }
+    if (lane % LANES_PER_SUM == 0)
+        for (int i = 0; i < SUMS_PER_LANE; ++i)
+            if (base + i < SUM_WIDTH) part[base + i] = v[i];
+}
+#else
+#define SUBGROUP_SIZE_ATTRIBUTE
+#define PART_OWNERS ITEMS_PER_TILE
+#endif
 
 // A column block's values as one vector (floatB), for the split sums' explicit vector adds.
-#if COL_BLOCK == 8
+#if COL_BLOCK == 16
+typedef float16 floatB;
+#define LOADB(a) vload16(0, a)
+#define STOREB(v, a) vstore16(v, 0, a)
+#elif COL_BLOCK == 8
 typedef float8 floatB;
 #define LOADB(a) vload8(0, a)
 #define STOREB(v, a) vstore8(v, 0, a)
@@ -171,9 +268,14 @@ ALWAYS_INLINE void backward_pair(const float2 m, const float4 co, const float3 c
 }
 
 // A sum's COL_BLOCK lanes added pairwise, halves at a time, in vector adds: added lane by lane, once per sum and
-// pair, they cost 10-20% of DC4GS' backward on PoCL (bench_dc4gs, 48k Gaussians: 20.0 -> 18.0 ms).
+// pair, they cost 10-20% of DC4GS' backward on PoCL (bench_dc4gs, 48k Gaussians: 20.0 -> 18.0 ms). Halves first
+// (lane c with c + COL_BLOCK / 2): the butterfly's order (see the top).
 ALWAYS_INLINE float lane_total(const float *lane) {
-#if COL_BLOCK == 8
+#if COL_BLOCK == 16
+    const float16 w = vload16(0, lane);
+    const float8 v = w.lo + w.hi;
+    const float4 h = v.lo + v.hi;
+#elif COL_BLOCK == 8
     const float8 v = vload8(0, lane);
     const float4 h = v.lo + v.hi;
 #elif COL_BLOCK == 4
@@ -230,7 +332,7 @@ ALWAYS_INLINE int2 crossing_range(const float4 line, const float *tk, const int4
 }
 #endif
 
-__kernel __attribute__((reqd_work_group_size(ITEMS_PER_TILE, 1, 1)))
+__kernel __attribute__((reqd_work_group_size(ITEMS_PER_TILE, 1, 1))) SUBGROUP_SIZE_ATTRIBUTE
 void rasterize_backward(const int width, const int height, const int tiles_x, const int tile0, const uint pair0,
                         const float4 background,
                         __global const uint *ranges, __global const uint *gaussian_of_pair,
@@ -256,8 +358,13 @@ void rasterize_backward(const int width, const int height, const int tiles_x, co
     __local float l_split[BATCH * GEO_WIDTH];
 #endif
 #if ITEMS_PER_TILE > 1
-    __local float l_sums[BATCH * SUM_WIDTH];
+    __local float l_part[PART_OWNERS * PART_CHUNK * SUM_WIDTH];   // [owner][pair of the chunk][sum]
     __local int l_end;
+#if SUBGROUP
+    const int owner = lid / SUBGROUP, lane = lid % SUBGROUP;
+#else
+    const int owner = lid;
+#endif
 #endif
 
     const int row0 = (lid * PIXELS_PER_ITEM) / TILE_SIZE;            // first tile row this item owns
@@ -318,94 +425,120 @@ void rasterize_backward(const int width, const int height, const int tiles_x, co
             for (int k = 0; k < GEO_WIDTH; ++k) l_split[j * GEO_WIDTH + k] = split_geometry[(size_t)g * GEO_WIDTH + k];
 #endif
         }
-#if ITEMS_PER_TILE > 1
-        for (int k = lid; k < count * SUM_WIDTH; k += ITEMS_PER_TILE) l_sums[k] = 0.f;
-#endif
         barrier(CLK_LOCAL_MEM_FENCE);
 
-        for (int j = count - 1; j >= 0; --j) {
-            const float2 m = l_mean[j];
-            const float4 co = l_conic_opacity[j];
-            const float3 c = (float3)(l_rgb[3 * j], l_rgb[3 * j + 1], l_rgb[3 * j + 2]);
-            const int idx = base + j;
-            const int4 span = l_reach[j];
-            // Per lane of a column block (every block of a row adds into the same COL_BLOCK lanes), so the pixel
-            // loop carries no dependency and vectorises; lanes are summed once per pair below. (Lanes per
-            // column instead cost twice the zeroing and summing per pair: DC4GS' backward 17% slower.)
-            float lanes[SUM_WIDTH][COL_BLOCK];
-            for (int k = 0; k < LANE_SUMS; ++k)
-                for (int cc = 0; cc < COL_BLOCK; ++cc) lanes[k][cc] = 0.f;
-            float acc[SUM_WIDTH];
+        // Pairs back to front, in the cooperative shapes in chunks of PART_CHUNK (their partial rows hold that
+        // many); the CPU shape's one chunk is the batch.
+#if ITEMS_PER_TILE > 1
+        for (int chunk_top = count; chunk_top > 0; chunk_top -= PART_CHUNK) {
+            const int chunk_base = max(0, chunk_top - PART_CHUNK);
+#else
+        {
+            const int chunk_top = count, chunk_base = 0;
+#endif
+            for (int j = chunk_top - 1; j >= chunk_base; --j) {
+                const float2 m = l_mean[j];
+                const float4 co = l_conic_opacity[j];
+                const float3 c = (float3)(l_rgb[3 * j], l_rgb[3 * j + 1], l_rgb[3 * j + 2]);
+                const int idx = base + j;
+                const int4 span = l_reach[j];
+#if SUBGROUP
+                // Whether this lane's pixel takes part in the pair (within its reach, not past its last contributor).
+                const int touched = row0 >= span.z && row0 <= span.w && col0 >= span.x && col0 <= span.y
+                                    && idx <= last[0];
+#endif
+                // Per lane of a column block (every block of a row adds into the same COL_BLOCK lanes), so the pixel
+                // loop carries no dependency and vectorises; lanes are summed once per pair below. (Lanes per
+                // column instead cost twice the zeroing and summing per pair: DC4GS' backward 17% slower.)
+                float lanes[SUM_WIDTH][COL_BLOCK];
+                for (int k = 0; k < LANE_SUMS; ++k)
+                    for (int cc = 0; cc < COL_BLOCK; ++cc) lanes[k][cc] = 0.f;
+                float acc[SUM_WIDTH];
 #if SPLIT_CANDIDATES
-            // This pair's candidate line (c0.x, c0.y, dir.x, dir.y): pixel q is left of candidate k when
-            // t(q) = (q - c0) . dir < t_k (t_0 = 0); no split terms where the view gave no line (dir = 0).
-            __local const float *sg = l_split + j * GEO_WIDTH;
-            const float4 line = (float4)(sg[GEO_ORIGIN], sg[GEO_ORIGIN + 1], sg[GEO_DIR], sg[GEO_DIR + 1]);
-            const int split_ok = HAS_SPLIT_LINE(sg);
-            float tk[SPLIT_CANDIDATES];
-            tk[0] = 0.f;
-            for (int k = 1; k < SPLIT_CANDIDATES; ++k) tk[k] = sg[GEO_T + k - 1];
-            // Only the candidates whose line crosses the pixels walked take split terms in the walk: lo .. hi - 1.
-            int2 cross = split_ok ? crossing_range(line, tk, span, x0, y0, row0, col0)
-                                  : (int2)(SPLIT_CANDIDATES, SPLIT_CANDIDATES);
-            if (cross.y - cross.x > MAX_FEW_CROSSING) cross = (int2)(0, SPLIT_CANDIDATES);   // the walk over all
-            const int n_cross = cross.y - cross.x;
-            float (*split_lanes)[COL_BLOCK] = lanes + SUM_SPLIT;
-            for (int k = 0; k < SPLIT_WIDTH * n_cross; ++k)
-                for (int cc = 0; cc < COL_BLOCK; ++cc) split_lanes[k][cc] = 0.f;
-            // One call per crossing count, each its own vectorised loop (see backward_pair).
-#define WALK(n_split) backward_pair(m, co, c, idx, span, row0, col0, ndc_x, ndc_y, line, tk + cross.x, n_split, px, \
-                                    py, dr, dg, db, bg_term, last, T, behind, lanes, split_lanes)
-            if (n_cross == 0) WALK(0);
-            else if (n_cross == 1) WALK(1);
+                // This pair's candidate line (c0.x, c0.y, dir.x, dir.y): pixel q is left of candidate k when
+                // t(q) = (q - c0) . dir < t_k (t_0 = 0); no split terms where the view gave no line (dir = 0).
+                __local const float *sg = l_split + j * GEO_WIDTH;
+                const float4 line = (float4)(sg[GEO_ORIGIN], sg[GEO_ORIGIN + 1], sg[GEO_DIR], sg[GEO_DIR + 1]);
+                const int split_ok = HAS_SPLIT_LINE(sg);
+                float tk[SPLIT_CANDIDATES];
+                tk[0] = 0.f;
+                for (int k = 1; k < SPLIT_CANDIDATES; ++k) tk[k] = sg[GEO_T + k - 1];
+                // Only the candidates whose line crosses the pixels walked take split terms in the walk: lo .. hi - 1.
+                int2 cross = split_ok ? crossing_range(line, tk, span, x0, y0, row0, col0)
+                                      : (int2)(SPLIT_CANDIDATES, SPLIT_CANDIDATES);
+                if (cross.y - cross.x > MAX_FEW_CROSSING) cross = (int2)(0, SPLIT_CANDIDATES);   // the walk over all
+                const int n_cross = cross.y - cross.x;
+                float (*split_lanes)[COL_BLOCK] = lanes + SUM_SPLIT;
+                for (int k = 0; k < SPLIT_WIDTH * n_cross; ++k)
+                    for (int cc = 0; cc < COL_BLOCK; ++cc) split_lanes[k][cc] = 0.f;
+                // One call per crossing count, each its own vectorised loop (see backward_pair).
+#define WALK(n_split) backward_pair(m, co, c, idx, span, row0, col0, ndc_x, ndc_y, line, tk + cross.x, n_split, \
+                                        px, py, dr, dg, db, bg_term, last, T, behind, lanes, split_lanes)
+                if (n_cross == 0) WALK(0);
+                else if (n_cross == 1) WALK(1);
 #if MAX_FEW_CROSSING >= 2
-            else if (n_cross == 2) WALK(2);
+                else if (n_cross == 2) WALK(2);
 #endif
-            else WALK(SPLIT_CANDIDATES);
+                else WALK(SPLIT_CANDIDATES);
 #undef WALK
-            for (int k = 0; k < LANE_SUMS; ++k) acc[k] = lane_total(lanes[k]);
-            // Sums this pair fills: the split ones only where the view gave the Gaussian a line. A candidate with
-            // every walked pixel on its left has the pair's totals as its left sums (the same terms in the same
-            // order; the walk's contracted mul-adds may round the total's u terms one ulp apart), one with none zeros.
-            const int used = split_ok ? SUM_WIDTH : SUM_SPLIT;
-            if (split_ok) {
-                SPLIT_TOTALS(total, acc);
-                for (int k = 0; k < SPLIT_CANDIDATES; ++k)
-                    for (int v = 0; v < SPLIT_WIDTH; ++v)
-                        acc[SUM_SPLIT + SPLIT_WIDTH * k + v] = k < cross.x ? 0.f : total[v];
-                for (int k = 0; k < n_cross; ++k)
-                    for (int v = 0; v < SPLIT_WIDTH; ++v)
-                        acc[SUM_SPLIT + SPLIT_WIDTH * (cross.x + k) + v] = lane_total(split_lanes[SPLIT_WIDTH * k + v]);
-            }
+                for (int k = 0; k < LANE_SUMS; ++k) acc[k] = lane_total(lanes[k]);
+                // Sums this pair fills: the split ones only where the view gave the Gaussian a line. A candidate with
+                // every walked pixel on its left has the pair's totals as its left sums (the same terms in the same
+                // order; in the CPU shape the walk's contracted mul-adds may round the total's u terms one ulp
+                // apart), one with none zeros.
+                const int used = split_ok ? SUM_WIDTH : SUM_SPLIT;
+                if (split_ok) {
+                    SPLIT_TOTALS(total, acc);
+                    for (int k = 0; k < SPLIT_CANDIDATES; ++k)
+                        for (int v = 0; v < SPLIT_WIDTH; ++v)
+                            acc[SUM_SPLIT + SPLIT_WIDTH * k + v] = k < cross.x ? 0.f : total[v];
+                    for (int k = 0; k < n_cross; ++k)
+                        for (int v = 0; v < SPLIT_WIDTH; ++v)
+                            acc[SUM_SPLIT + SPLIT_WIDTH * (cross.x + k) + v] =
+                                lane_total(split_lanes[SPLIT_WIDTH * k + v]);
+                }
 #else
-            const float no_split[1] = {0.f};
-            backward_pair(m, co, c, idx, span, row0, col0, ndc_x, ndc_y, (float4)(0.f), no_split, 0, px, py, dr, dg,
-                          db, bg_term, last, T, behind, lanes, lanes);
-            for (int k = 0; k < LANE_SUMS; ++k) acc[k] = lane_total(lanes[k]);
-            const int used = SUM_WIDTH;
+                const float no_split[1] = {0.f};
+                backward_pair(m, co, c, idx, span, row0, col0, ndc_x, ndc_y, (float4)(0.f), no_split, 0, px, py, dr,
+                              dg, db, bg_term, last, T, behind, lanes, lanes);
+                for (int k = 0; k < LANE_SUMS; ++k) acc[k] = lane_total(lanes[k]);
+                const int used = SUM_WIDTH;
 #endif
 #if ITEMS_PER_TILE > 1
-            for (int k = 0; k < used; ++k)
-                if (acc[k] != 0.f) local_add_float(&l_sums[j * SUM_WIDTH + k], acc[k]);
+                __local float *part = l_part + (owner * PART_CHUNK + j - chunk_base) * SUM_WIDTH;
+#if SUBGROUP
+                // The subgroup's sums of the pair; a pair that none of its pixels took part in adds zeros.
+                if (subgroup_any(touched)) {
+                    subgroup_sums(acc, used, lane, part);
+                } else {
+                    for (int k = lane; k < SUM_WIDTH; k += SUBGROUP) part[k] = 0.f;
+                }
+#else
+                for (int k = 0; k < SUM_WIDTH; ++k) part[k] = k < used ? acc[k] : 0.f;
+#endif
 #elif PAIR_SUMS
-            for (int k = 0; k < used; ++k) sums[(size_t)(base + j - pair0) * SUM_WIDTH + k] = acc[k];
+                for (int k = 0; k < used; ++k) sums[(size_t)(base + j - pair0) * SUM_WIDTH + k] = acc[k];
 #else
-            __global float *dst = sums + (size_t)l_gaussian[j] * SUM_WIDTH;
-            for (int k = 0; k < used; ++k)
-                if (acc[k] != 0.f) atomic_add_float(dst + k, acc[k]);
+                __global float *dst = sums + (size_t)l_gaussian[j] * SUM_WIDTH;
+                for (int k = 0; k < used; ++k)
+                    if (acc[k] != 0.f) atomic_add_float(dst + k, acc[k]);
 #endif
-        }
+            }
 #if ITEMS_PER_TILE > 1
-        barrier(CLK_LOCAL_MEM_FENCE);
-        for (int k = lid; k < count * SUM_WIDTH; k += ITEMS_PER_TILE) {
-            float v = l_sums[k];
+            // The chunk's sums: the owners' rows added in owner order, into each pair's slot.
+            barrier(CLK_LOCAL_MEM_FENCE);
+            for (int k = lid; k < (chunk_top - chunk_base) * SUM_WIDTH; k += ITEMS_PER_TILE) {
+                float v = l_part[k];
+                for (int o = 1; o < PART_OWNERS; ++o) v += l_part[o * PART_CHUNK * SUM_WIDTH + k];
 #if PAIR_SUMS
-            sums[(size_t)(base - pair0) * SUM_WIDTH + k] = v;
+                sums[(size_t)(base + chunk_base - pair0) * SUM_WIDTH + k] = v;
 #else
-            if (v != 0.f) atomic_add_float(sums + (size_t)l_gaussian[k / SUM_WIDTH] * SUM_WIDTH
-                                           + k % SUM_WIDTH, v);
+                if (v != 0.f) atomic_add_float(sums + (size_t)l_gaussian[chunk_base + k / SUM_WIDTH] * SUM_WIDTH
+                                               + k % SUM_WIDTH, v);
+#endif
+            }
+            barrier(CLK_LOCAL_MEM_FENCE);
 #endif
         }
-#endif
     }
 }

@@ -47,12 +47,17 @@ class Stage:
         """The -D options fixed for this stage's life (work shapes, switches); variants add to them."""
         return {}
 
+    def language(self, variant: dict) -> str:
+        """The OpenCL C version a variant is built as."""
+        return "CL1.2"
+
     def kernels(self, variant: dict | None = None) -> dict[str, cl.Kernel]:
         """This stage's kernels for a variant, built the first time it is asked for."""
         key = tuple(sorted((variant or {}).items()))
         built = self._built.get(key)
         if built is None:
-            program = self.rt.program(self.FILE, {**self.defines(), **(variant or {})})
+            defines = {**self.defines(), **(variant or {})}
+            program = self.rt.program(self.FILE, defines, self.language(defines))
             built = self._built[key] = {name: cl.Kernel(program, name) for name in self.KERNELS}
         return built
 
@@ -74,8 +79,13 @@ class Stage:
         key = tuple(sorted(variant.items()))
         if key not in self._batch_fitted:
             self._batch_fitted[key] = self.fitting_kernels(
-                [{**variant, "BATCH": b} for b in halvings(self.ctx.tuning.batch)], kernel)[1]
+                [{**variant, "BATCH": b, **self.with_batch(variant, b)} for b in halvings(self.ctx.tuning.batch)],
+                kernel)[1]
         return self._batch_fitted[key]
+
+    def with_batch(self, variant: dict, batch: int) -> dict:
+        """-D options that shrink with the batch (none here)."""
+        return {}
 
     def check(self, arrays) -> None:
         """--check-finite: `arrays()` gives the host copies of this call's outputs; read only when on."""

@@ -39,6 +39,9 @@ class Tuning:
     # compiles the walk with them inside 7x slower than without (AVX2, 48k Gaussians, 192x144: 99.8 against 14.4
     # ms), per block 26.8; PoCL vectorises the walk either way and is faster with them inside (38.8 against 59.7).
     split_sums_per_block: bool = False
+    # rasterizer backward in the GPU shape (a pixel per item): how subgroups of 32 items reduce a pair's sums
+    # (runtime.SUBGROUP_SOURCES); None: 32 pixels per item, summed in the same order (the portable twin)
+    subgroups: str | None = None
 
     @staticmethod
     def for_device(caps: Capabilities) -> "Tuning":
@@ -53,7 +56,7 @@ class Tuning:
         # GPUs, and drivers that cut a work-item's loops short (Capabilities.loop_limit): one pixel, and short
         # runs of keys and of scan elements, per work-item.
         return Tuning(pixels_per_item=1, batch=256, radix_bits=4, sort_blocks=4096,
-                      scan_wg=256, scan_groups=256, isect_wg=256).within(caps)
+                      scan_wg=256, scan_groups=256, isect_wg=256, subgroups=caps.subgroups).within(caps)
 
     def within(self, caps: Capabilities) -> "Tuning":
         """This shape narrowed to the device's work-group limit: a tile's items (TILE_SIZE^2 / pixels_per_item),
