@@ -281,6 +281,10 @@ class Runtime:
         self.events: dict[str, list[cl.Event]] = defaultdict(list)
         self.memory_in_use = 0   # bytes in device buffers made here and not yet released
         self.memory_peak = 0     # the most memory_in_use has been since the last reset_memory_peak()
+        # Since the runtime was made: kernels enqueued, and the host's blocking waits on the queue (a read back,
+        # or a write that waits for the queue before its copy); stage_times' own wait is the caller's, uncounted.
+        self.launches = 0
+        self.syncs = 0
 
     def __repr__(self) -> str:
         return f"Runtime({self.device_key} {describe(self.device)})"
@@ -326,6 +330,7 @@ class Runtime:
         if local_size is not None:
             self.check_launch(stage, kernel, local_size)
         ev = kernel(self.queue, global_size, local_size, *args)
+        self.launches += 1
         if self.profiling:
             self.events[stage].append(ev)
         return ev
@@ -379,12 +384,14 @@ class Runtime:
         out = np.empty(shape, dtype=dtype)
         if out.nbytes:
             cl.enqueue_copy(self.queue, out, buf)
+            self.syncs += 1
         return out
 
     def write(self, buf: cl.Buffer, array: np.ndarray) -> None:
         a = np.ascontiguousarray(array)
         if a.nbytes:
-            cl.enqueue_copy(self.queue, buf, a)
+            cl.enqueue_copy(self.queue, buf, a)   # blocking: returns once the queue has run up to the copy
+            self.syncs += 1
 
     def fill(self, buf: cl.Buffer, value, nbytes: int) -> None:
         """Fill the first nbytes of buf with a 4-byte pattern (a float32, int32 or uint32 scalar)."""

@@ -36,6 +36,9 @@ def test_quick_suite_measures_every_stage_and_writes_both_reports(quick_report):
             assert all(math.isfinite(v) and v > 0 for v in stages.values()), (name, stages)
             assert run["device_ms"] >= max(stages.values())
             assert 100 < run["bytes_per_gaussian"] < 1e5
+        for name, run in bench.case_runs(case).items():   # per frame or iteration
+            assert run["launches"] >= len(run["stages_ms"]) and run["syncs"] >= 1, (name, run)
+            assert run["host_ms"] == pytest.approx(run["wall_ms"] - run["device_ms"])
     rows = {(r["stage"], r["quantity"]): r["rel_l2"] for r in report["accuracy"]}
     assert len(rows) == 14
     for key, err in rows.items():   # NaN fails too
@@ -45,6 +48,7 @@ def test_quick_suite_measures_every_stage_and_writes_both_reports(quick_report):
     for name in names:
         assert f"## {name}" in text
     assert text.count("| **device total** |") == 3 and "dL/dmeans" in text
+    assert text.count("| kernel launches |") == text.count("| blocking host syncs |") == 3
 
 
 def test_compare_prints_ratios_line_by_line(quick_report, tmp_path, capsys):
@@ -82,3 +86,21 @@ def test_compare_refuses_other_suites_and_files_that_are_not_reports(quick_repor
     assert "junk.json" in err and "not a report" in err
     assert main(["bench", "--compare", str(path), str(tmp_path / "missing.json")]) == 2
     assert "missing.json" in capsys.readouterr().err
+
+
+def test_runtime_counts_launches_and_blocking_syncs(rt):
+    """What bench reports per iteration: each kernel enqueued is a launch; a read back and a write (pyopencl's
+    blocking copies, which wait for the queue) are syncs; a fill is neither."""
+    import numpy as np
+    import pyopencl as cl
+    kernel = cl.Kernel(cl.Program(rt.context, "__kernel void one(__global int *x) { x[get_global_id(0)] = 1; }")
+                       .build(), "one")
+    buf = rt.buffer(16)
+    launches, syncs = rt.launches, rt.syncs
+    rt.fill(buf, np.int32(0), 16)
+    rt.launch("test", kernel, 4, None, buf)
+    assert (rt.launches - launches, rt.syncs - syncs) == (1, 0)
+    rt.write(buf, np.zeros(4, np.int32))
+    rt.launch("test", kernel, 4, None, buf)
+    assert (rt.to_host(buf, 4, np.int32) == 1).all()
+    assert (rt.launches - launches, rt.syncs - syncs) == (2, 2)

@@ -11,7 +11,9 @@ different suites are never compared line by line):
   million-Gaussian frame is the figure that counts);
 - each stage's error against the float64 references (dc4gs_cl/reference) on a small random case.
 
-Times are medians over ROUNDS rounds of OpenCL profiling events (device ms per stage) and of the wall clock.
+Times are medians over ROUNDS rounds of OpenCL profiling events (device ms per stage) and of the wall clock;
+beside them, per frame or iteration, the host ms (wall less device), the kernel launches and the blocking host
+syncs (Runtime.launches, Runtime.syncs).
 The training iterations gather densification statistics but never densify, so every round steps the same
 model. Writes bench-<device>.json and .md (--out) and prints the markdown; `--compare A.json B.json` prints
 B against A line by line.
@@ -54,7 +56,9 @@ from ..testing import random_camera, random_model
 from ..train import Trainer
 from ..train.schedule import Schedule
 
-SUITE_VERSION = 1
+SUITE_VERSION = 2   # 2: launches, blocking syncs and host ms per frame or iteration
+# per frame or iteration, beside the times (timed_rounds): the quantity and its row in the reports
+COUNTS = {"host_ms": "host ms (wall - device)", "launches": "kernel launches", "syncs": "blocking host syncs"}
 
 
 @dataclass(frozen=True)
@@ -101,17 +105,21 @@ def frozen_trainer(cfg: TrainConfig, scene: Scene, rt: Runtime, state: GaussianS
 
 def timed_rounds(rt: Runtime, rounds: int, per: int, work) -> dict:
     """`work()` (per frames or iterations) run `rounds` times: per frame or iteration, the median device ms of
-    each stage and in all (OpenCL profiling events) and the median wall ms."""
+    each stage and in all (OpenCL profiling events), the median wall ms, the host ms (wall less device: the
+    host's own time and its waits) and the kernel launches and blocking host syncs (Runtime.launches, syncs)."""
     rt.stage_times()
     times, walls = [], []
+    launches, syncs = rt.launches, rt.syncs
     for _ in range(rounds):
         start = time.perf_counter()
         work()
         times.append(rt.stage_times())     # waits for the queue
         walls.append(time.perf_counter() - start)
     stages = list(dict.fromkeys(s for r in times for s in r))
+    device, wall = median([sum(r.values()) for r in times]) * 1e3 / per, median(walls) * 1e3 / per
     return {"stages_ms": {s: median([r.get(s, 0.0) for r in times]) * 1e3 / per for s in stages},
-            "device_ms": median([sum(r.values()) for r in times]) * 1e3 / per, "wall_ms": median(walls) * 1e3 / per}
+            "device_ms": device, "wall_ms": wall, "host_ms": wall - device,
+            "launches": (rt.launches - launches) / (rounds * per), "syncs": (rt.syncs - syncs) / (rounds * per)}
 
 
 def time_forward(rt: Runtime, model: GaussianModel, cams: list[Camera], background, suite: Suite) -> dict:
@@ -317,6 +325,8 @@ def measurements(report: dict) -> dict[tuple[str, str, str], float]:
                 out[(case["name"], run, f"{stage} ms")] = ms
             out[(case["name"], run, "device ms")] = m["device_ms"]
             out[(case["name"], run, "wall ms")] = m["wall_ms"]
+            for quantity in COUNTS:
+                out[(case["name"], run, COUNTS[quantity])] = m[quantity]
             if "bytes_per_gaussian" in m:
                 out[(case["name"], run, "peak bytes / Gaussian")] = m["bytes_per_gaussian"]
     for row in report["accuracy"]:
@@ -344,6 +354,9 @@ def markdown(report: dict) -> str:
                                                    for m in runs.values()) + " |")
         lines.append("| **device total** | " + " | ".join(f"**{m['device_ms']:.2f}**" for m in runs.values()) + " |")
         lines.append("| wall | " + " | ".join(f"{m['wall_ms']:.2f}" for m in runs.values()) + " |")
+        for quantity, label in COUNTS.items():
+            lines.append(f"| {label} | " + " | ".join(f"{m[quantity]:.{2 if quantity == 'host_ms' else 1}f}"
+                                                      for m in runs.values()) + " |")
         lines.append("| peak bytes / Gaussian | " + " | ".join(f"{m['bytes_per_gaussian']:,.0f}"
                                                              if "bytes_per_gaussian" in m else "" for m in runs.values())
                      + " |")
