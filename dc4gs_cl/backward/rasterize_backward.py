@@ -68,8 +68,9 @@ class RasterizeBackward(Stage):
         except DeviceError as e:
             if self.subgroups is None:
                 raise
+            first_error = next((line for line in str(e).splitlines() if "error" in line), str(e).splitlines()[0])
             warnings.warn(f"the rasterizer backward's {self.subgroups} subgroup path did not build on this device; "
-                          f"using its portable twin (the same sums, slower): {str(e).splitlines()[0]}")
+                          f"using its portable twin (the same sums, slower): {first_error.strip()}")
             self.subgroups = None
             self._fitted.clear()   # every variant takes the twin's shape from now on
             return self.batch_fitted_kernels({**variant, **self.shape(variant)}, "rasterize_backward")

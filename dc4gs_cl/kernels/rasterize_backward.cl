@@ -468,7 +468,7 @@ void rasterize_backward(const int width, const int height, const int tiles_x, co
                                       : (int2)(SPLIT_CANDIDATES, SPLIT_CANDIDATES);
                 if (cross.y - cross.x > MAX_FEW_CROSSING) cross = (int2)(0, SPLIT_CANDIDATES);   // the walk over all
                 const int n_cross = cross.y - cross.x;
-                float (*split_lanes)[COL_BLOCK] = lanes + SUM_SPLIT;
+                __private float (*split_lanes)[COL_BLOCK] = lanes + SUM_SPLIT;   // private, not generic (CL3.0)
                 for (int k = 0; k < SPLIT_WIDTH * n_cross; ++k)
                     for (int cc = 0; cc < COL_BLOCK; ++cc) split_lanes[k][cc] = 0.f;
                 // One call per crossing count, each its own vectorised loop (see backward_pair).
