@@ -83,7 +83,8 @@ class RasterizeBackward(Stage):
         shape = {"SUBGROUP": 0}
         if tuning.pixels_per_item == 1:
             width = variant["SUM_WIDTH"]   # padded to a power of two, at least 16, for the transposed butterfly
-            shape = ({"SUBGROUP": SUBGROUP, "SUBGROUP_SOURCE": SUBGROUP_SOURCES[self.subgroups],
+            sources = {f"SUBGROUP_{name.upper()}": value for name, value in SUBGROUP_SOURCES.items()}
+            shape = ({"SUBGROUP": SUBGROUP, "SUBGROUP_SOURCE": SUBGROUP_SOURCES[self.subgroups], **sources,
                       "SUM_PAD": max(16, 1 << (width - 1).bit_length())} if self.subgroups else TWIN)
         items = self.items(shape)
         owners = items // (shape["SUBGROUP"] or 1)   # partial rows per pair
