@@ -213,6 +213,10 @@ def _add_bench(p: argparse.ArgumentParser) -> None:
     p.add_argument("--quick", action="store_true", help="a tiny version of the suite (seconds; checks that it runs)")
     p.add_argument("--compare", nargs=2, type=Path, metavar=("A.json", "B.json"), default=None,
                    help="print B's numbers against A's, line by line, and run nothing")
+    p.add_argument("--garden", type=Path, default=None, metavar="PATH",
+                   help="gsplat's test asset (test_garden.npz): a case of its Gaussians at 648x420 over its 3 cameras")
+    p.add_argument("--gsplat", action="store_true",
+                   help="every case's frames also through gsplat (torch and gsplat with CUDA), ours / gsplat per case")
 
 
 def cmd_bench(args) -> int:

@@ -32,6 +32,12 @@ SH_C3 = (-0.5900435899266435, 2.890611442640554, -0.4570457994644658, 0.37317633
          -0.4570457994644658, 1.445305721320277, -0.5900435899266435)
 SH_MAX_DEGREE = 3
 
+# A frame's counts on the device, uint words (render/isect.py writes them into StageContext.frame): the visible
+# Gaussians, the depth keys' range, the pairs, and whether the pairs overflowed the capacity the frame was given
+# (then the kernels that change the model, its moments, the window or the loss' sums leave them as they were,
+# and the trainer runs the iteration again with room: train/trainer.py). Kernels see FRAME_<WORD> = its index.
+FRAME_WORDS = ("VISIBLE", "DEPTH_KEY_MIN", "DEPTH_KEY_MAX", "PAIRS", "OVERFLOWED")
+
 
 def tile_grid(width: int, height: int) -> tuple[int, int]:
     """Tiles across and down an image of width x height pixels."""
@@ -60,4 +66,5 @@ def kernel_defines() -> dict[str, int | float]:
     }
     d.update({f"SH_C2_{i}": c for i, c in enumerate(SH_C2)})
     d.update({f"SH_C3_{i}": c for i, c in enumerate(SH_C3)})
+    d.update({f"FRAME_{word}": i for i, word in enumerate(FRAME_WORDS)})
     return d

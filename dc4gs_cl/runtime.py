@@ -393,6 +393,13 @@ class Runtime:
             cl.enqueue_copy(self.queue, buf, a)   # blocking: returns once the queue has run up to the copy
             self.syncs += 1
 
+    def write_async(self, buf: cl.Buffer, array: np.ndarray) -> None:
+        """Queue a copy of array into buf without waiting for it: array must stay as it is until the queue has run
+        up to the copy (constants, images the scene keeps); pyopencl keeps it alive until then."""
+        a = np.ascontiguousarray(array)
+        if a.nbytes:
+            cl.enqueue_copy(self.queue, buf, a, is_blocking=False)
+
     def fill(self, buf: cl.Buffer, value, nbytes: int) -> None:
         """Fill the first nbytes of buf with a 4-byte pattern (a float32, int32 or uint32 scalar)."""
         if nbytes:

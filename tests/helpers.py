@@ -11,10 +11,13 @@ from dc4gs_cl.runtime import Capabilities
 from dc4gs_cl.testing import random_camera, random_model  # noqa: F401 (re-exported for the tests)
 
 # Both work shapes of every kernel run on PoCL: the CPU's (256 pixels per work-item) and the GPUs'
-# (1 pixel per work-item, cooperative work-groups, 4-bit sort digits), plus one in between.
+# (1 pixel per work-item, cooperative work-groups, work-groups ranking 8-bit sort digits), plus one in between.
 CPU_SHAPE = Tuning(pixels_per_item=256, batch=64, radix_bits=8, sort_blocks=8, scan_wg=1, scan_groups=8, isect_wg=64)
-GPU_SHAPE = Tuning(pixels_per_item=1, batch=256, radix_bits=4, sort_blocks=512, scan_wg=256, scan_groups=64, isect_wg=256)
-MID_SHAPE = replace(CPU_SHAPE, pixels_per_item=16, batch=16, radix_bits=6, sort_blocks=37, scan_wg=16, scan_groups=5)
+GPU_SHAPE = Tuning(pixels_per_item=1, batch=256, radix_bits=8, sort_blocks=512, sort_wg=256, scan_wg=256,
+                   scan_groups=64, isect_wg=256)
+# small sort work-groups: 6-bit digits ranked 4 + 2 bits at a time, more digits than items
+MID_SHAPE = replace(CPU_SHAPE, pixels_per_item=16, batch=16, radix_bits=6, sort_blocks=37, sort_wg=16, scan_wg=16,
+                    scan_groups=5)
 SHAPES = {"cpu": CPU_SHAPE, "gpu": GPU_SHAPE, "mid": MID_SHAPE}
 # The GPU shape on a device whose work-groups hold at most 64 items (Tuning.within): 4 pixels per item.
 NARROW_CAPS = Capabilities(is_cpu=False, compute_units=1, max_work_group_size=64, local_mem_size=32 * 1024,

@@ -4,8 +4,10 @@ import copy
 import json
 import math
 
+import numpy as np
 import pytest
 
+from conftest import scene_path
 from dc4gs_cl.apps import bench
 from dc4gs_cl.cli import main
 
@@ -90,8 +92,7 @@ def test_compare_refuses_other_suites_and_files_that_are_not_reports(quick_repor
 
 def test_runtime_counts_launches_and_blocking_syncs(rt):
     """What bench reports per iteration: each kernel enqueued is a launch; a read back and a write (pyopencl's
-    blocking copies, which wait for the queue) are syncs; a fill is neither."""
-    import numpy as np
+    blocking copies, which wait for the queue) are syncs; a fill and a queued write are neither."""
     import pyopencl as cl
     kernel = cl.Kernel(cl.Program(rt.context, "__kernel void one(__global int *x) { x[get_global_id(0)] = 1; }")
                        .build(), "one")
@@ -104,3 +105,45 @@ def test_runtime_counts_launches_and_blocking_syncs(rt):
     rt.launch("test", kernel, 4, None, buf)
     assert (rt.to_host(buf, 4, np.int32) == 1).all()
     assert (rt.launches - launches, rt.syncs - syncs) == (2, 2)
+    rt.write_async(buf, np.full(4, 7, np.int32))   # queued, no wait: not a sync
+    assert rt.syncs - syncs == 2 and (rt.to_host(buf, 4, np.int32) == 7).all() and rt.syncs - syncs == 3
+
+
+def test_garden_case_and_the_gsplat_side_refused_without_it(rt, tmp_path, capsys):
+    """--garden adds gsplat's asset as a case (skipped here without the shared data); --gsplat without torch and
+    gsplat (CUDA) is refused in one line before anything runs, as is a --garden file that is not there."""
+    from dc4gs_cl.apps.gsplat_frames import available
+    if available() is None:
+        pytest.skip("torch and gsplat with CUDA are here: the refusal cannot be shown")
+    assert main(["bench", "--quick", "--gsplat", "--out", str(tmp_path)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "--gsplat needs torch and gsplat" in err
+    assert main(["bench", "--quick", "--garden", str(tmp_path / "no.npz"), "--out", str(tmp_path)]) == 2
+    assert "no.npz" in capsys.readouterr().err and not list(tmp_path.iterdir())
+
+
+def test_garden_case_times_gsplats_asset(rt):
+    case = bench.garden_case(rt, bench.QUICK, scene_path("gsplat_test_garden") / "test_garden.npz", lambda line: None)
+    assert case["name"] == "garden 648x420" and case["gaussians"] == 111_785 and case["forward"]["pairs"] > 100_000
+    model, cams, _ = case["frames"]
+    assert model.sh_degree == 3 and len(cams) == 3
+    for run in bench.case_runs(case).values():
+        assert run["device_ms"] > 0 and run["launches"] > 0
+
+
+def test_gsplat_gets_our_cameras_in_its_conventions(rng):
+    """gsplat projects a point to K (V p) / z (pixel centres at +0.5, as ours): our projection's 2D means."""
+    from dc4gs_cl.apps.gsplat_frames import camera_matrices
+    from dc4gs_cl.reference.project import project_reference
+    from dc4gs_cl.testing import random_camera, random_model
+    cams = [random_camera(rng, 64, 48), random_camera(rng, 40, 30)]
+    model = random_model(rng, 200)
+    viewmats, ks = camera_matrices(cams)
+    for cam, v, k in zip(cams, viewmats, ks):
+        ours = project_reference(model.means, model.log_scales, model.quats, model.opacity_logits, model.sh, cam,
+                                 model.sh_degree, 4, 3)
+        seen = ours["radius"] > 0
+        assert seen.sum() > 20
+        p = (np.c_[model.means, np.ones(len(model))] @ v.T.astype(np.float64))[:, :3]
+        uv = p @ k.T.astype(np.float64)
+        np.testing.assert_allclose(uv[seen, :2] / uv[seen, 2:], ours["mean2d"][seen], rtol=1e-5, atol=1e-3)

@@ -77,8 +77,8 @@ def test_drivers_that_cut_loops_short_get_short_loop_shapes(platform, driver, li
     assert runtime.loop_limit(dev) == limit
     caps = replace(NARROW_CAPS, is_cpu=True, max_work_group_size=1024, loop_limit=limit)
     tuning = Tuning.for_device(caps)
-    assert (tuning.pixels_per_item, tuning.sort_blocks, tuning.scan_wg * tuning.scan_groups) == (
-        (1, 4096, 256 * 256) if limit else (256, 4, 4))
+    assert (tuning.pixels_per_item, tuning.sort_wg, tuning.scan_wg * tuning.scan_groups) == (
+        (1, 256, 256 * 256) if limit else (256, 1, 4))
 
 
 

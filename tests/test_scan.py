@@ -36,3 +36,20 @@ def test_scan_in_place_and_empty(rt, rng):
                                   np.concatenate([[0], np.cumsum(values)[:-1]]))
     scan(buf, buf, 0, total, 0)
     assert rt.to_host(total, 1, np.uint32)[0] == 0
+
+
+@pytest.mark.parametrize("shape", SHAPES)
+def test_exclusive_scan_of_a_count_on_the_device(rt, rng, shape):
+    """The intersection scans the visible Gaussians' counts, as many as the device counted (no read-back): the
+    launch is sized for the bound, nothing past the count is written, the total is that of the count's elements."""
+    scan = ExclusiveScan(StageContext(rt, SHAPES[shape]))
+    bound = 50_000
+    for n in [0, 1, 255, 257, int(rng.integers(2, bound)), bound]:
+        values = rng.integers(0, 50, bound).astype(np.uint32)
+        dst = rt.to_device(np.full(bound, POISON, np.uint32))
+        total = rt.to_device(np.array([n, POISON], np.uint32))
+        scan(rt.to_device(values), dst, bound, total, 1, count=total, count_at=0)
+        got = rt.to_host(dst, bound, np.uint32)
+        np.testing.assert_array_equal(got[:n], np.concatenate([[0], np.cumsum(values[:n], dtype=np.uint64)[:-1]])[:n])
+        assert (got[n:] == POISON).all()
+        assert rt.to_host(total, 2, np.uint32).tolist() == [n, values[:n].sum()]

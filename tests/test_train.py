@@ -311,3 +311,75 @@ def test_check_finite_on_the_command_line(tmp_path):
     assert main(["train", *SMALL, "-r", "4", "--iterations", "12", "--check-finite", "--out", str(out)]) == 0
     assert main(["render", "--model", str(out), "--check-finite"]) == 0
     assert sorted(p.name for p in (out / "test" / "ours_12").iterdir()) == ["gt", "renders"]
+
+
+@pytest.mark.parametrize("strategy, walk", [("3dgs", "one run"), ("absgs+dc4gs", "one run"),
+                                            ("absgs+dc4gs", "runs of tiles")])
+def test_a_view_that_overflows_its_pair_capacity_runs_again_to_the_same_model(rt, monkeypatch, strategy, walk):
+    """The trainer sizes a view's pair buffers by a capacity and reads nothing back until the iteration is queued; a
+    view with more pairs changes nothing on the device and runs again with room. Forced here every few iterations
+    (a densification step among them): the model, its moments and the window are those of a run that never
+    overflowed, bit for bit."""
+    from dc4gs_cl.render import Tuning
+    if walk == "runs of tiles":   # each view's backward in several runs of a few tiles (their plan read back)
+        for_device = Tuning.for_device
+        monkeypatch.setattr(Tuning, "for_device", staticmethod(
+            lambda caps: replace(for_device(caps), pair_chunk=0.3, min_run_tiles=4)))
+    scene = load_scene("builtin", resolution=4)
+    cfg = TrainConfig(scene="builtin", iterations=300, resolution=4, strategy=strategy.split("+")[0],
+                      dc4gs=DC4GSConfig(dcc=True, dcs=True) if "dc4gs" in strategy else DC4GSConfig())
+    steady, forced = Trainer(cfg, scene, rt), Trainer(cfg, scene, rt)
+    overflows = []
+    counts = forced.renderer.intersect.counts
+    monkeypatch.setattr(forced.renderer.intersect, "counts", lambda: overflows.append(counts()[2]) or counts())
+    densify_at = [it for it in range(1, 201) if steady.strategy.actions(it).densify]
+    assert densify_at, "the test wants a densification step to overflow"
+    for it in range(1, 201):
+        steady.step()
+        if it % 7 == 0 or it == densify_at[0]:
+            forced.pair_capacity = 1
+        forced.step()
+    assert overflows.count(True) >= 200 // 7 and forced.model.n == steady.model.n > len(scene.points)
+    a, b = steady.model.download(), forced.model.download()
+    for what, mine, theirs in [("params", a.params, b.params), ("m", a.m, b.m), ("v", a.v, b.v),
+                               ("window", steady.strategy.window.download(), forced.strategy.window.download())]:
+        for name in mine:
+            np.testing.assert_array_equal(mine[name], theirs[name], err_msg=f"{what} {name}")
+    assert steady.loss.read_stats() == forced.loss.read_stats()
+
+
+@pytest.mark.parametrize("low_memory", [False, True], ids=["pair-slots", "atomics"])
+def test_a_void_frame_changes_nothing_on_the_device(rt, low_memory):
+    """Every kernel that changes lasting state leaves it as it was in a frame marked overflowed (FRAME_VOID): the
+    parameters, Adam's moments, the window (sum_pairs' fold, or the window's own kernel with --low-memory, whose
+    float atomics are not bit-reproducible: the trainer test above cannot cover it) and the loss' sums."""
+    from dc4gs_cl.constants import FRAME_WORDS
+    scene = load_scene("builtin", resolution=4)
+    cfg = TrainConfig(scene="builtin", iterations=300, resolution=4, strategy="absgs",
+                      dc4gs=DC4GSConfig(dcc=True, dcs=True), low_memory=low_memory)
+    trainer = Trainer(cfg, scene, rt)
+    for _ in range(3):
+        trainer.step()
+    before = trainer.model.download(), trainer.strategy.window.download(), trainer.loss.running_sums()[0]
+    queue = trainer._queue_iteration
+
+    def void_frame():   # the view queued as usual, its frame then marked overflowed before the backward runs
+        render = trainer.renderer.render
+
+        def marked(*args):
+            res = render(*args)
+            rt.write(trainer.context.frame, np.array([0, 0, 0, 0, 1], np.uint32)[:len(FRAME_WORDS)])
+            return res
+        trainer.renderer.render = marked
+        try:
+            return queue()
+        finally:
+            trainer.renderer.render = render
+
+    void_frame()
+    after = trainer.model.download(), trainer.strategy.window.download(), trainer.loss.running_sums()[0]
+    for mine, theirs in [(before[0].params, after[0].params), (before[0].m, after[0].m), (before[0].v, after[0].v),
+                         (before[1], after[1])]:
+        for name in mine:
+            np.testing.assert_array_equal(mine[name], theirs[name], err_msg=name)
+    assert before[2] == after[2]

@@ -109,8 +109,9 @@ def sort_comparison(rt: Runtime, renderer: Renderer, res, runs: int) -> list[str
     tile_of_pair = rt.to_host(res.isect.tile_of_pair, p, np.uint32)
     gaussian_of_pair = rt.to_host(res.isect.gaussian_of_pair, p, np.uint32)
     tile_bits = res.isect.tile_bits
-    depth_bits = res.isect.depth_bits   # the frame was rendered with every depth bit that varies
-    ours = RadixSort(rt, renderer.tuning)
+    depth_bits = res.isect.depth_bits   # what the frame's depth sort sorted (DEPTH_KEY_BITS)
+    varying = int(depth_keys.min() ^ depth_keys.max()).bit_length() if v > 1 else 0
+    ours = RadixSort(renderer.context)
     py32, py64 = PyopenclSort(rt, np.uint32), PyopenclSort(rt, np.uint64)
     rows = []
 
@@ -131,8 +132,10 @@ def sort_comparison(rt: Runtime, renderer: Renderer, res, runs: int) -> list[str
     # Skips inside the sort: unused key bits, culled Gaussians.
     full = time_ours(rt, ours, tile_of_pair, gaussian_of_pair, 0, 32, runs)
     rows.append(f"  {'skip: unused tile-key bits':44s} {tile_bits} bits {t[0]:8.2f} ms vs 32 bits {full:8.2f} ms")
-    full = time_ours(rt, ours, depth_keys, visible, 0, 32, runs)
-    rows.append(f"  {'skip: constant depth-key bits':44s} {depth_bits} bits {d[0]:8.2f} ms vs 32 bits {full:8.2f} ms")
+    # Given up for a read-back: the depth sort sorts every bit a key can have, not just those that vary this frame.
+    fewer = time_ours(rt, ours, depth_keys, visible, 0, varying, runs)
+    rows.append(f"  {'no read-back: all depth-key bits, not those varying':44s} {depth_bits} bits {d[0]:8.2f} ms vs "
+                f"{varying} bits {fewer:8.2f} ms")
     all_keys = np.where(tiles_touched > 0, depth.view(np.uint32), np.uint32(0xFFFFFFFF))
     t_all = time_ours(rt, ours, all_keys, np.arange(n, dtype=np.uint32), 0, 32, runs)
     rows.append(f"  {'skip: culled Gaussians emit no keys':44s} {v:,} keys {d[0]:8.2f} ms vs all {n:,} {t_all:8.2f} ms")

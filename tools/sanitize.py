@@ -12,8 +12,9 @@ default, 32 KiB, OpenCL 1.2's minimum (OCLGRIND_LOCAL_MEM_SIZE passes through).
 
 Each work shape (tests/helpers.py SHAPES; the loss's from tests/test_loss.py) runs in a subprocess
 (`--workload SHAPE`) with the checks on: a training iteration's kernels on 300 random Gaussians in a 32 x 24
-image, in every variant training builds (FORWARDS). Oclgrind's kernel diagnostics (OCLGRIND_LOG) and API
-errors (stderr; a launch the device refuses is one) are collected per kernel. Prints kernel x shape ->
+image, in every variant training builds (FORWARDS), and one whose view was given room for half its pairs
+(overflowed_view). Oclgrind's kernel diagnostics (OCLGRIND_LOG) and API errors (stderr; a launch the device
+refuses is one) are collected per kernel. Prints kernel x shape ->
 Oclgrind's messages, then the first of each kind; a kernel of kernels/*.cl that a shape never launched
 fails the run too.
 
@@ -317,7 +318,34 @@ def workload(shape: str) -> dict:
                 rt.queue.finish()
             except Refused:
                 pass   # the rest of this variant cannot run; the others go on
+    overflowed_view(rt, shape, model, cam, target, background, lrs)
     return {"launched": rt.launched}
+
+
+def overflowed_view(rt: Runtime, shape: str, model, cam, target, background, lrs) -> None:
+    """A training iteration whose view was given room for half its pairs (what the trainer queues before it
+    learns the view overflowed, and runs it again): no kernel may touch a pair past the buffers."""
+    tuning = SHAPES[shape]
+    try:
+        pairs = Renderer(rt, tuning).render(DeviceGaussians(rt, model), cam, model.sh_degree, background).isect.n_pairs
+        renderer = Renderer(rt, tuning)
+        ctx = renderer.context
+        gaussians = TrainableGaussians(rt, model)
+        res = renderer.render(gaussians.params, cam, model.sh_degree, background, pair_capacity=pairs // 2)
+        dL_dimage = rt.buffer(target.nbytes)
+        Loss(ctx, *LOSS_SHAPES[shape])(
+            res.raster.image, rt.to_device(target), WIDTH, HEIGHT, dL_dimage)
+        strategy = STRATEGIES["absgs+dc4gs"]()
+        strategy.attach(ctx, 1.0, gaussians.n)
+        gathering = strategy.gather(1, gaussians.params, cam, res)
+        sums, layout = RasterizeBackward(ctx).folding(res, dL_dimage, background, gathering.layout,
+                                                      gathering.geometry, None, gathering.window)
+        ProjectBackward(ctx).step(gaussians.params, cam, model.sh_degree, res, sums, layout,
+                                  gaussians.adam.step_value(lrs), gaussians.adam.m, gaussians.adam.v)
+        if not renderer.intersect.counts()[2]:
+            raise RuntimeError("the view given room for half its pairs did not say it overflowed")
+    except Refused:
+        pass
 
 
 def sanitize(shapes: list[str], log_dir: Path | None = None) -> list[Run]:

@@ -6,6 +6,8 @@ different suites are never compared line by line):
   smaller size, then its forward (per stage, over FORWARD_VIEWS training views) and a training iteration per
   stage (3DGS, and AbsGS with DC4GS), at both sizes;
 - a synthetic frame of a million random Gaussians (SH degree 3) at 1280 x 720: forward and training iteration;
+- with `--garden PATH` (gsplat's test asset, test_garden.npz): its Gaussians as gsplat's tests make them, SH degree 3,
+  at 648 x 420 over its 3 cameras: forward and training iteration;
 - peak device bytes per Gaussian while training (the high-water mark of the bytes held in device buffers
   during the training iterations, over the Gaussian count; in the small scenes the images dominate, the
   million-Gaussian frame is the figure that counts);
@@ -14,6 +16,9 @@ different suites are never compared line by line):
 Times are medians over ROUNDS rounds of OpenCL profiling events (device ms per stage) and of the wall clock;
 beside them, per frame or iteration, the host ms (wall less device), the kernel launches and the blocking host
 syncs (Runtime.launches, Runtime.syncs).
+With `--gsplat` (torch and gsplat importable, with CUDA), every case's frames also run through gsplat
+(apps/gsplat_frames.py): its forward and its simple_trainer iteration (absgrad off beside our 3DGS, on beside our
+AbsGS + DC4GS), each case's ours / gsplat wall-time ratio, and its image against ours (PSNR: the same frame).
 The training iterations gather densification statistics but never densify, so every round steps the same
 model. Writes bench-<device>.json and .md (--out) and prints the markdown; `--compare A.json B.json` prints
 B against A line by line.
@@ -52,11 +57,13 @@ from ..runtime import Capabilities, Runtime, describe
 from ..scene.builtin import builtin_scene
 from ..scene.camera import Camera, Scene
 from ..statistics import GRADIENTS
-from ..testing import random_camera, random_model
+from ..testing import gsplat_test_garden, random_camera, random_model
 from ..train import Trainer
 from ..train.schedule import Schedule
 
-SUITE_VERSION = 2   # 2: launches, blocking syncs and host ms per frame or iteration
+# 2: launches, blocking syncs and host ms per frame or iteration; 3: the GPU sort and the host loop of #39, --garden,
+# --gsplat
+SUITE_VERSION = 3
 # per frame or iteration, beside the times (timed_rounds): the quantity and its row in the reports
 COUNTS = {"host_ms": "host ms (wall - device)", "launches": "kernel launches", "syncs": "blocking host syncs"}
 
@@ -82,6 +89,9 @@ QUICK = Suite(builtin_sizes=((48, 36), (96, 72)), warm_iterations=40, synthetic_
               accuracy_case=(300, 48, 40))
 TRAINING = {"3dgs": {"strategy": "3dgs"},
             "absgs+DC4GS": {"strategy": "absgs", "dc4gs": DC4GSConfig(dcc=True, dcs=True)}}
+# gsplat's nearest configuration to each of TRAINING: absgrad (AbsGS) or not (gsplat has no DC4GS)
+GSPLAT_ABSGRAD = {"3dgs": False, "absgs+DC4GS": True}
+GARDEN_AT = 3_000   # iteration of the 30,000 schedule the synthetic and garden frames train at: SH 3, in the window
 
 
 def median(values) -> float:
@@ -175,34 +185,68 @@ def builtin_cases(rt: Runtime, suite: Suite, say) -> list[dict]:
         case = {"name": name, "gaussians": state.n, "width": cam.width, "height": cam.height,
                 "forward": time_forward(rt, model, scene.train[:suite.forward_views], scene.background, suite),
                 "train": {t: time_training(rt, training_config(t, "builtin", suite.schedule), scene, state,
-                                           suite.warm_iterations, suite, suite.iterations) for t in TRAINING}}
+                                           suite.warm_iterations, suite, suite.iterations) for t in TRAINING},
+                "frames": (model, scene.train[:suite.forward_views], scene.background)}
         cases.append(case)
     return cases
 
 
+def frame_case(rt: Runtime, suite: Suite, name: str, model: GaussianModel, cams: list[Camera], iterations: int) -> dict:
+    """A frame of these Gaussians over these cameras, no scene behind it: forward, and training iterations at
+    GARDEN_AT whose targets are the frames' own renders with their colour channels reversed (any image serves:
+    the cost does not depend on it)."""
+    background = np.zeros(3, np.float32)
+    forward = time_forward(rt, model, cams, background, suite)
+    renderer, g = Renderer(rt), DeviceGaussians(rt, model)
+    targets = {c.name: np.ascontiguousarray(renderer.render(g, c, model.sh_degree, background).image(rt)[..., ::-1])
+               for c in cams}
+    one = np.zeros((1, 3))                 # the trainer starts from one point, replaced at once by the model
+    scene = Scene(root=Path(name), train=cams, test=[], points=one, colors=one + 0.5, background=background,
+                  read_image=lambda c: targets[c.name])
+    params = model.groups()
+    state = GaussianSet(params, {k: np.zeros_like(v) for k, v in params.items()},
+                        {k: np.zeros_like(v) for k, v in params.items()})
+    cam = cams[0]
+    return {"name": name, "gaussians": len(model), "width": cam.width, "height": cam.height, "forward": forward,
+            "train": {t: time_training(rt, training_config(t, name, 30_000), scene, state, GARDEN_AT, suite, iterations)
+                      for t in TRAINING},
+            "frames": (model, cams, background)}
+
+
 def synthetic_case(rt: Runtime, suite: Suite, say) -> dict:
-    """A million random Gaussians in front of one camera; the training target is the frame's own render with
-    its colour channels reversed (any image serves: the cost does not depend on it)."""
+    """A million random Gaussians in front of one camera."""
     n, (w, h) = suite.synthetic_gaussians, suite.synthetic_size
     name = f"random {n:,} {w}x{h}"
     say(f"{name} ...")
     rng = np.random.default_rng(suite.seed)
     model = random_model(rng, n, sh_degree=3, spread=2.0, scale_range=(0.003, 0.03))
     cam = Camera.look_at("random", (0.0, -5.0, 1.5), (0.0, 0.0, 0.0), w, h, fov_x=1.0)
-    background = np.zeros(3, np.float32)
-    forward = time_forward(rt, model, [cam], background, suite)
-    image = Renderer(rt).render(DeviceGaussians(rt, model), cam, 3, background).image(rt)
-    target = np.ascontiguousarray(image[..., ::-1])
-    one = np.zeros((1, 3))                 # the trainer starts from one point, replaced at once by the model
-    scene = Scene(root=Path("random"), train=[cam], test=[], points=one, colors=one + 0.5, background=background,
-                  read_image=lambda c: target)
-    params = model.groups()
-    state = GaussianSet(params, {k: np.zeros_like(v) for k, v in params.items()},
-                        {k: np.zeros_like(v) for k, v in params.items()})
-    at = 3_000                             # of the 30,000-iteration schedule: SH degree 3, inside the window
-    return {"name": name, "gaussians": n, "width": w, "height": h, "forward": forward,
-            "train": {t: time_training(rt, training_config(t, "random", 30_000), scene, state, at, suite,
-                                       suite.synthetic_iterations) for t in TRAINING}}
+    return frame_case(rt, suite, name, model, [cam], suite.synthetic_iterations)
+
+
+def garden_case(rt: Runtime, suite: Suite, path: Path, say) -> dict:
+    """gsplat's garden asset as gsplat's tests make its Gaussians (testing.gsplat_test_garden), with random SH
+    coefficients up to degree 3, over its 3 cameras."""
+    rng = np.random.default_rng(suite.seed)
+    try:
+        g, cams = gsplat_test_garden(path, rng)
+    except (OSError, KeyError, ValueError) as e:
+        raise InputError(path, f"is not gsplat's test_garden.npz ({e})") from None
+    sh = np.concatenate([g.sh, rng.normal(0, 0.15, (len(g), 15, 3))], axis=1)
+    model = GaussianModel(means=g.means, log_scales=g.log_scales, quats=g.quats, opacity_logits=g.opacity_logits,
+                          sh=sh)
+    name = f"garden {cams[0].width}x{cams[0].height}"
+    say(f"{name}: {len(model):,} Gaussians ...")
+    return frame_case(rt, suite, name, model, cams, suite.iterations)
+
+
+def gsplat_side(rt: Runtime, case: dict, suite: Suite) -> dict:
+    """The case's frames through gsplat (apps/gsplat_frames.py), with its first view's image against ours."""
+    from .gsplat_frames import time_gsplat
+    model, cams, background = case["frames"]
+    ours = Renderer(rt).render(DeviceGaussians(rt, model), cams[0], model.sh_degree, background).image(rt)
+    iterations = suite.synthetic_iterations if len(model) >= suite.synthetic_gaussians else suite.iterations
+    return time_gsplat(model, cams, background, ours, suite.rounds, iterations, GSPLAT_ABSGRAD)
 
 
 def rel_l2(got, want) -> float:
@@ -298,16 +342,38 @@ def environment(rt: Runtime) -> dict:
             "python": platform.python_version(), "os": platform.platform()}
 
 
-def run_suite(rt: Runtime, suite: Suite, say=lambda line: None) -> dict:
+def run_suite(rt: Runtime, suite: Suite, say=lambda line: None, garden: Path | None = None,
+              gsplat: bool = False) -> dict:
+    """The suite's cases (with the garden asset's where given), each also through gsplat where asked."""
     report = {"suite_version": SUITE_VERSION, "suite": "quick" if suite == QUICK else "full",
               "settings": asdict(suite), "created": datetime.now(timezone.utc).isoformat(timespec="seconds"),
               "environment": environment(rt)}
     start = time.perf_counter()
-    report["cases"] = builtin_cases(rt, suite, say) + [synthetic_case(rt, suite, say)]
+
+    def done(case: dict) -> dict:   # its frames through gsplat where asked, then let go of them
+        if gsplat:
+            say(f"{case['name']} through gsplat ...")
+            case["gsplat"] = gsplat_side(rt, case, suite)
+        del case["frames"]
+        return case
+
+    cases = [done(case) for case in builtin_cases(rt, suite, say)] + [done(synthetic_case(rt, suite, say))]
+    if garden is not None:
+        cases.append(done(garden_case(rt, suite, garden, say)))
+    report["cases"] = cases
     say("accuracy against the float64 references ...")
     report["accuracy"] = accuracy(rt, suite)
     report["seconds"] = round(time.perf_counter() - start, 1)
     return report
+
+
+def gsplat_ratios(case: dict) -> dict[str, tuple[float, float]]:
+    """Per run of the case that gsplat ran too: (gsplat's wall ms, ours / gsplat)."""
+    side = case.get("gsplat")
+    if side is None:
+        return {}
+    theirs = {"forward": side["forward"]["wall_ms"], **{f"train {t}": m["wall_ms"] for t, m in side["train"].items()}}
+    return {run: (theirs[run], m["wall_ms"] / theirs[run]) for run, m in case_runs(case).items() if run in theirs}
 
 
 # reports --------------------------------------------------------------------------------------------------
@@ -329,6 +395,9 @@ def measurements(report: dict) -> dict[tuple[str, str, str], float]:
                 out[(case["name"], run, COUNTS[quantity])] = m[quantity]
             if "bytes_per_gaussian" in m:
                 out[(case["name"], run, "peak bytes / Gaussian")] = m["bytes_per_gaussian"]
+        for run, (theirs, ratio) in gsplat_ratios(case).items():
+            out[(case["name"], run, "gsplat wall ms")] = theirs
+            out[(case["name"], run, "ours / gsplat")] = ratio
     for row in report["accuracy"]:
         out[("accuracy", row["stage"], row["quantity"])] = row["rel_l2"]
     return out
@@ -360,6 +429,13 @@ def markdown(report: dict) -> str:
         lines.append("| peak bytes / Gaussian | " + " | ".join(f"{m['bytes_per_gaussian']:,.0f}"
                                                              if "bytes_per_gaussian" in m else "" for m in runs.values())
                      + " |")
+        if ratios := gsplat_ratios(case):
+            side = case["gsplat"]
+            lines.append("| gsplat wall | " + " | ".join(f"{ratios[r][0]:.2f}" if r in ratios else "" for r in runs) + " |")
+            lines.append("| **ours / gsplat** | " + " | ".join(f"**{ratios[r][1]:.2f}**" if r in ratios else ""
+                                                           for r in runs) + " |")
+            lines += ["", f"gsplat: the same Gaussians and cameras (its first view against ours: "
+                          f"{side['image_psnr_db']:.1f} dB PSNR); beside AbsGS + DC4GS, its AbsGS (absgrad)."]
         lines.append("")
     n, w, h = report["settings"]["accuracy_case"]
     lines += [f"## Accuracy against the float64 references ({n:,} random Gaussians, {w}x{h})", "",
@@ -410,10 +486,16 @@ def cmd_bench(args) -> int:
     if args.compare:
         print("\n".join(compare(*(read_report(p) for p in args.compare))))
         return 0
+    if args.garden is not None and not args.garden.is_file():
+        raise InputError(args.garden, "does not exist (--garden takes gsplat's test_garden.npz)")
+    if args.gsplat:
+        from .gsplat_frames import available
+        if (why := available()) is not None:
+            raise InputError(None, f"--gsplat needs torch and gsplat with a CUDA device: {why}")
     rt = Runtime(args.device, profiling=True)
     say = lambda line: print(line, file=sys.stderr, flush=True)
     say(f"device: {describe(rt.device)}")
-    report = run_suite(rt, QUICK if args.quick else FULL, say)
+    report = run_suite(rt, QUICK if args.quick else FULL, say, args.garden, args.gsplat)
     text = markdown(report)
     stem = args.out / report_stem(report["environment"])
     try:

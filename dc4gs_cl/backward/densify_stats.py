@@ -46,5 +46,5 @@ class DensifyStats(Stage):
             return
         geometry = split_geometry if split_geometry is not None else sums   # unread without split candidates
         self.rt.launch_items("densify_stats", self.kernels(fold.defines)["densify_stats"], n, PER_GAUSSIAN_WG,
-                             np.uint32(n), *fold.args(res), sums, geometry, fold.rows)
+                             self.ctx.frame, np.uint32(n), *fold.args(res), sums, geometry, fold.rows)
         self.check(lambda: fold.download(self.rt, n))

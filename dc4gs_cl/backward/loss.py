@@ -83,8 +83,8 @@ class Loss(Stage):
         if grad_out is not None:
             rt.launch(stage, self.k_grad, shape, local, *args, np.float32((1 - LAMBDA_DSSIM) / scale), image, target,
                       *d, grad_out)
-        rt.launch(stage, self.k_reduce, self.wg, self.wg, np.int32(groups_x * h), np.float32(1 / scale), partial,
-                  self.stats)
+        rt.launch(stage, self.k_reduce, self.wg, self.wg, self.ctx.frame, np.int32(groups_x * h),
+                  np.float32(1 / scale), partial, self.stats)
         self.calls += 1
         if grad_out is not None:
             self.check(lambda: {"dL_dimage": rt.to_host(grad_out, (h, width, 3))})

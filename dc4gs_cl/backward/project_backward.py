@@ -43,5 +43,5 @@ class ProjectBackward(Stage):
         if n == 0:
             return
         k = self.kernels({"SH_COEFFS": g.sh_coeffs, "FUSED_ADAM": int(fused), **layout.defines()})["project_backward"]
-        self.rt.launch_items("project_backward", k, n, PER_GAUSSIAN_WG, np.int32(n), camera_value(cam),
+        self.rt.launch_items("project_backward", k, n, PER_GAUSSIAN_WG, self.ctx.frame, np.int32(n), camera_value(cam),
                              np.int32(min(sh_degree, g.sh_degree)), *g.ordered(), res.proj.radius, sums, *outputs)

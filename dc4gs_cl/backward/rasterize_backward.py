@@ -124,7 +124,7 @@ class RasterizeBackward(Stage):
         if layout.split_candidates and geometry is None:
             raise ValueError("split costs need the split geometry of the view")
         rt, tuning = self.rt, self.ctx.tuning
-        n, p, tiles = res.proj.n, res.isect.n_pairs, res.tiles_x * res.tiles_y
+        n, p, tiles = res.proj.n, res.isect.pair_bound, res.tiles_x * res.tiles_y
         runs = [(0, tiles, 0, p)]
         if tuning.pair_sums:
             budget = max(math.ceil(tuning.pair_chunk * n), 1)

@@ -36,7 +36,7 @@ class Members(NamedTuple):
     """The Gaussians with a pair in one run of tiles (past the first) of a view walked in runs: sum_pairs covers
     these alone, where each run would otherwise look at every Gaussian (kernels/sum_pairs.cl, run_members)."""
     ids: cl.Buffer       # [count] uint
-    count: int
+    count: cl.Buffer     # [1] uint, on the device (sum_pairs reads it there)
 
 
 class SumPairs(Stage):
@@ -57,21 +57,23 @@ class SumPairs(Stage):
             raise ValueError(f"{len(runs)} runs of tiles: a Gaussian's runs are kept in 16 bits each")
         spanning = self.ws.get(SPANNING, 4)
         run_ends = self.ws.get(RUN_ENDS, 4 * len(runs))
-        rt.write(run_ends, np.array([r[3] for r in runs], np.uint32))
+        rt.write_async(run_ends, np.array([r[3] for r in runs], np.uint32))
         rt.fill(spanning, np.uint32(0), 4)
-        rt.launch_items("sum_pairs", self.variant(layout, window)["run_spans"], n, PER_GAUSSIAN_WG, np.uint32(n),
+        rt.launch_items("sum_pairs", self.variant(layout, window)["run_spans"], n, PER_GAUSSIAN_WG, self.ctx.frame,
+                        np.uint32(n),
                         np.uint32(len(runs)), run_ends, res.proj.tiles_touched, res.isect.pair_first,
                         res.isect.pair_of_emission, self.ws.get(RUN_SPANS, 4 * max(n, 1)), spanning)
         return int(rt.to_host(spanning, 1, np.uint32)[0])
 
     def members(self, res: RenderResult, layout: SumsLayout, window: WindowFold | None, run: int) -> Members:
-        """The Gaussians with a pair in run `run`, from the last run_spans (listed on the device, counted back)."""
+        """The Gaussians with a pair in run `run`, from the last run_spans (listed and counted on the device)."""
         rt, n = self.rt, res.proj.n
         ids, count = self.ws.get(RUN_MEMBERS, 4 * max(n, 1)), self.ws.get(RUN_COUNT, 4)
         rt.fill(count, np.uint32(0), 4)
-        rt.launch_items("sum_pairs", self.variant(layout, window)["run_members"], n, PER_GAUSSIAN_WG, np.uint32(n),
+        rt.launch_items("sum_pairs", self.variant(layout, window)["run_members"], n, PER_GAUSSIAN_WG, self.ctx.frame,
+                        np.uint32(n),
                         np.uint32(run), self.ws.get(RUN_SPANS, 4 * max(n, 1)), ids, count)
-        return Members(ids, int(rt.to_host(count, 1, np.uint32)[0]))
+        return Members(ids, count)
 
     def carry(self, layout: SumsLayout, n: int, spanning: int) -> Carry:
         """The carry of a view walked in runs of tiles, with a row for each of the `spanning` Gaussians whose pairs
@@ -90,13 +92,13 @@ class SumPairs(Stage):
         view's carry): fold the view into it, each Gaussian in the run holding its last pair; sums are then
         N x GRADIENTS.width."""
         n = res.proj.n
-        items = members.count if members is not None else n
-        if items:
+        if n:
             folding = [*window.args(res), window.rows, *carry] if window is not None else []
-            listed = [np.int32(members is not None), np.uint32(items), members.ids if members is not None else sums]
-            self.rt.launch_items("sum_pairs", self.variant(layout, window)["sum_pairs"], items, PER_GAUSSIAN_WG,
-                                 np.uint32(n), np.uint32(pair0), np.uint32(pair_end), np.int32(pair0 > 0), *listed,
-                                 res.proj.tiles_touched, res.isect.pair_first, res.isect.pair_of_emission, pair_sums,
+            listed = [np.int32(1), members.count, members.ids] if members is not None else [np.int32(0), sums, sums]
+            self.rt.launch_items("sum_pairs", self.variant(layout, window)["sum_pairs"], n, PER_GAUSSIAN_WG,
+                                 self.ctx.frame, np.uint32(n), np.uint32(pair0), np.uint32(pair_end),
+                                 np.int32(pair0 > 0), *listed, res.proj.tiles_touched, res.isect.pair_first,
+                                 res.isect.pair_of_emission, pair_sums,
                                  split_geometry, *folding, sums)
-        if window is not None and pair_end == res.isect.n_pairs:
+        if window is not None and pair_end == res.isect.pair_bound:
             self.check(lambda: window.download(self.rt, n))

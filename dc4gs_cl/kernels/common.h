@@ -29,6 +29,11 @@
 #define UNPACKED_WORK_ITEMS
 #endif
 
+// A frame whose pairs overflowed the capacity it was given (frame [FRAME_WORDS] uint, constants.py): the kernels
+// that change lasting state (parameters, Adam's moments, the window, the loss' sums) or read every pair of a
+// Gaussian return at once, so that the iteration can run again as if it never had.
+#define FRAME_VOID(frame) ((frame)[FRAME_OVERFLOWED] != 0u)
+
 #define MINF(a, b) ((a) < (b) ? (a) : (b))
 #define MAXF(a, b) ((a) > (b) ? (a) : (b))
 #define CLAMPF(x, lo, hi) MINF(MAXF((x), (lo)), (hi))

@@ -38,13 +38,13 @@
 #include "window_fold.h"
 
 __kernel UNPACKED_WORK_ITEMS
-void densify_stats(const uint n, const float ndc_x, const float ndc_y, const float depth_scale,
+void densify_stats(__global const uint *frame, const uint n, const float ndc_x, const float ndc_y, const float depth_scale,
                    const float track_threshold,
                    __global const int *radius, __global const float *depth,
                    __global const float *sums, __global const float *split_geometry,
                    __global float *window) {
     uint i = get_global_id(0);
-    if (i >= n) return;
+    if (i >= n || FRAME_VOID(frame)) return;
     float s[SUM_WIDTH];
     for (int k = 0; k < SUM_WIDTH; ++k) s[k] = sums[(size_t)i * SUM_WIDTH + k];
     fold_view_sums(i, s, ndc_x, ndc_y, depth_scale, track_threshold, radius, depth, split_geometry, window);

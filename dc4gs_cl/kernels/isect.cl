@@ -4,18 +4,22 @@
 // depth once (V keys), their (tile, Gaussian) pairs are emitted in that order, and a stable sort by
 // tile id alone (ceil(log2(tiles)) bits) leaves every tile's pairs front to back.
 // Only Gaussians with pairs take part ("visible" below): culled ones emit no keys at all.
+// The frame's counts live on the device, frame [FRAME_WORDS] uint (constants.py): V (the flag scan's total), the
+// depth keys' range, P (the count scan's total), and whether P overflowed the pair capacity C the buffers were
+// given. The kernels take V and P from there, launched for all N and for C, so the host reads nothing back first.
 //   compact_visible:    tiles_touched [N], visible_offset [N] (exclusive scan of tiles_touched != 0), depth [N]
 //                       -> visible_ids [V], depth_keys [V] (uint bits of the positive depth, which sort
-//                       like the floats), counters [4] uint: [1], [2] get the atomic min, max of the keys
+//                       like the floats), frame: atomic min and max of the keys
 //   gather_tile_counts: ids_by_depth [V], tiles_touched [N] -> counts [V]
 //   emit_pairs:         ids_by_depth [V], pair_offset [V] (exclusive scan of counts), mean2d [N*2],
-//                       radius [N], alpha_extent [N*2] -> per pair in emission order e: tile_of_emission [P],
-//                       emission [P] (= e, the values the tile sort carries), gaussian_of_emission [P];
-//                       per visible Gaussian g: pair_first [N], its first e (its pairs are e .. e + tiles - 1)
-//   (stable sort of (tile_of_emission, emission) by tile)
-//   gather_pairs:       emission_sorted [P], gaussian_of_emission [P] -> gaussian_of_pair [P] (the list the
-//                       rasterizer walks), pair_of_emission [P] (where each emitted pair landed)
-//   tile_ranges:        tile_of_pair [P] (sorted by tile) -> ranges [tiles*2] (first pair, end pair);
+//                       radius [N], alpha_extent [N*2] -> per pair in emission order e < C: tile_of_emission [C],
+//                       emission [C] (= e, the values the tile sort carries), gaussian_of_emission [C];
+//                       per visible Gaussian g: pair_first [N], its first e (its pairs are e .. e + tiles - 1);
+//                       frame's OVERFLOWED where P > C (the pairs from C on are not written)
+//   (stable sort of (tile_of_emission, emission) by tile, of the first min(P, C))
+//   gather_pairs:       emission_sorted [C], gaussian_of_emission [C] -> gaussian_of_pair [C] (the list the
+//                       rasterizer walks), pair_of_emission [C] (where each emitted pair landed)
+//   tile_ranges:        tile_of_pair [C] (sorted by tile) -> ranges [tiles*2] (first pair, end pair);
 //                       the host zero-fills ranges first, so empty tiles stay (0, 0)
 
 #include "tiles.h"
@@ -23,7 +27,7 @@
 __kernel __attribute__((reqd_work_group_size(ISECT_WG, 1, 1)))
 void compact_visible(const uint n, __global const uint *tiles_touched, __global const uint *visible_offset,
                      __global const float *depth, __global uint *visible_ids, __global uint *depth_keys,
-                     __global uint *counters) {
+                     __global uint *frame) {
     __local uint lo[ISECT_WG], hi[ISECT_WG];
     uint i = get_global_id(0), lid = get_local_id(0);
     uint kmin = 0xffffffffu, kmax = 0u;
@@ -41,30 +45,33 @@ void compact_visible(const uint n, __global const uint *tiles_touched, __global 
         if (lid < off) { lo[lid] = min(lo[lid], lo[lid + off]); hi[lid] = max(hi[lid], hi[lid + off]); }
     }
     if (lid == 0) {
-        atomic_min(&counters[1], lo[0]);
-        atomic_max(&counters[2], hi[0]);
+        atomic_min(&frame[FRAME_DEPTH_KEY_MIN], lo[0]);
+        atomic_max(&frame[FRAME_DEPTH_KEY_MAX], hi[0]);
     }
 }
 
-__kernel void gather_tile_counts(const uint v, __global const uint *ids_by_depth,
+__kernel void gather_tile_counts(__global const uint *frame, __global const uint *ids_by_depth,
                                  __global const uint *tiles_touched, __global uint *counts) {
     uint i = get_global_id(0);
-    if (i < v) counts[i] = tiles_touched[ids_by_depth[i]];
+    if (i < frame[FRAME_VISIBLE]) counts[i] = tiles_touched[ids_by_depth[i]];
 }
 
-__kernel void emit_pairs(const uint v, const int tiles_x, const int tiles_y, __global const uint *ids_by_depth,
+__kernel void emit_pairs(__global uint *frame, const uint capacity, const int tiles_x, const int tiles_y,
+                         __global const uint *ids_by_depth,
                          __global const uint *pair_offset, __global const float *mean2d,
                          __global const int *radius, __global const float *alpha_extent,
                          __global uint *tile_of_emission, __global uint *emission,
                          __global uint *gaussian_of_emission, __global uint *pair_first) {
     uint i = get_global_id(0);
-    if (i >= v) return;
+    if (i >= frame[FRAME_VISIBLE]) return;
     uint g = ids_by_depth[i];
     int4 rect = pair_rect(vload2(g, mean2d), (float)radius[g], vload2(g, alpha_extent), tiles_x, tiles_y);
     uint at = pair_offset[i];
     pair_first[g] = at;
+    // the one Gaussian whose pairs reach past the capacity says so (P > C)
+    if (at <= capacity && capacity < at + (uint)((rect.z - rect.x) * (rect.w - rect.y))) frame[FRAME_OVERFLOWED] = 1u;
     for (int ty = rect.y; ty < rect.w; ++ty)
-        for (int tx = rect.x; tx < rect.z; ++tx) {
+        for (int tx = rect.x; tx < rect.z && at < capacity; ++tx) {
             tile_of_emission[at] = (uint)(ty * tiles_x + tx);
             emission[at] = at;
             gaussian_of_emission[at] = g;
@@ -72,17 +79,19 @@ __kernel void emit_pairs(const uint v, const int tiles_x, const int tiles_y, __g
         }
 }
 
-__kernel void gather_pairs(const uint p, __global const uint *emission_sorted, __global const uint *gaussian_of_emission,
-                           __global uint *gaussian_of_pair, __global uint *pair_of_emission) {
+__kernel void gather_pairs(__global const uint *frame, const uint capacity, __global const uint *emission_sorted,
+                           __global const uint *gaussian_of_emission, __global uint *gaussian_of_pair,
+                           __global uint *pair_of_emission) {
     uint i = get_global_id(0);
-    if (i >= p) return;
+    if (i >= min(frame[FRAME_PAIRS], capacity)) return;
     uint e = emission_sorted[i];
     gaussian_of_pair[i] = gaussian_of_emission[e];
     pair_of_emission[e] = i;
 }
 
-__kernel void tile_ranges(const uint p, __global const uint *tile_of_pair, __global uint *ranges) {
-    uint i = get_global_id(0);
+__kernel void tile_ranges(__global const uint *frame, const uint capacity, __global const uint *tile_of_pair,
+                          __global uint *ranges) {
+    uint i = get_global_id(0), p = min(frame[FRAME_PAIRS], capacity);
     if (i >= p) return;
     uint t = tile_of_pair[i];
     if (i == 0 || tile_of_pair[i - 1] != t) ranges[2 * t] = i;

@@ -27,6 +27,8 @@
 // `vectorize(enable)` lets it reorder the loops' float sums (no fast-math needed), `restrict` rules out
 // aliasing between the buffers. GPUs use SEG = 1, WG = 256.
 
+#include "common.h"
+
 #define RADIUS SSIM_RADIUS
 #define TAPS (2 * RADIUS + 1)
 #define PAD (3 * RADIUS)             // floats either side of a group's span that its taps reach
@@ -175,7 +177,9 @@ void loss_grad(const int n3w, const int h, const float l1scale, GLOBAL_IN x, GLO
 // One work-group of WG items: compensated strided sums of the partials (there can be thousands), then a
 // tree; adds this image's means to stats.
 __kernel __attribute__((reqd_work_group_size(WG, 1, 1)))
-void loss_reduce(const int groups, const float inv_m, GLOBAL_IN partial, __global float *stats) {
+void loss_reduce(__global const uint *frame, const int groups, const float inv_m, GLOBAL_IN partial,
+                 __global float *stats) {
+    if (FRAME_VOID(frame)) return;   // every item: the sums stay as they were
     __local float red[3 * WG];
     float s[3] = {0.0f, 0.0f, 0.0f}, lost[3] = {0.0f, 0.0f, 0.0f};
     for (int g = get_local_id(0); g < groups; g += WG)

@@ -157,7 +157,7 @@ ALWAYS_INLINE void visible_gradients(int i, const Camera cam, int sh_degree, PAR
 
 
 __kernel UNPACKED_WORK_ITEMS
-void project_backward(const int n, const Camera cam, const int sh_degree,
+void project_backward(__global const uint *frame, const int n, const Camera cam, const int sh_degree,
                       PARAM *means, PARAM *log_scales, PARAM *quats, PARAM *opacity_logits, PARAM *sh,
                       __global const int *radius, __global const float *sums,
 #if FUSED_ADAM
@@ -173,7 +173,7 @@ void project_backward(const int n, const Camera cam, const int sh_degree,
 #endif
                       ) {
     int i = get_global_id(0);
-    if (i >= n) return;
+    if (i >= n || FRAME_VOID(frame)) return;   // a void frame: parameters and moments stay as they were
     // Not visible: zero gradients (Adam still steps, on its moments alone). One emit section for both.
     float3 g_means = (float3)(0.f), g_scales = (float3)(0.f), v_colour = (float3)(0.f);
     float4 g_quat = (float4)(0.f);

@@ -1,13 +1,15 @@
 // scan.cl: exclusive prefix sum of uint (reduce, then scan), a reusable primitive.
 //
-// The input is cut into contiguous items of `item_len` elements; each work-item walks its item
-// sequentially (cache-friendly on CPUs), a work-group of SCAN_WG items forms a block.
+// The n elements (runs.h element_count: `bound`, or a count the device wrote, count[count_at]) are cut into
+// contiguous items of the same length, one per work-item of the launch, each walked in sequence
+// (cache-friendly on CPUs); a work-group of SCAN_WG items forms a block.
 //   scan_reduce: in [n] -> block_sums [groups]
 //   scan_sums:   one work-item scans block_sums in place and stores the grand total in total[total_at]
 //   scan_apply:  in [n] -> out [n] exclusive sums (out may alias in)
 // -D SCAN_WG: work-group size (power of two). -D SCAN_FLAGS=1: scan (x != 0) instead of x (compaction).
 
 #include "common.h"
+#include "runs.h"
 
 REQUIRE_DEFINED(SCAN_FLAGS);
 
@@ -23,27 +25,12 @@ inline uint item_sum(uint n, uint item_len, __global const uint *in, uint start)
     return s;
 }
 
-// Exclusive scan of part[SCAN_WG] in local memory (Hillis-Steele on the inclusive sums); returns this
-// item's exclusive value and leaves the work-group total in *total.
-inline uint work_group_exclusive(__local uint *part, uint mine, uint *total) {
-    uint lid = get_local_id(0);
-    part[lid] = mine;
-    barrier(CLK_LOCAL_MEM_FENCE);
-    for (uint off = 1; off < SCAN_WG; off <<= 1) {
-        uint add = lid >= off ? part[lid - off] : 0u;
-        barrier(CLK_LOCAL_MEM_FENCE);
-        part[lid] += add;
-        barrier(CLK_LOCAL_MEM_FENCE);
-    }
-    *total = part[SCAN_WG - 1];
-    return part[lid] - mine;
-}
-
 __kernel __attribute__((reqd_work_group_size(SCAN_WG, 1, 1)))
-void scan_reduce(const uint n, const uint item_len, __global const uint *in, __global uint *block_sums) {
+void scan_reduce(const uint bound, __global const uint *count, const uint count_at, __global const uint *in,
+                 __global uint *block_sums) {
     __local uint part[SCAN_WG];
-    uint total;
-    work_group_exclusive(part, item_sum(n, item_len, in, get_global_id(0) * item_len), &total);
+    uint n = element_count(bound, count, count_at), item_len = run_length(n, get_global_size(0), 1u), total;
+    group_exclusive_sum(part, item_sum(n, item_len, in, get_global_id(0) * item_len), SCAN_WG, &total);
     if (get_local_id(0) == 0) block_sums[get_group_id(0)] = total;
 }
 
@@ -54,11 +41,12 @@ __kernel void scan_sums(const uint groups, __global uint *block_sums, __global u
 }
 
 __kernel __attribute__((reqd_work_group_size(SCAN_WG, 1, 1)))
-void scan_apply(const uint n, const uint item_len, __global const uint *in, __global uint *out,
-                __global const uint *block_sums) {
+void scan_apply(const uint bound, __global const uint *count, const uint count_at, __global const uint *in,
+                __global uint *out, __global const uint *block_sums) {
     __local uint part[SCAN_WG];
-    uint start = get_global_id(0) * item_len, total;
-    uint s = block_sums[get_group_id(0)] + work_group_exclusive(part, item_sum(n, item_len, in, start), &total);
+    uint n = element_count(bound, count, count_at), item_len = run_length(n, get_global_size(0), 1u), total;
+    uint start = get_global_id(0) * item_len;
+    uint s = block_sums[get_group_id(0)] + group_exclusive_sum(part, item_sum(n, item_len, in, start), SCAN_WG, &total);
     uint end = min(n, start + item_len);
     for (uint i = start; i < end; ++i) { uint v = SCAN_VALUE(in[i]); out[i] = s; s += v; }
 }

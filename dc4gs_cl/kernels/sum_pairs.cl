@@ -38,8 +38,9 @@ ALWAYS_INLINE void add_slots(const uint g, const uint pair0, const uint pair_end
 //   in  tiles_touched [N], pair_first [N], pair_of_emission [P]: from isect.cl;
 //       pair_sums [(pair_end - pair0)*SUM_WIDTH]; split_geometry [N*GEO_WIDTH] with SPLIT_CANDIDATES
 //   out sums [N*SUM_WIDTH] (in and out with accumulate)
-// listed = 1: the launch covers only the Gaussians with a pair in this run (run past the first), work-item i
-// taking members [i] for i < count (run_members); otherwise work-item g takes Gaussian g of all n.
+// listed = 1: the work covers only the Gaussians with a pair in this run (run past the first), work-item i taking
+// members [i] for i < listed_count [0] (run_members; the launch is sized for all n, so that the host reads no count
+// back); otherwise work-item g takes Gaussian g of all n.
 // -D FOLD_WINDOW=1: each Gaussian's sums are folded into the densification window here (window_fold.h; the
 // window's arguments and -D options as densify_stats.cl's), and only the gradients reach memory: sums
 // [N*GRADIENT_WIDTH], the SUM record's first GRADIENT_WIDTH fields. A Gaussian is folded in the run holding its
@@ -49,8 +50,8 @@ ALWAYS_INLINE void add_slots(const uint g, const uint pair0, const uint pair_end
 // counted). The rows are taken in any order; each Gaussian's sums still add its pairs in emission order, so a
 // frame gives the same window and gradients, bit for bit, in one run or in many (accumulate unused).
 __kernel UNPACKED_WORK_ITEMS
-void sum_pairs(const uint n, const uint pair0, const uint pair_end, const int accumulate,
-               const int listed, const uint count_listed, __global const uint *members,
+void sum_pairs(__global const uint *frame, const uint n, const uint pair0, const uint pair_end, const int accumulate,
+               const int listed, __global const uint *listed_count, __global const uint *members,
                __global const uint *tiles_touched, __global const uint *pair_first,
                __global const uint *pair_of_emission, __global const float *pair_sums,
                __global const float *split_geometry,
@@ -60,8 +61,9 @@ void sum_pairs(const uint n, const uint pair0, const uint pair_end, const int ac
                __global uint *carry_slot, __global uint *carried, __global float *carry,
 #endif
                __global float *sums) {
+    if (FRAME_VOID(frame)) return;   // every item: its pairs reach past the buffers, and the window stays
     const uint item = get_global_id(0);
-    const uint g = !listed ? item : item < count_listed ? members[item] : n;     // n: no Gaussian
+    const uint g = !listed ? item : item < listed_count[0] ? members[item] : n;     // n: no Gaussian
     float acc[SUM_WIDTH];
 #if FOLD_WINDOW
     // Where this run holds the Gaussian's first and last pair (pairs increase with emissions); a frame walked in
@@ -124,9 +126,10 @@ inline uint run_of_pair(const uint q, const uint runs, __global const uint *run_
     return lo;
 }
 
-__kernel void run_spans(const uint n, const uint runs, __global const uint *run_ends,
+__kernel void run_spans(__global const uint *frame, const uint n, const uint runs, __global const uint *run_ends,
                         __global const uint *tiles_touched, __global const uint *pair_first,
                         __global const uint *pair_of_emission, __global uint *spans, __global uint *spanning) {
+    if (FRAME_VOID(frame)) return;   // every item: its pairs reach past the buffers (none spans, then)
     __local uint group_spanning;
     const uint g = get_global_id(0);
     if (get_local_id(0) == 0) group_spanning = 0;
@@ -148,8 +151,9 @@ __kernel void run_spans(const uint n, const uint runs, __global const uint *run_
 
 // The Gaussians with a pair in run `run` (from run_spans), listed in members [count [0]] (the host zeroes the count):
 // a work-group lists its own in one block, taken with one atomic on count.
-__kernel void run_members(const uint n, const uint run, __global const uint *spans, __global uint *members,
-                          __global uint *count) {
+__kernel void run_members(__global const uint *frame, const uint n, const uint run, __global const uint *spans,
+                          __global uint *members, __global uint *count) {
+    if (FRAME_VOID(frame)) return;   // every item: no spans were written (none is a member, then)
     __local uint group_count, group_base;
     const uint g = get_global_id(0);
     if (get_local_id(0) == 0) group_count = 0;

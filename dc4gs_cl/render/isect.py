@@ -1,5 +1,12 @@
 """Tile intersection stage (kernels/isect.cl): visible Gaussians sorted by depth, their (tile, Gaussian)
-pairs emitted in that order and stably sorted by tile, and each tile's range of pairs."""
+pairs emitted in that order and stably sorted by tile, and each tile's range of pairs.
+
+The frame's counts stay on the device (StageContext.frame, constants.FRAME_WORDS) and the kernels take them from
+there: the depth sort sorts every bit a depth key can have (DEPTH_KEY_BITS), where only those that differ would
+need the keys' range read back first (at 8-bit digits the same passes unless the frame's depths span less than a
+factor of 2^17, one pass more at most). Given a pair capacity, the host reads nothing back: the pair buffers hold
+that many, and a frame with more says so on the device (the trainer runs the iteration again with room);
+without one, it reads the counts once, when the pairs are counted, and sizes the buffers to fit."""
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -7,22 +14,28 @@ from dataclasses import dataclass
 import numpy as np
 import pyopencl as cl
 
+from ..constants import FRAME_WORDS
 from .project import Projected
 from .scan import ExclusiveScan
 from .sort import RadixSort
 from .stage import Stage, StageContext
 
+DEPTH_KEY_BITS = 31   # a depth key is the float bits of a depth beyond the near plane: positive, the sign bit 0
+FRAME_START = np.array([0xFFFFFFFF if word == "DEPTH_KEY_MIN" else 0 for word in FRAME_WORDS], np.uint32)
+FRAME = {word: i for i, word in enumerate(FRAME_WORDS)}
+
 
 @dataclass
 class Intersections:
-    n_visible: int
-    n_pairs: int
+    n_visible: int | None        # None where the frame was given a pair capacity (the counts stay on the device)
+    n_pairs: int | None
+    pair_bound: int              # C, the pairs the buffers hold: the capacity given, else n_pairs
     ranges: cl.Buffer            # [tiles*2] uint (first pair, end pair)
-    gaussian_of_pair: cl.Buffer  # [P] uint, grouped by tile, front to back inside a tile
-    tile_of_pair: cl.Buffer      # [P] uint
-    pair_of_emission: cl.Buffer  # [P] uint: Gaussian g's pairs sit at pair_of_emission[pair_first[g] + k],
+    gaussian_of_pair: cl.Buffer  # [C] uint, grouped by tile, front to back inside a tile
+    tile_of_pair: cl.Buffer      # [C] uint
+    pair_of_emission: cl.Buffer  # [C] uint: Gaussian g's pairs sit at pair_of_emission[pair_first[g] + k],
     pair_first: cl.Buffer        # [N] uint   k < tiles_touched[g] (valid where tiles_touched > 0)
-    depth_bits: int              # key bits the depth sort used
+    depth_bits: int              # key bits the depth sort used (DEPTH_KEY_BITS, fewer with depth_sort_bits)
     tile_bits: int               # key bits the tile sort used
 
 
@@ -42,59 +55,68 @@ class Intersect(Stage):
         k = self.kernels()
         self.k_compact, self.k_gather, self.k_emit = k["compact_visible"], k["gather_tile_counts"], k["emit_pairs"]
         self.k_gather_pairs, self.k_ranges = k["gather_pairs"], k["tile_ranges"]
-        self.counters = self.rt.buffer(16)   # visible count, depth key min, depth key max, pair count
 
     def defines(self) -> dict:
         return {**self.ctx.options.defines(), "ISECT_WG": self.ctx.tuning.isect_wg}
 
-    def __call__(self, proj: Projected, tiles_x: int, tiles_y: int) -> Intersections:
-        rt, ws, n = self.rt, self.ws, proj.n
+    def __call__(self, proj: Projected, tiles_x: int, tiles_y: int, pair_capacity: int | None = None) -> Intersections:
+        """pair_capacity: the pairs to make room for, nothing read back (a frame with more sets the frame's
+        OVERFLOWED on the device); None: the counts read back once and the buffers sized to fit."""
+        rt, ws, n, frame = self.rt, self.ws, proj.n, self.ctx.frame
         wg = self.tuning.isect_wg
         tiles = tiles_x * tiles_y
-        counters = np.array([0, 0xFFFFFFFF, 0, 0], np.uint32)
-        rt.write(self.counters, counters)
+        rt.write_async(frame, FRAME_START)
         visible_ids = ws.get("isect.visible_ids", 4 * n)
         depth_keys = ws.get("isect.depth_keys", 4 * n)
         if n:
             offsets = ws.get("isect.visible_offset", 4 * n)
-            self.flag_scan(proj.tiles_touched, offsets, n, self.counters, 0, stage="isect")
+            self.flag_scan(proj.tiles_touched, offsets, n, frame, FRAME["VISIBLE"], stage="isect")
             rt.launch_items("isect", self.k_compact, n, wg, np.uint32(n), proj.tiles_touched, offsets,
-                      proj.depth, visible_ids, depth_keys, self.counters)
-            cl.enqueue_copy(rt.queue, counters, self.counters)
-        v, kmin, kmax = int(counters[0]), int(counters[1]), int(counters[2])
+                      proj.depth, visible_ids, depth_keys, frame)
+        lo, hi = 0, DEPTH_KEY_BITS
+        if self.depth_sort_bits is not None:   # the top bits of those that differ: the keys' range read back first
+            counts = rt.to_host(frame, len(FRAME_WORDS), np.uint32)
+            kmin, kmax = int(counts[FRAME["DEPTH_KEY_MIN"]]), int(counts[FRAME["DEPTH_KEY_MAX"]])
+            hi = (kmin ^ kmax).bit_length() if kmin <= kmax else 0
+            lo = max(0, hi - self.depth_sort_bits)
+        _, ids_by_depth = self.sort(depth_keys, visible_ids, n, lo, hi, stage="sort", count=frame,
+                                    count_at=FRAME["VISIBLE"])
 
-        depth_bits = (kmin ^ kmax).bit_length() if v > 1 else 0
-        lo = 0 if self.depth_sort_bits is None else max(0, depth_bits - self.depth_sort_bits)
-        _, ids_by_depth = self.sort(depth_keys, visible_ids, v, lo, depth_bits, stage="sort")
+        pair_offset = ws.get("isect.pair_offset", 4 * n)
+        if n:
+            rt.launch_items("isect", self.k_gather, n, wg, frame, ids_by_depth, proj.tiles_touched, pair_offset)
+        self.count_scan(pair_offset, pair_offset, n, frame, FRAME["PAIRS"], stage="isect", count=frame,
+                        count_at=FRAME["VISIBLE"])
+        v = p = None
+        if pair_capacity is None:
+            counts = rt.to_host(frame, len(FRAME_WORDS), np.uint32)
+            v, p = int(counts[FRAME["VISIBLE"]]), int(counts[FRAME["PAIRS"]])
+        c = p if pair_capacity is None else pair_capacity
 
-        pair_offset = ws.get("isect.pair_offset", 4 * v)
-        if v:
-            rt.launch_items("isect", self.k_gather, v, wg, np.uint32(v), ids_by_depth,
-                      proj.tiles_touched, pair_offset)
-        self.count_scan(pair_offset, pair_offset, v, self.counters, 3, stage="isect")
-        cl.enqueue_copy(rt.queue, counters, self.counters)
-        p = int(counters[3])
-
-        tile_of_emission = ws.get("isect.tile_of_emission", 4 * p)
-        emission = ws.get("isect.emission", 4 * p)
-        gaussian_of_emission = ws.get("isect.gaussian_of_emission", 4 * p)
+        tile_of_emission = ws.get("isect.tile_of_emission", 4 * c)
+        emission = ws.get("isect.emission", 4 * c)
+        gaussian_of_emission = ws.get("isect.gaussian_of_emission", 4 * c)
         pair_first = ws.get("isect.pair_first", 4 * n)
-        if v:
-            rt.launch_items("isect", self.k_emit, v, wg, np.uint32(v), np.int32(tiles_x),
-                      np.int32(tiles_y), ids_by_depth, pair_offset, proj.mean2d, proj.radius, proj.alpha_extent,
-                      tile_of_emission, emission, gaussian_of_emission, pair_first)
+        if n:
+            rt.launch_items("isect", self.k_emit, n, wg, frame, np.uint32(c), np.int32(tiles_x), np.int32(tiles_y),
+                            ids_by_depth, pair_offset, proj.mean2d, proj.radius, proj.alpha_extent,
+                            tile_of_emission, emission, gaussian_of_emission, pair_first)
         tile_bits = (tiles - 1).bit_length()
-        tile_of_pair, emission_sorted = self.sort(tile_of_emission, emission, p, 0, tile_bits, stage="sort")
-        gaussian_of_pair = ws.get("isect.gaussian_of_pair", 4 * p)
-        pair_of_emission = ws.get("isect.pair_of_emission", 4 * p)
-        if p:
-            rt.launch_items("isect", self.k_gather_pairs, p, wg, np.uint32(p), emission_sorted,
-                      gaussian_of_emission, gaussian_of_pair, pair_of_emission)
-
+        tile_of_pair, emission_sorted = self.sort(tile_of_emission, emission, c, 0, tile_bits, stage="sort",
+                                                  count=frame, count_at=FRAME["PAIRS"])
+        gaussian_of_pair = ws.get("isect.gaussian_of_pair", 4 * c)
+        pair_of_emission = ws.get("isect.pair_of_emission", 4 * c)
         ranges = ws.get("isect.ranges", 8 * tiles)
         rt.fill(ranges, np.uint32(0), 8 * tiles)
-        if p:
-            rt.launch_items("isect", self.k_ranges, p, wg, np.uint32(p), tile_of_pair, ranges)
-        return Intersections(n_visible=v, n_pairs=p, ranges=ranges, gaussian_of_pair=gaussian_of_pair,
+        if c:
+            rt.launch_items("isect", self.k_gather_pairs, c, wg, frame, np.uint32(c), emission_sorted,
+                            gaussian_of_emission, gaussian_of_pair, pair_of_emission)
+            rt.launch_items("isect", self.k_ranges, c, wg, frame, np.uint32(c), tile_of_pair, ranges)
+        return Intersections(n_visible=v, n_pairs=p, pair_bound=c, ranges=ranges, gaussian_of_pair=gaussian_of_pair,
                              tile_of_pair=tile_of_pair, pair_of_emission=pair_of_emission, pair_first=pair_first,
-                             depth_bits=depth_bits - lo, tile_bits=tile_bits)
+                             depth_bits=hi - lo, tile_bits=tile_bits)
+
+    def counts(self) -> tuple[int, int, bool]:
+        """The last frame's (visible Gaussians, pairs, whether the pairs overflowed its capacity), read back."""
+        counts = self.rt.to_host(self.ctx.frame, len(FRAME_WORDS), np.uint32)
+        return int(counts[FRAME["VISIBLE"]]), int(counts[FRAME["PAIRS"]]), bool(counts[FRAME["OVERFLOWED"]])

@@ -49,10 +49,12 @@ class Renderer:
         return self.context.tuning
 
     def render(self, gaussians: DeviceGaussians, cam: Camera, sh_degree: int | None = None,
-               background=(0.0, 0.0, 0.0)) -> RenderResult:
+               background=(0.0, 0.0, 0.0), pair_capacity: int | None = None) -> RenderResult:
+        """pair_capacity: room for this many pairs and nothing read back (a frame with more is marked on the device:
+        render/isect.py); None: the pair count read back and the buffers sized to fit."""
         tiles_x, tiles_y = tile_grid(cam.width, cam.height)
         degree = gaussians.sh_degree if sh_degree is None else sh_degree
         proj = self.project(gaussians, cam, degree, tiles_x, tiles_y)
-        isect = self.intersect(proj, tiles_x, tiles_y)
+        isect = self.intersect(proj, tiles_x, tiles_y, pair_capacity)
         raster = self.rasterize(proj, isect, cam.width, cam.height, tiles_x, tiles_y, np.asarray(background, np.float32))
         return RenderResult(cam.width, cam.height, tiles_x, tiles_y, proj, isect, raster)

@@ -23,7 +23,9 @@ class ExclusiveScan(Stage):
         return {"SCAN_WG": self.wg, "SCAN_FLAGS": int(self.flags)}
 
     def __call__(self, src: cl.Buffer, dst: cl.Buffer, n: int, total: cl.Buffer, total_at: int = 0,
-                 stage: str = "scan") -> None:
+                 stage: str = "scan", count: cl.Buffer | None = None, count_at: int = 0) -> None:
+        """Scan n elements, or, with `count`, as many as count[count_at] says on the device (n, the bound,
+        sizes the launch), so that the host reads nothing back first."""
         rt = self.rt
         if n == 0:
             cl.enqueue_fill_buffer(rt.queue, total, np.uint32(0), 4 * total_at, 4)
@@ -32,6 +34,18 @@ class ExclusiveScan(Stage):
         item_len = -(-n // items_wanted)
         groups = -(-n // (item_len * self.wg))
         g = groups * self.wg
-        rt.launch(stage, self.k_reduce, g, self.wg, np.uint32(n), np.uint32(item_len), src, self.block_sums)
+        counted = device_count(n, count, count_at, self.block_sums)
+        rt.launch(stage, self.k_reduce, g, self.wg, *counted, src, self.block_sums)
         rt.launch(stage, self.k_sums, 1, 1, np.uint32(groups), self.block_sums, total, np.uint32(total_at))
-        rt.launch(stage, self.k_apply, g, self.wg, np.uint32(n), np.uint32(item_len), src, dst, self.block_sums)
+        rt.launch(stage, self.k_apply, g, self.wg, *counted, src, dst, self.block_sums)
+
+
+HOST_COUNT = 0xFFFFFFFF   # kernels/runs.h: count_at for a count the host knows
+
+
+def device_count(bound: int, count: cl.Buffer | None, count_at: int, placeholder: cl.Buffer) -> tuple:
+    """The (bound, count, count_at) arguments of a kernel that takes its element count from runs.h's
+    element_count: `bound` alone where count is None (placeholder: any buffer, never read)."""
+    if count is None:
+        return np.uint32(bound), placeholder, np.uint32(HOST_COUNT)
+    return np.uint32(bound), count, np.uint32(count_at)

@@ -5,13 +5,14 @@ frame. It builds its kernels once per variant it meets (a variant: the -D option
 calls, such as the SH coefficient count or the backward's sums layout) and keeps the Kernel objects, so
 nothing is looked up or rebuilt on the hot path. The forward stages (render/) and the backward stages
 (backward/) of one trainer share a StageContext: the runtime, the work shapes, the algorithm switches,
-the workspace of scratch buffers and the --check-finite switch.
+the workspace of scratch buffers, the --check-finite switch and the last frame's counts.
 """
 from __future__ import annotations
 
 import numpy as np
 import pyopencl as cl
 
+from ..constants import FRAME_WORDS
 from ..errors import DeviceError
 from ..finite import FiniteCheck
 from ..runtime import Runtime
@@ -32,6 +33,9 @@ class StageContext:
         self.options = options or RenderOptions()
         self.ws = Workspace(rt, poison)
         self.check = FiniteCheck(check_finite)
+        # the last frame's counts (constants.FRAME_WORDS; render/isect.py): zero, a valid frame, until one is made
+        self.frame = rt.buffer(4 * len(FRAME_WORDS))
+        rt.fill(self.frame, np.uint32(0), self.frame.size)
 
 
 class Stage:

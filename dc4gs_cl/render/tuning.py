@@ -16,10 +16,13 @@ class Tuning:
     pixels_per_item: int    # rasterizer: pixels one work-item owns (1 .. 256)
     batch: int              # rasterizer: Gaussians loaded into local memory at a time
     radix_bits: int         # sort: widest digit per pass
-    sort_blocks: int        # sort: contiguous runs, one work-item each
+    sort_blocks: int        # sort: contiguous runs of keys (at most), one work-item each, or one work-group each
     scan_wg: int            # scan: work-group size
     scan_groups: int        # scan: work-groups (upper bound)
     isect_wg: int           # compaction: work-group size
+    # sort: 1, each run walked in sequence by a work-item (CPUs); else the work-group size that walks a run in tiles,
+    # ranking each tile's keys in local memory (GPUs: coalesced loads and stores, 8-bit digits without a ballot)
+    sort_wg: int = 1
     pair_sums: bool = True  # backward: per-pair slots summed per Gaussian (deterministic) instead of float atomics
     # backward with pair_sums: the slots held at once, in pairs per Gaussian; a frame with more pairs is walked in
     # runs of whole tiles that fit, each run's slots summed before the next, a run holding at least min_run_tiles
@@ -55,18 +58,19 @@ class Tuning:
                           split_sums_per_block=per_block).within(caps)
         # GPUs, and drivers that cut a work-item's loops short (Capabilities.loop_limit): one pixel, and short
         # runs of keys and of scan elements, per work-item.
-        return Tuning(pixels_per_item=1, batch=256, radix_bits=4, sort_blocks=4096,
+        return Tuning(pixels_per_item=1, batch=256, radix_bits=8, sort_blocks=512, sort_wg=256,
                       scan_wg=256, scan_groups=256, isect_wg=256, subgroups=caps.subgroups).within(caps)
 
     def within(self, caps: Capabilities) -> "Tuning":
         """This shape narrowed to the device's work-group limit: a tile's items (TILE_SIZE^2 / pixels_per_item),
-        the scan's and the compaction's work-groups. (Local memory: the stages that hold arrays there fit
+        the sort's, the scan's and the compaction's work-groups. (Local memory: the stages that hold arrays there fit
         their own, Loss and RasterizeBackward.)"""
         limit = max(1, caps.max_work_group_size)
         ppi = self.pixels_per_item
         while TILE_SIZE * TILE_SIZE // ppi > limit:
             ppi *= 2          # 1, 2, 4, 8, then whole rows (16, 32, ...): the values raster.h takes
-        return replace(self, pixels_per_item=ppi, scan_wg=_power_of_two_within(self.scan_wg, limit),
+        return replace(self, pixels_per_item=ppi, sort_wg=_power_of_two_within(self.sort_wg, limit),
+                       scan_wg=_power_of_two_within(self.scan_wg, limit),
                        isect_wg=_power_of_two_within(self.isect_wg, limit))
 
 

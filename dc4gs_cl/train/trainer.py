@@ -8,8 +8,10 @@ One iteration (docs/architecture.md draws it module by module):
     (backward/), the view's statistics folded into the strategy's window on the way -> projection backward
     with Adam's step fused in, where the recipe steps -> the strategy densifies and limits opacities where its
     schedule says.
-Per iteration the host uploads the target image and reads back two counts (visible Gaussians, pairs); the
-loss is read every few iterations for the metrics file and the progress display (log.py).
+Per iteration the host queues everything, the target image's upload included, and then waits once, for the view's
+counts (visible Gaussians, pairs: render/isect.py): buffers sized by a pair capacity, a view with more pairs runs
+again with room (step). A view walked in runs of tiles reads their plan too (backward/). The loss is read every
+few iterations for the metrics file and the progress display (log.py).
 """
 from __future__ import annotations
 
@@ -29,7 +31,7 @@ from ..model import GaussianSet, initial_model
 from ..optim.trainable import TrainableGaussians
 from ..render import DeviceGaussians, Renderer, Tuning
 from ..run_folder import Checkpoint, RunFolder, TrainingState
-from ..runtime import Runtime, describe
+from ..runtime import Runtime, describe, grown_size
 from ..scene.camera import Camera, Scene
 from .log import SAMPLE_EVERY, TrainingLog
 from .schedule import Schedule
@@ -75,6 +77,7 @@ class Trainer:
         self.rng = np.random.default_rng(cfg.seed)
         self.iteration = 0
         self.camera_stack: list[int] = []
+        self.pair_capacity = 0   # the pairs a view's buffers hold; grows when a view has more (step)
         initial = initial_model(scene.points, scene.colors, self.rng, cfg.sh_degree)
         if cfg.max_gaussians is not None and len(initial) > cfg.max_gaussians:
             raise InputError(None, f"--max-gaussians {cfg.max_gaussians:,} is below the {len(initial):,} Gaussians the "
@@ -100,6 +103,25 @@ class Trainer:
 
     # one iteration ------------------------------------------------------------------------------------
     def step(self) -> None:
+        """One iteration. The host waits once, for the view's counts, once the whole iteration is queued: a view
+        whose pairs overflowed the capacity it was given (render/isect.py) changed nothing on the device
+        (kernels/common.h FRAME_VOID), and runs again, host state rewound, with room for them."""
+        before = self._host_state()
+        while True:
+            actions = self._queue_iteration()
+            _, pairs, overflowed = self.renderer.intersect.counts()
+            if not overflowed:
+                break
+            self.pair_capacity = grown_size(pairs, self.pair_capacity)
+            self._restore(before)
+        if self.iteration in self.cfg.save_at:   # before this iteration's densification and opacity limits, as Inria saves
+            self.save_model()
+        if self.strategy.apply(actions, self.iteration, self.model, self.rng) is not None:
+            if self.context.check.enabled:
+                self.context.check("densify", self.model.download().params)
+
+    def _queue_iteration(self) -> Actions:
+        """Queue one iteration up to the density control (its actions returned); nothing is read back."""
         self.iteration += 1
         it, rt, s, ws = self.iteration, self.rt, self.strategy, self.context.ws
         self.context.check.at = f"iteration {it}"
@@ -109,11 +131,13 @@ class Trainer:
         keep_buf = None
         if keep is not None:   # masked pixels: no loss, no gradient, no statistic (loss.cl, rasterize_backward.cl)
             keep_buf = ws.get("train.keep", keep.size)
-            rt.write(keep_buf, keep)   # bool: one byte, 0 or 1, as the kernels' uchar
-        rt.write(target_buf, target)
+            rt.write_async(keep_buf, keep)   # bool: one byte, 0 or 1, as the kernels' uchar
+        rt.write_async(target_buf, target)   # the scene keeps its images as decoded: nothing to wait for
         background = self.scene.background
 
-        res = self.renderer.render(self.params, cam, self.sh_degree, background)
+        # --check-finite reads each stage's outputs as it goes: the view sized exactly, so that none is left void
+        capacity = None if self.context.check.enabled else self.pair_capacity
+        res = self.renderer.render(self.params, cam, self.sh_degree, background, capacity)
         self.loss(res.raster.image, target_buf, cam.width, cam.height, dL_dimage, keep=keep_buf,
                   kept=np.count_nonzero(keep) if keep is not None else 0)
         actions = Actions() if self.frozen else s.actions(it)
@@ -124,11 +148,17 @@ class Trainer:
             lrs = self.schedule.learning_rates(it, self.scene.extent, actions.opacity_steps)
             self.project_backward.step(self.params, cam, self.sh_degree, res, sums, layout,
                                        self.model.adam.step_value(lrs), self.model.adam.m, self.model.adam.v)
-        if it in self.cfg.save_at:   # before this iteration's densification and opacity limits, as Inria saves
-            self.save_model()
-        if s.apply(actions, it, self.model, self.rng) is not None:
-            if self.context.check.enabled:
-                self.context.check("densify", self.model.download().params)
+        return actions
+
+    def _host_state(self) -> tuple:
+        """What queueing an iteration changes on the host (step() rewinds it to run a view again)."""
+        return (self.iteration, self.rng.bit_generator.state, list(self.camera_stack), self.loss.calls,
+                dict(self.model.adam.steps))
+
+    def _restore(self, state: tuple) -> None:
+        self.iteration, rng, self.camera_stack, self.loss.calls, steps = state
+        self.rng.bit_generator.state = rng
+        self.model.adam.steps = dict(steps)
 
     def start_from(self, gs: GaussianSet, iteration: int) -> None:
         """Continue from these Gaussians (parameters and moments) at this iteration, the window restarted
