@@ -345,11 +345,7 @@ def train_config(args, run) -> TrainConfig:
 def cmd_train(args) -> int:
     import time
 
-    from .evaluate import per_view_lines
     from .run_folder import RunFolder
-    from .runtime import Runtime, describe
-    from .train import Stopped, Trainer
-    from .train.log import progress_mode
 
     if args.out is None:
         if args.resume:
@@ -361,6 +357,20 @@ def cmd_train(args) -> int:
         raise InputError(None, "--resume and --force exclude each other")
     if args.log_every < 1:
         raise InputError(None, f"--log-every {args.log_every} must be at least 1")
+    with run.locked():   # one run per folder, from its checks to its last write (the OS lets go on any exit)
+        return _train_locked(args, run)
+
+
+def _train_locked(args, run) -> int:
+    """cmd_train in its run folder, which it holds."""
+    import time
+
+    from .evaluate import per_view_lines
+    from .run_folder import CORRUPT_CHECKPOINT
+    from .runtime import Runtime, describe
+    from .train import Stopped, Trainer
+    from .train.log import progress_mode
+
     if args.resume and not run.has_checkpoint():
         raise InputError(run.path, "nothing to resume: no checkpoint.npz")
     if not args.resume and run.holds_run() and not args.force:
@@ -375,10 +385,12 @@ def cmd_train(args) -> int:
         from .render import Renderer
         live = viewer.Viewer(rt, Renderer(rt), scene.train, port=args.port, background=scene.background,
                              images=scene.image, points=scene.points)
+    run.remove_temporaries()   # what an interrupted write of an earlier run left
     if args.resume:
         checkpoint = trainer.resume()
         for corrupt in checkpoint.passed_over:
-            print(f"{corrupt}; resuming from {checkpoint.path.name} (iteration {trainer.iteration})", file=sys.stderr)
+            print(f"{corrupt}; set aside as {CORRUPT_CHECKPOINT}, resuming from {checkpoint.path.name} (iteration "
+                  f"{trainer.iteration})", file=sys.stderr)
     else:
         if args.force:
             run.clear()

@@ -25,6 +25,10 @@ SPLIT_PICKS = ("poly", "argmin", "dense", "middle")   # middle: DCS' split at x 
 DCC_READINGS = ("abs", "base")
 FIVE_CANDIDATES = 5                 # the paper's candidate count
 DENSE_CANDIDATES = 59               # --split-pick dense without --split-candidates
+# the most split candidates a line may have: each adds 5 sums per Gaussian to the backward's private and local
+# arrays (kernels/sum_pairs.cl, rasterize_backward.cl); 10,001 crashed PoCL's compiled sum_pairs, 3,001 ran 60x slower
+MAX_CANDIDATES = 99
+MAX_SEED = 2 ** 63 - 1
 
 # `train`'s flags -> the setting each gives: a TrainConfig field, or "dc4gs.<field>" of its DC4GSConfig; in the
 # fields' order, which --resume's list of differing settings follows. cli.py reads the settings given through it,
@@ -122,8 +126,8 @@ class DC4GSConfig:
               for name, value, allowed in (("pooling", self.pooling, POOLINGS),
                                            ("split_pick", self.split_pick, SPLIT_PICKS),
                                            ("dcc_reading", self.dcc_reading, DCC_READINGS))),
-            ("dc4gs.candidates", self.candidate_count < 3 or self.candidate_count % 2 == 0,
-             f"{self.candidate_count} must be odd and at least 3"),
+            ("dc4gs.candidates", not 3 <= self.candidate_count <= MAX_CANDIDATES or self.candidate_count % 2 == 0,
+             f"{self.candidate_count} must be odd, 3..{MAX_CANDIDATES}"),
             ("dc4gs.track", not 0 <= self.track <= 1, f"{self.track} must lie in [0, 1]"),
             ("dc4gs.other_scale", not 0 < self.other_scale <= 1, f"{self.other_scale} must lie in (0, 1]"),
             ("dc4gs.cost_every", self.cost_every < 1, f"{self.cost_every} must be at least 1"),
@@ -181,7 +185,12 @@ class TrainConfig:
              f"{self.densify_until} must be >= 0"),
             ("max_gaussians", self.max_gaussians is not None and self.max_gaussians < 1,
              f"{self.max_gaussians} must be at least 1"),
-            ("sh_degree", not 0 <= self.sh_degree <= SH_MAX_DEGREE, f"{self.sh_degree} must be 0..{SH_MAX_DEGREE}")])
+            ("sh_degree", not 0 <= self.sh_degree <= SH_MAX_DEGREE, f"{self.sh_degree} must be 0..{SH_MAX_DEGREE}"),
+            ("seed", not 0 <= self.seed <= MAX_SEED, f"{self.seed} must be 0..2^63-1")])
+        # the learning rates come from config.json (a resumed run's): no flag names them
+        rates = {f.name: getattr(self, f.name) for f in fields(TrainConfig) if f.name.startswith("lr_")}
+        problems += [f"{name} {rate} must be a finite number >= 0" for name, rate in rates.items()
+                     if not (math.isfinite(rate) and rate >= 0)]
         if problems:
             raise InputError(None, "; ".join(problems))
 

@@ -8,6 +8,7 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import re
 import secrets
 import shutil
 import tempfile
@@ -17,10 +18,18 @@ from typing import Callable
 from .errors import OutputError
 
 
+TEMPORARY_NAME = re.compile(r"\..+\.[0-9a-f]{8}\.(tmp|old)(\.[A-Za-z0-9]+)?")   # temporary_sibling's names
+
+
 def temporary_sibling(path: Path, kind: str = "tmp") -> Path:
     """A fresh hidden name beside `path` (same folder, so that a rename onto `path` is atomic), keeping its
     extension, by which writers such as OpenImageIO choose the format."""
     return path.with_name(f".{path.stem}.{secrets.token_hex(4)}.{kind}{path.suffix}")
+
+
+def is_temporary(path: Path) -> bool:
+    """Whether a file's name is one temporary_sibling gives."""
+    return TEMPORARY_NAME.fullmatch(path.name) is not None
 
 
 def write_atomic(path: str | os.PathLike, write: Callable[[Path], None], keep_previous: Path | None = None) -> None:

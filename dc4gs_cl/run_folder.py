@@ -16,6 +16,7 @@ go through this module; every file is written atomically (files.py).
 """
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import os
@@ -26,18 +27,26 @@ from pathlib import Path
 
 import numpy as np
 
+try:
+    import fcntl
+except ImportError:   # Windows
+    fcntl = None
+
 from . import scene as scenes
 from .config import TrainConfig
 from .errors import InputError, OutputError
-from .files import write_atomic, write_json
+from .files import is_temporary, write_atomic, write_json
 from .model import GaussianModel
 from .ply import read_ply, write_ply
 
 CONFIG = "config.json"
 CHECKPOINT, PREVIOUS_CHECKPOINT = "checkpoint.npz", "checkpoint.prev.npz"
+CORRUPT_CHECKPOINT = "checkpoint.corrupt.npz"   # a checkpoint found corrupt, set aside when resuming past it
+LOCK = ".lock"   # held by the run writing the folder (RunFolder.locked), the holder's PID inside
 RESULTS, PER_VIEW = "results.json", "per_view.json"
 METRICS = "metrics.jsonl"
-RUN_FILES = (CONFIG, "cfg_args", "cameras.json", CHECKPOINT, PREVIOUS_CHECKPOINT, RESULTS, PER_VIEW, METRICS)
+RUN_FILES = (CONFIG, "cfg_args", "cameras.json", CHECKPOINT, PREVIOUS_CHECKPOINT, CORRUPT_CHECKPOINT, RESULTS, PER_VIEW,
+             METRICS)
 RUN_DIRS = ("point_cloud", "test", "train")
 META = "meta"           # the checkpoint entry holding the JSON metadata
 CHECKSUM = "sha256"     # the metadata key holding checkpoint_checksum(arrays, meta)
@@ -171,6 +180,44 @@ class RunFolder:
         for d in RUN_DIRS:
             shutil.rmtree(self.path / d, ignore_errors=True)
 
+    @contextlib.contextmanager
+    def locked(self):
+        """Hold the folder for one run (an exclusive flock on its LOCK file, which names the holder's PID): a second
+        run into it is an InputError naming that PID. The OS lets go when the process ends, however it ends. A
+        folder made for the lock alone is removed again if the run wrote nothing into it."""
+        made = not self.path.exists()
+        try:
+            self.path.mkdir(parents=True, exist_ok=True)
+            fd = os.open(self.path / LOCK, os.O_RDWR | os.O_CREAT, 0o644)
+        except OSError as e:
+            raise OutputError(self.path, f"cannot be made or written ({e.strerror})") from e
+        try:
+            if fcntl is not None:   # (not on Windows: no lock there)
+                try:
+                    fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                except OSError:
+                    holder = os.pread(fd, 32, 0).decode(errors="replace").strip() or "unknown"
+                    raise InputError(self.path, f"is in use by another run (PID {holder}): wait for it to end, or "
+                                                "train into another --out") from None
+            os.ftruncate(fd, 0)
+            os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+            yield self
+        finally:
+            os.close(fd)
+            if made and [p.name for p in self.path.iterdir()] == [LOCK]:
+                (self.path / LOCK).unlink(missing_ok=True)
+                with contextlib.suppress(OSError):
+                    self.path.rmdir()
+
+    def remove_temporaries(self) -> list[Path]:
+        """Remove the temporary files an interrupted write left (files.temporary_sibling's names: a process killed
+        inside a checkpoint or model write), in the folder and its run folders; the ones removed."""
+        folders = [self.path, *(p for d in RUN_DIRS for p in (self.path / d).rglob("*") if p.is_dir())]
+        stale = [p for folder in folders for p in folder.glob(".*") if p.is_file() and is_temporary(p)]
+        for p in stale:
+            p.unlink(missing_ok=True)
+        return stale
+
     # settings --------------------------------------------------------------------------------------------
     def write_settings(self, cfg: TrainConfig, scene) -> None:
         """config.json, and for the Inria tools cfg_args and cameras.json (scene: scene.camera.Scene)."""
@@ -243,7 +290,8 @@ class RunFolder:
 
     def read_checkpoint(self) -> Checkpoint:
         """The newest intact checkpoint; a corrupt one is passed over (and named in `passed_over`) for the one
-        before it. Raises InputError when there is none, or none intact."""
+        before it, and set aside as CORRUPT_CHECKPOINT, so that the next checkpoint written does not make it the
+        previous one. Raises InputError when there is none, or none intact."""
         existing = [p for p in self.checkpoint_paths if p.is_file()]
         if not existing:
             raise InputError(self.path, f"nothing to resume: no {CHECKPOINT}")
@@ -254,6 +302,8 @@ class RunFolder:
             except InputError as e:
                 passed_over.append(e)
                 continue
+            if passed_over:
+                os.replace(existing[0], self.path / CORRUPT_CHECKPOINT)
             return Checkpoint(path, arrays, meta, passed_over)
         raise InputError(existing[0], "; ".join(e.problem if e.path == str(existing[0]) else str(e)
                                                 for e in passed_over) + "; no intact checkpoint left to resume from")

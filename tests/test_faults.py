@@ -11,7 +11,7 @@ import pytest
 
 from dc4gs_cl.cli import main
 from dc4gs_cl.errors import InputError
-from dc4gs_cl.run_folder import CHECKPOINT, PREVIOUS_CHECKPOINT, RunFolder
+from dc4gs_cl.run_folder import CHECKPOINT, CORRUPT_CHECKPOINT, LOCK, PREVIOUS_CHECKPOINT, RunFolder
 
 SMALL = ["--scene", "builtin", "-r", "4", "--no-progress"]
 
@@ -111,7 +111,7 @@ def test_a_full_disk_stops_training_naming_the_file_and_keeps_the_last_checkpoin
     assert code == 1
     assert err[-1] == f"dc4gs-cl train: error: {out / CHECKPOINT}: cannot write: No space left on device"
     assert RunFolder(out).read_checkpoint().meta["iteration"] == 10      # the last complete one, intact
-    assert not [p for p in out.iterdir() if p.name.startswith(".")]      # no temporary left behind
+    assert [p.name for p in out.iterdir() if p.name.startswith(".")] == [LOCK]   # no temporary left behind
 
 
 def test_a_read_only_folder_stops_the_model_save_and_keeps_earlier_outputs(tmp_path, capsys, monkeypatch):
@@ -133,3 +133,76 @@ def test_a_read_only_folder_stops_the_model_save_and_keeps_earlier_outputs(tmp_p
     assert code == 1 and err[-1] == f"dc4gs-cl train: error: {ply}: cannot write: Read-only file system"
     assert not ply.exists() and not list(ply.parent.iterdir())
     assert RunFolder(out).read_checkpoint().meta["iteration"] == 10
+
+
+def test_a_corrupt_checkpoint_is_set_aside_so_the_next_write_keeps_the_intact_one(tmp_path, rng):
+    """Resuming past a corrupt checkpoint.npz sets it aside (checkpoint.corrupt.npz): the next checkpoint written
+    then keeps the intact one as checkpoint.prev.npz, where it used to move the corrupt one there."""
+    run = RunFolder(tmp_path)
+    first, second, third = state(rng), state(rng), state(rng)
+    run.write_checkpoint(first, {"iteration": 10})
+    run.write_checkpoint(second, {"iteration": 20})
+    (tmp_path / CHECKPOINT).write_bytes(b"")
+    assert run.read_checkpoint().meta["iteration"] == 10
+    assert not (tmp_path / CHECKPOINT).exists() and (tmp_path / CORRUPT_CHECKPOINT).read_bytes() == b""
+    run.write_checkpoint(third, {"iteration": 30})
+    with np.load(tmp_path / PREVIOUS_CHECKPOINT) as f:
+        np.testing.assert_array_equal(f["param/means"], first["param/means"])
+    assert run.read_checkpoint().meta["iteration"] == 30
+    run.clear()
+    assert not list(tmp_path.iterdir())
+
+
+def test_temporaries_of_interrupted_writes_are_removed_when_a_run_starts(tmp_path):
+    """A process killed inside a checkpoint or model write leaves a hidden temporary file; the next run into the
+    folder (--resume or --force) removes them, and nothing else."""
+    out = tmp_path / "run"
+    assert main(["train", *SMALL, "--iterations", "4", "--checkpoint-every", "2", "--test-every", "0",
+                 "--out", str(out)]) == 0
+    stale = [out / ".checkpoint.0123abcd.tmp.npz",
+             out / "point_cloud" / "iteration_4" / ".point_cloud.89abcdef.tmp.ply"]
+    kept = [out / ".mine", out / ".checkpoint.notours.tmp.npz", out / "notes.txt"]
+    for p in stale + kept:
+        p.write_bytes(b"x")
+    assert main(["train", *SMALL, "--iterations", "4", "--checkpoint-every", "2", "--test-every", "0",
+                 "--out", str(out), "--resume"]) == 0   # a finished run: nothing left to train
+    assert not any(p.exists() for p in stale) and all(p.exists() for p in kept)
+
+
+def test_the_same_command_with_resume_resumes_a_dc4gs_run(tmp_path, capsys):
+    """A job script re-runs its command with --resume: --dc4gs (DCC and DCS) compares as the settings it gives,
+    so the run resumes (here from its last checkpoint, with nothing left to train); a real change is refused
+    naming the setting."""
+    command = ["train", *SMALL, "--iterations", "4", "--checkpoint-every", "2", "--test-every", "0",
+               "--strategy", "absgs", "--dc4gs", "--out", str(tmp_path / "run")]
+    assert main(command) == 0
+    capsys.readouterr()
+    assert main(command + ["--resume"]) == 0
+    assert main(command + ["--resume", "--dcs-track", "0.5"]) == 2
+    assert "dc4gs.track" in capsys.readouterr().err
+
+
+def test_a_run_folder_holds_one_run_at_a_time(tmp_path, capsys):
+    """Two runs into one --out: the second is refused in one line naming the first's PID, while the first holds the
+    folder (its whole run, checks included); once the first process is gone the folder is free. A refused run
+    into a new folder leaves no folder behind."""
+    import subprocess
+    import sys
+    out = tmp_path / "run"
+    holder = subprocess.Popen([sys.executable, "-c", (
+        "import sys, time; from dc4gs_cl.run_folder import RunFolder\n"
+        f"with RunFolder({str(out)!r}).locked():\n    print('held', flush=True); time.sleep(60)")],
+        stdout=subprocess.PIPE, text=True)
+    try:
+        assert holder.stdout.readline().strip() == "held"
+        capsys.readouterr()
+        assert main(["train", *SMALL, "--iterations", "2", "--out", str(out)]) == 2
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1 and f"in use by another run (PID {holder.pid})" in err
+        assert main(["train", *SMALL, "--iterations", "2", "--out", str(out), "--force"]) == 2
+    finally:
+        holder.kill()
+        holder.wait()
+    assert main(["train", *SMALL, "--iterations", "2", "--test-every", "0", "--out", str(out)]) == 0
+    assert main(["train", *SMALL, "--iterations", "0", "--out", str(tmp_path / "new")]) == 2
+    assert not (tmp_path / "new").exists()

@@ -4,6 +4,7 @@ from __future__ import annotations
 import json
 import math
 import os
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -491,3 +492,30 @@ def test_malformed_transforms(tmp_path):
     raises_naming("transforms.json", tmp_path)
     nerf_scene(tmp_path, {"camera_angle_x": 1.0}, [{"file_path": "a", "transform_matrix": [[1, 0], [0, 1]]}])
     raises_naming("transforms.json", tmp_path)
+
+
+def test_output_names_stay_inside_the_output_folder_and_clashes_are_refused(tmp_path, rt):
+    """Views named by an absolute path or with ".." write their renders inside the folder given (their names made
+    the evaluation write at the filesystem root); an image listed twice, or two names that would write one file,
+    are refused naming both."""
+    from dc4gs_cl.evaluate import evaluate
+    from dc4gs_cl.model import initial_model
+    from dc4gs_cl.render import DeviceGaussians, Renderer
+    from dc4gs_cl.scene.builtin import builtin_scene
+    outside = tmp_path / "outside"
+    names = [f"{outside}/secret.png", "../../up.png", "..png", "a/../b.png"]
+    scene = builtin_scene(resolution=8)
+    cams = [replace(c, name=n) for c, n in zip(scene.train, names)]
+    assert len(cams) == len(names) and all("/" not in c.file_stem and c.file_stem.strip(".") for c in cams)
+    gaussians = DeviceGaussians(rt, initial_model(scene.points, scene.colors, np.random.default_rng(0), 0))
+    evaluate(rt, Renderer(rt), gaussians, scene, cams, 0, tmp_path / "out" / "renders")
+    written = sorted(p.relative_to(tmp_path) for p in tmp_path.rglob("*.png"))
+    assert len(written) == 2 * len(cams) and all(p.parts[0] == "out" for p in written), written
+    assert not outside.exists()
+
+    frames = [{"file_path": "a"}, {"file_path": "b"}, {"file_path": "a"}]
+    with pytest.raises(InputError, match="'a' is listed twice"):
+        load_scene(nerf_scene(tmp_path / "twice", {"camera_angle_x": 1.0}, frames), test_every=0)
+    frames = [{"file_path": "x/y"}, {"file_path": "x_y"}]
+    with pytest.raises(InputError, match="'x/y' and 'x_y' would write one output file"):
+        load_scene(nerf_scene(tmp_path / "clash", {"camera_angle_x": 1.0}, frames), test_every=0)

@@ -16,7 +16,7 @@ from dc4gs_cl.cli import main
 from dc4gs_cl.config import TrainConfig
 from dc4gs_cl.densify import DC4GSConfig
 from dc4gs_cl.metrics import psnr
-from dc4gs_cl.run_folder import CHECKPOINT, RunFolder
+from dc4gs_cl.run_folder import CHECKPOINT, LOCK, RunFolder
 from dc4gs_cl.scene import load_scene
 from dc4gs_cl.train import Trainer
 from dc4gs_cl.train.schedule import Schedule
@@ -134,7 +134,8 @@ def test_metrics_file_and_progress_lines_off_a_terminal(straight_run, tmp_path):
 
 
 def snapshot(folder: Path) -> dict:
-    return {str(p): (p.stat().st_mtime_ns, p.stat().st_size) for p in folder.rglob("*")}
+    """Every output's time and size (the lock file aside: each run into the folder takes it and names itself)."""
+    return {str(p): (p.stat().st_mtime_ns, p.stat().st_size) for p in folder.rglob("*") if p.name != LOCK}
 
 
 @pytest.fixture(scope="module")
@@ -190,6 +191,10 @@ def test_corrupt_and_mismatched_checkpoints(finished_run, tmp_path, capsys):
     (["--max-gaussians", "0"], "--max-gaussians 0 must be at least 1"),
     (["--max-gaussians", "100"], "--max-gaussians 100 is below the"),
     (["--white-background"], "built-in scene"),
+    (["--split-candidates", "101"], "--split-candidates 101 must be odd, 3..99"),   # 10,001 crashed PoCL
+    (["--dc4gs", "--split-candidates", "10001"], "--split-candidates 10001"),
+    (["--seed", "-1"], "--seed -1 must be 0..2^63-1"),                             # was a traceback
+    (["--seed", str(2 ** 63)], "--seed 9223372036854775808 must be"),
 ])
 def test_settings_that_make_no_sense(tmp_path, capsys, args, says):
     out = [] if "--resume" in args else ["--out", str(tmp_path / "o")]
@@ -383,3 +388,24 @@ def test_a_void_frame_changes_nothing_on_the_device(rt, low_memory):
         for name in mine:
             np.testing.assert_array_equal(mine[name], theirs[name], err_msg=name)
     assert before[2] == after[2]
+
+
+def test_the_most_split_candidates_train_and_learning_rates_are_bounded(rt):
+    """--split-candidates at its bound (config.MAX_CANDIDATES) trains; a config.json with a learning rate that is
+    negative or not finite (no flag names them) is refused naming it."""
+    from dc4gs_cl.config import MAX_CANDIDATES
+    from dc4gs_cl.errors import InputError
+    scene = load_scene("builtin", resolution=8)
+    cfg = TrainConfig(scene="builtin", iterations=20, resolution=8, strategy="absgs",
+                      dc4gs=DC4GSConfig(dcc=True, dcs=True, split_pick="dense", candidates=MAX_CANDIDATES))
+    from dc4gs_cl.apps.bench import frozen_trainer
+    start = Trainer(cfg, scene, rt).model.download()
+    trainer = frozen_trainer(cfg, scene, rt, start, 0, split_costs_for_all=True)   # every Gaussian's costs gathered
+    for _ in range(3):
+        trainer.step()
+    assert all(np.isfinite(a).all() for a in trainer.params.download().values())
+    costs = trainer.strategy.window.download()["split_costs"]
+    assert costs.shape[1] == MAX_CANDIDATES and np.count_nonzero(costs) > 1000 and np.isfinite(costs).all()
+    for rate in (-1.0, float("inf")):
+        with pytest.raises(InputError, match=f"lr_opacity {rate} must be a finite number >= 0"):
+            replace(cfg, lr_opacity=rate)

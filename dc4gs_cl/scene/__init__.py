@@ -17,7 +17,7 @@ import pycolmap
 from ..errors import InputError
 from . import colmap, nerf
 from .builtin import BUILTIN_SCENE, builtin_scene
-from .camera import Camera, Scene, split_train_test
+from .camera import Camera, Scene, split_train_test, unique_file_stems
 from .images import read_image, resize, to_rgb
 from .masks import keep_from, with_masks
 from .undistort import check_size, undistorted_pixels
@@ -57,6 +57,7 @@ def load_scene(path: str | os.PathLike, resolution: int | None = None, cache_dir
     else:
         raise InputError(path, "not a COLMAP or NeRF scene: expected sparse/0/ or transforms*.json")
     root = path if path.is_dir() else path.parent
+    unique_file_stems(root, train + test)
     train = [c.at_resolution(resolution, DEFAULT_MAX_WIDTH) for c in with_masks(root, train)]
     test = [c.at_resolution(resolution, DEFAULT_MAX_WIDTH) for c in with_masks(root, test)]
     background = np.full(3, 1.0 if white_background else 0.0, dtype=np.float32)

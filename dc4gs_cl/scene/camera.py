@@ -49,9 +49,12 @@ class Camera:
 
     @property
     def file_stem(self) -> str:
-        """The image name without its extension, folders joined by "_": a file name for this view's outputs
-        that no other view of the scene shares."""
-        return "_".join(Path(self.name).with_suffix("").parts)
+        """The image name without its extension, folders joined by "_" (a root or drive left out): a file name for
+        this view's outputs, inside whatever folder they go to (no separator; never "", "." or ".."). No other
+        view of a scene shares it (unique_file_stems)."""
+        name = Path(self.name.replace("\\", "/"))
+        stem = "_".join(part for part in name.with_suffix("").parts if part not in (name.anchor, "/"))
+        return stem if stem.strip(".") else stem.replace(".", "_") or "_"
 
     @property
     def center(self) -> np.ndarray:
@@ -110,6 +113,19 @@ class Scene:
         for cam in self.train + self.test:
             self.read_image(cam)
             self.read_mask(cam)
+
+
+def unique_file_stems(root: Path, cameras: list[Camera]) -> None:
+    """InputError naming the first two views whose outputs would share a file name (Camera.file_stem): an image
+    listed twice, or names that differ only in their folders' separators or root."""
+    seen: dict[str, str] = {}
+    for cam in cameras:
+        other = seen.get(cam.file_stem)
+        seen[cam.file_stem] = cam.name
+        if other is not None:
+            problem = (f"image {cam.name!r} is listed twice" if other == cam.name else
+                       f"views {other!r} and {cam.name!r} would write one output file ({cam.file_stem!r}.png)")
+            raise InputError(root, f"{problem}: every view needs a name of its own")
 
 
 def scene_extent(cameras: list[Camera]) -> float:

@@ -31,7 +31,7 @@ from ..model import GaussianSet, initial_model
 from ..optim.trainable import TrainableGaussians
 from ..render import DeviceGaussians, Renderer, Tuning
 from ..run_folder import Checkpoint, RunFolder, TrainingState
-from ..runtime import Runtime, describe, grown_size
+from ..runtime import BUFFER_HEADROOM, Runtime, describe
 from ..scene.camera import Camera, Scene
 from .log import SAMPLE_EVERY, TrainingLog
 from .schedule import Schedule
@@ -112,7 +112,7 @@ class Trainer:
             _, pairs, overflowed = self.renderer.intersect.counts()
             if not overflowed:
                 break
-            self.pair_capacity = grown_size(pairs, self.pair_capacity)
+            self.pair_capacity = int(pairs * (1 + BUFFER_HEADROOM))   # room for busier views than this one
             self._restore(before)
         if self.iteration in self.cfg.save_at:   # before this iteration's densification and opacity limits, as Inria saves
             self.save_model()
