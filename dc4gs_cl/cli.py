@@ -419,7 +419,8 @@ def _train_locked(args, run) -> int:
           f"({(trainer.iteration - first) / max(seconds, 1e-9):.1f} it/s); {trainer.model.n:,} Gaussians")
     if scene.test:
         result = trainer.evaluate_test(run.views_dir("test", trainer.iteration))
-        run.write_results(trainer.iteration, result)
+        for line in run.write_results(trainer.iteration, result):
+            print(line, file=sys.stderr)
         print(f"test views: PSNR {result['mean']['PSNR']:.2f} dB, SSIM {result['mean']['SSIM']:.4f} "
               f"({result['views']} views; LPIPS skipped: {result['lpips']})")
         print("\n".join(per_view_lines(result)))
@@ -442,7 +443,8 @@ def cmd_eval(args) -> int:
     rt = Runtime(args.device)
     result = evaluate(rt, Renderer(rt), DeviceGaussians(rt, model), scene, scene.test, model.sh_degree,
                       None if args.no_renders else run.views_dir("test", iteration))
-    run.write_results(iteration, result)
+    for line in run.write_results(iteration, result):
+        print(line, file=sys.stderr)
     print(f"iteration {iteration}: PSNR {result['mean']['PSNR']:.2f} dB, SSIM {result['mean']['SSIM']:.4f} over "
           f"{result['views']} test views (LPIPS skipped: {result['lpips']}); written to {run.path / 'results.json'}")
     print("\n".join(per_view_lines(result)))

@@ -46,7 +46,7 @@ LOCK = ".lock"   # held by the run writing the folder (RunFolder.locked), the ho
 RESULTS, PER_VIEW = "results.json", "per_view.json"
 METRICS = "metrics.jsonl"
 RUN_FILES = (CONFIG, "cfg_args", "cameras.json", CHECKPOINT, PREVIOUS_CHECKPOINT, CORRUPT_CHECKPOINT, RESULTS, PER_VIEW,
-             METRICS)
+             METRICS, "results.corrupt.json", "per_view.corrupt.json")
 RUN_DIRS = ("point_cloud", "test", "train")
 META = "meta"           # the checkpoint entry holding the JSON metadata
 CHECKSUM = "sha256"     # the metadata key holding checkpoint_checksum(arrays, meta)
@@ -349,12 +349,24 @@ class RunFolder:
         return kept
 
     # results ---------------------------------------------------------------------------------------------
-    def write_results(self, iteration: int, result: dict) -> None:
+    def write_results(self, iteration: int, result: dict) -> list[str]:
         """Merge an evaluation (evaluate.evaluate) into results.json and per_view.json under "ours_N"; other
-        iterations' entries are kept."""
-        key = f"ours_{iteration}"
+        iterations' entries are kept. A file that is not a JSON object (damaged, edited) is set aside as
+        <name>.corrupt.json and started afresh, so that the evaluation's work is not lost: what was set aside
+        is returned, a line each, for the command to say."""
+        key, set_aside = f"ours_{iteration}", []
         for name, value in ((RESULTS, result["mean"]), (PER_VIEW, result["per_view"])):
             path = self.path / name
-            data = json.loads(path.read_text()) if path.exists() else {}
+            try:
+                data = json.loads(path.read_text()) if path.exists() else {}
+            except (OSError, ValueError) as e:
+                data = e
+            if not isinstance(data, dict):
+                why = _one_line(data) if isinstance(data, Exception) else f"a JSON {type(data).__name__}, not an object"
+                aside = path.with_suffix(".corrupt.json")
+                os.replace(path, aside)
+                set_aside.append(f"{path}: not a results file ({why}); set aside as {aside.name}")
+                data = {}
             data[key] = value
             write_json(path, data)
+        return set_aside

@@ -206,3 +206,19 @@ def test_a_run_folder_holds_one_run_at_a_time(tmp_path, capsys):
     assert main(["train", *SMALL, "--iterations", "2", "--test-every", "0", "--out", str(out)]) == 0
     assert main(["train", *SMALL, "--iterations", "0", "--out", str(tmp_path / "new")]) == 2
     assert not (tmp_path / "new").exists()
+
+
+@pytest.mark.parametrize("damage", ['{"ours_20": {"PSNR": 1', "[1, 2]"])
+def test_a_damaged_results_file_is_set_aside_not_the_evaluation(tmp_path, capsys, damage):
+    """results.json that is not a JSON object (cut short, edited) made eval and train fail after all their work
+    with a traceback: it is set aside as results.corrupt.json, said in a line, and written afresh."""
+    out = tmp_path / "run"
+    assert main(["train", *SMALL, "--iterations", "3", "--out", str(out)]) == 0
+    (out / "results.json").write_text(damage)
+    capsys.readouterr()
+    assert main(["eval", "--model", str(out), "--no-renders"]) == 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "results.json: not a results file" in err[0] and "results.corrupt.json" in err[0]
+    assert (out / "results.corrupt.json").read_text() == damage
+    assert list(json.loads((out / "results.json").read_text())) == ["ours_3"]
+    assert "ours_3" in json.loads((out / "per_view.json").read_text())   # the intact one merged as before
