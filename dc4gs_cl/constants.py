@@ -37,6 +37,9 @@ SH_MAX_DEGREE = 3
 # (then the kernels that change the model, its moments, the window or the loss' sums leave them as they were,
 # and the trainer runs the iteration again with room: train/trainer.py). Kernels see FRAME_<WORD> = its index.
 FRAME_WORDS = ("VISIBLE", "DEPTH_KEY_MIN", "DEPTH_KEY_MAX", "PAIRS", "OVERFLOWED")
+# count_at of a kernel that takes its element count from the device (kernels/runs.h element_count) when the host
+# knows the count (the bound itself) and no count is to be read
+HOST_COUNT = 0xFFFFFFFF
 
 
 def tile_grid(width: int, height: int) -> tuple[int, int]:
@@ -54,9 +57,9 @@ def sh_degree_of(coeffs: int) -> int:
     return math.isqrt(coeffs) - 1
 
 
-def kernel_defines() -> dict[str, int | float]:
+def kernel_defines() -> dict[str, int | float | str]:
     """The constants every kernel sees, as -D name=value pairs (the runtime writes floats as C float literals)."""
-    d: dict[str, int | float] = {
+    d: dict[str, int | float | str] = {
         "TILE_SIZE": TILE_SIZE, "NEAR_PLANE": NEAR_PLANE, "EWA_DILATION": EWA_DILATION, "FOV_CLAMP": FOV_CLAMP,
         "RADIUS_SIGMAS": RADIUS_SIGMAS, "MIN_EIGEN_GAP": MIN_EIGEN_GAP, "ALPHA_MAX": ALPHA_MAX,
         "ALPHA_MIN": ALPHA_MIN, "TRANSMITTANCE_MIN": TRANSMITTANCE_MIN,
@@ -67,4 +70,5 @@ def kernel_defines() -> dict[str, int | float]:
     d.update({f"SH_C2_{i}": c for i, c in enumerate(SH_C2)})
     d.update({f"SH_C3_{i}": c for i, c in enumerate(SH_C3)})
     d.update({f"FRAME_{word}": i for i, word in enumerate(FRAME_WORDS)})
+    d["HOST_COUNT"] = f"{HOST_COUNT:#x}u"
     return d

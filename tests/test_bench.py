@@ -125,7 +125,7 @@ def test_garden_case_and_the_gsplat_side_refused_without_it(rt, tmp_path, capsys
 def test_garden_case_times_gsplats_asset(rt):
     case = bench.garden_case(rt, bench.QUICK, scene_path("gsplat_test_garden") / "test_garden.npz", lambda line: None)
     assert case["name"] == "garden 648x420" and case["gaussians"] == 111_785 and case["forward"]["pairs"] > 100_000
-    model, cams, _ = case["frames"]
+    model, cams, _, _ = case["frames"]
     assert model.sh_degree == 3 and len(cams) == 3
     for run in bench.case_runs(case).values():
         assert run["device_ms"] > 0 and run["launches"] > 0

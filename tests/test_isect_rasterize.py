@@ -168,3 +168,41 @@ def test_relaxed_math_is_built_with_the_flag_and_stays_close(rt, rng):
     # of 18,432 values, 0.0035, with Intel's runtime at seed 258534123).
     diff = np.abs(approx - exact)
     assert np.mean(diff > 1e-3) < 1e-3 and diff.max() < 0.02, (np.count_nonzero(diff > 1e-3), diff.max())
+
+
+@pytest.mark.parametrize("shape", SHAPES)
+def test_a_pair_capacity_gives_the_same_frame_or_says_it_overflowed(rt, rng, shape):
+    """Given room for more pairs than it has, a frame is the one read back and sized exactly (pairs, ranges, image);
+    given room for fewer, it says so on the device, with its true counts, and writes no pair past the room (the
+    scratch is poisoned: what lies past it stays so)."""
+    from dc4gs_cl.render.workspace import POISON
+    model = random_model(rng, 2000, spread=1.2)
+    cam = random_camera(rng, int(rng.integers(80, 140)), int(rng.integers(60, 110)))
+    g, background = DeviceGaussians(rt, model), rng.uniform(0, 1, 3)
+    exact = Renderer(rt, SHAPES[shape], poison=True)
+    res = exact.render(g, cam, 3, background)
+    p, tiles = res.isect.n_pairs, res.tiles_x * res.tiles_y
+    want = {"gaussian_of_pair": rt.to_host(res.isect.gaussian_of_pair, p, np.uint32),
+            "ranges": rt.to_host(res.isect.ranges, (tiles, 2), np.uint32), "image": res.image(rt)}
+    v = res.isect.n_visible
+    assert p > 1000 and exact.intersect.counts() == (v, p, False)
+
+    roomy = Renderer(rt, SHAPES[shape], poison=True)
+    res = roomy.render(g, cam, 3, background, pair_capacity=p + int(rng.integers(1, 500)))
+    assert res.isect.n_pairs is None and res.isect.pair_bound > p
+    assert roomy.intersect.counts() == (v, p, False)
+    np.testing.assert_array_equal(rt.to_host(res.isect.gaussian_of_pair, p, np.uint32), want["gaussian_of_pair"])
+    np.testing.assert_array_equal(rt.to_host(res.isect.ranges, (tiles, 2), np.uint32), want["ranges"])
+    np.testing.assert_array_equal(res.image(rt), want["image"])
+
+    tight = Renderer(rt, SHAPES[shape], poison=True)   # its buffers first sized for all pairs, then poisoned
+    held = tight.render(g, cam, 3, background, pair_capacity=p).isect
+    for buf in (held.gaussian_of_pair, held.pair_of_emission):
+        rt.fill(buf, POISON, buf.size)
+    room = p // 2
+    res = tight.render(g, cam, 3, background, pair_capacity=room)
+    assert tight.intersect.counts() == (v, p, True)
+    for buf in (res.isect.gaussian_of_pair, res.isect.pair_of_emission):
+        assert buf.size >= 4 * p and (rt.to_host(buf, p, np.uint32)[room:] == POISON).all()
+    ranges = rt.to_host(res.isect.ranges, (tiles, 2), np.uint32)
+    assert ranges.max() <= room and (ranges[:, 0] <= ranges[:, 1]).all()

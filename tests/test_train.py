@@ -359,6 +359,7 @@ def test_a_void_frame_changes_nothing_on_the_device(rt, low_memory):
     parameters, Adam's moments, the window (sum_pairs' fold, or the window's own kernel with --low-memory, whose
     float atomics are not bit-reproducible: the trainer test above cannot cover it) and the loss' sums."""
     from dc4gs_cl.constants import FRAME_WORDS
+    void = np.array([word == "OVERFLOWED" for word in FRAME_WORDS], np.uint32)
     scene = load_scene("builtin", resolution=4)
     cfg = TrainConfig(scene="builtin", iterations=300, resolution=4, strategy="absgs",
                       dc4gs=DC4GSConfig(dcc=True, dcs=True), low_memory=low_memory)
@@ -373,7 +374,7 @@ def test_a_void_frame_changes_nothing_on_the_device(rt, low_memory):
 
         def marked(*args):
             res = render(*args)
-            rt.write(trainer.context.frame, np.array([0, 0, 0, 0, 1], np.uint32)[:len(FRAME_WORDS)])
+            rt.write(trainer.context.frame, void)
             return res
         trainer.renderer.render = marked
         try:

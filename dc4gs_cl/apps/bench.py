@@ -186,7 +186,7 @@ def builtin_cases(rt: Runtime, suite: Suite, say) -> list[dict]:
                 "forward": time_forward(rt, model, scene.train[:suite.forward_views], scene.background, suite),
                 "train": {t: time_training(rt, training_config(t, "builtin", suite.schedule), scene, state,
                                            suite.warm_iterations, suite, suite.iterations) for t in TRAINING},
-                "frames": (model, scene.train[:suite.forward_views], scene.background)}
+                "frames": (model, scene.train[:suite.forward_views], scene.background, suite.iterations)}
         cases.append(case)
     return cases
 
@@ -210,7 +210,7 @@ def frame_case(rt: Runtime, suite: Suite, name: str, model: GaussianModel, cams:
     return {"name": name, "gaussians": len(model), "width": cam.width, "height": cam.height, "forward": forward,
             "train": {t: time_training(rt, training_config(t, name, 30_000), scene, state, GARDEN_AT, suite, iterations)
                       for t in TRAINING},
-            "frames": (model, cams, background)}
+            "frames": (model, cams, background, iterations)}
 
 
 def synthetic_case(rt: Runtime, suite: Suite, say) -> dict:
@@ -243,9 +243,8 @@ def garden_case(rt: Runtime, suite: Suite, path: Path, say) -> dict:
 def gsplat_side(rt: Runtime, case: dict, suite: Suite) -> dict:
     """The case's frames through gsplat (apps/gsplat_frames.py), with its first view's image against ours."""
     from .gsplat_frames import time_gsplat
-    model, cams, background = case["frames"]
+    model, cams, background, iterations = case["frames"]
     ours = Renderer(rt).render(DeviceGaussians(rt, model), cams[0], model.sh_degree, background).image(rt)
-    iterations = suite.synthetic_iterations if len(model) >= suite.synthetic_gaussians else suite.iterations
     return time_gsplat(model, cams, background, ours, suite.rounds, iterations, GSPLAT_ABSGRAD)
 
 

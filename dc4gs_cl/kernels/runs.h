@@ -3,8 +3,7 @@
 #ifndef DC4GS_RUNS_H
 #define DC4GS_RUNS_H
 
-// count_at for a count the host knows (the bound itself), so that no count is read from the device.
-#define HOST_COUNT 0xFFFFFFFFu
+REQUIRE_DEFINED(HOST_COUNT);   // count_at for a count the host knows (constants.py): no count is read
 
 // The elements to work on: `bound` (what the launch and the buffers are sized for) or, where count_at names a
 // count the device wrote (count[count_at]: the visible Gaussians, the pairs), that count, never above the bound.

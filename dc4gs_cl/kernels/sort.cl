@@ -7,7 +7,7 @@
 //   radix_histogram: keys [n] -> hist [RADIX][blocks] (digit-major), counts of each digit per run
 //   radix_spine:     hist, in place: its exclusive sum, flattened (the start of each (digit, run) in the output)
 //   radix_scatter:   keys_in, vals_in [n] -> keys_out, vals_out [n]
-// The host sorts only the bits that can differ, so a pass is never spent on constant bits.
+// The host names the bits to sort: only the tile-id bits a frame uses; all 31 bits a depth key can have.
 //
 // Two shapes, the same output (a stable sort is unique):
 //   -D SORT_WG=1 (CPUs): a run per work-item, walked in sequence, which keeps every pass stable with no ranking

@@ -4,6 +4,7 @@ from __future__ import annotations
 import numpy as np
 import pyopencl as cl
 
+from ..constants import HOST_COUNT
 from .stage import Stage, StageContext
 
 
@@ -38,9 +39,6 @@ class ExclusiveScan(Stage):
         rt.launch(stage, self.k_reduce, g, self.wg, *counted, src, self.block_sums)
         rt.launch(stage, self.k_sums, 1, 1, np.uint32(groups), self.block_sums, total, np.uint32(total_at))
         rt.launch(stage, self.k_apply, g, self.wg, *counted, src, dst, self.block_sums)
-
-
-HOST_COUNT = 0xFFFFFFFF   # kernels/runs.h: count_at for a count the host knows
 
 
 def device_count(bound: int, count: cl.Buffer | None, count_at: int, placeholder: cl.Buffer) -> tuple:
