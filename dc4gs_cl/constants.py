@@ -32,11 +32,15 @@ SH_C3 = (-0.5900435899266435, 2.890611442640554, -0.4570457994644658, 0.37317633
          -0.4570457994644658, 1.445305721320277, -0.5900435899266435)
 SH_MAX_DEGREE = 3
 
-# A frame's counts on the device, uint words (render/isect.py writes them into StageContext.frame): the visible
-# Gaussians, the depth keys' range, the pairs, and whether the pairs overflowed the capacity the frame was given
-# (then the kernels that change the model, its moments, the window or the loss' sums leave them as they were,
-# and the trainer runs the iteration again with room: train/trainer.py). Kernels see FRAME_<WORD> = its index.
-FRAME_WORDS = ("VISIBLE", "DEPTH_KEY_MIN", "DEPTH_KEY_MAX", "PAIRS", "OVERFLOWED")
+# A frame's counts on the device, uint words (render/isect.py starts them in StageContext.frame): the visible
+# Gaussians, the depth keys' range, the pairs, the Gaussians whose pairs span the backward's runs
+# (backward/sum_pairs.py), and whether the pairs overflowed the capacity the frame was given or those Gaussians
+# its carry rows (then the kernels that change the model, its moments, the window or the loss' sums leave them as
+# they were, and the trainer runs the iteration again with room: train/trainer.py). Kernels see FRAME_<WORD> = its
+# index.
+FRAME_WORDS = ("VISIBLE", "DEPTH_KEY_MIN", "DEPTH_KEY_MAX", "PAIRS", "SPANNING", "OVERFLOWED")
+# OVERFLOWED's bits: which room was short (kernels/isect.cl sets the first, sum_pairs.cl run_spans the second)
+PAIRS_OVERFLOWED, CARRY_OVERFLOWED = 1, 2
 # count_at of a kernel that takes its element count from the device (kernels/runs.h element_count) when the host
 # knows the count (the bound itself) and no count is to be read
 HOST_COUNT = 0xFFFFFFFF
@@ -71,4 +75,5 @@ def kernel_defines() -> dict[str, int | float | str]:
     d.update({f"SH_C3_{i}": c for i, c in enumerate(SH_C3)})
     d.update({f"FRAME_{word}": i for i, word in enumerate(FRAME_WORDS)})
     d["HOST_COUNT"] = f"{HOST_COUNT:#x}u"
+    d["PAIRS_OVERFLOWED"], d["CARRY_OVERFLOWED"] = f"{PAIRS_OVERFLOWED}u", f"{CARRY_OVERFLOWED}u"
     return d

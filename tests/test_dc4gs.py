@@ -7,8 +7,8 @@ import pytest
 from helpers import SHAPES, random_camera, random_model
 
 from dc4gs_cl.backward import RasterizeBackward, SplitGeometry
-from dc4gs_cl.backward.rasterize_backward import tile_runs
-from dc4gs_cl.backward.sum_pairs import CARRY_ROWS, CARRY_TAKEN, RUN_MEMBERS, SPANNING
+from dc4gs_cl.backward.rasterize_backward import pair_runs
+from dc4gs_cl.backward.sum_pairs import CARRY_ROWS, CARRY_TAKEN, RUN_SPANS
 from dc4gs_cl.densify import AbsGS, DC4GSConfig
 from dc4gs_cl.reference.dc4gs import split_costs_from_sums, split_geometry_reference
 from dc4gs_cl.reference.rasterize import rasterize_backward_reference
@@ -105,30 +105,38 @@ def test_split_line_follows_the_first_largest_log_scale(rt, rng):
 
 
 @pytest.mark.parametrize("shape", SHAPES)
-def test_backward_in_runs_of_tiles_sums_exactly_as_in_one(rt, rng, shape):
-    """The per-pair slots held at once bounded (Tuning.pair_chunk): the frame's tiles are walked in runs, each
-    run's slots summed onto the sums; a Gaussian's pairs are added in the same order, so the sums (gradients,
-    statistics and split sums, the widest layout) equal the one-run backward's bit for bit. So do the split sums
-    added per column block after its pixels' walk (Tuning.split_sums_per_block): the same adds in the same order."""
+def test_backward_in_runs_sums_exactly_as_in_one(rt, rng, shape):
+    """The per-pair slots held at once bounded (Tuning.pair_chunk): the frame's pairs are walked in runs of
+    consecutive pairs, each run's slots summed onto the sums (a tile holding pairs of two runs walked by both, each
+    writing its own); a Gaussian's pairs are added in the same order, so the sums (gradients, statistics and split
+    sums, the widest layout) equal the one-run backward's bit for bit, also where the frame was given room for more
+    pairs than it has (runs past its pairs find nothing to do). So do the split sums added per column block after
+    its pixels' walk (Tuning.split_sums_per_block): the same adds in the same order."""
     model = random_model(rng, 900, spread=1.0, scale_range=(0.01, 0.12))
     cam = random_camera(rng, int(rng.integers(80, 130)), int(rng.integers(60, 100)))
     bg = rng.uniform(0, 1, 3)
     dL_dimage = rng.normal(size=(cam.height, cam.width, 3)).astype(np.float32)
     layout = SumsLayout(stats=True, dc_stats=True, split_candidates=5)
-    got = {}
-    for name, tuning in (("one run", SHAPES[shape]),
-                         ("runs", replace(SHAPES[shape], pair_chunk=0.1, min_run_tiles=1)),
-                         ("per block", replace(SHAPES[shape], split_sums_per_block=True))):
+    runs = replace(SHAPES[shape], pair_chunk=0.1, min_run_tiles=1)
+    got, walked = {}, {}
+    for name, tuning, room in (("one run", SHAPES[shape], None), ("runs", runs, None), ("runs with room", runs, 2.0),
+                               ("per block", replace(SHAPES[shape], split_sums_per_block=True), None)):
         renderer = Renderer(rt, tuning, poison=True)
         g = DeviceGaussians(rt, model)
         res = renderer.render(g, cam, 3, bg)
+        pairs = res.isect.n_pairs
+        if room:
+            res = renderer.render(g, cam, 3, bg, pair_capacity=int(room * pairs))
         geometry = SplitGeometry(renderer.context)(g, cam, res, 5)
-        sums = RasterizeBackward(renderer.context)(res, rt.to_device(dL_dimage), bg, layout, geometry)
+        backward = RasterizeBackward(renderer.context)
+        plan = backward.plan(res, layout)
+        walked[name] = plan.runs, (plan.runs - 1) * plan.pairs_per_run >= pairs   # a run past the pairs
+        sums = backward(res, rt.to_device(dL_dimage), bg, layout, geometry)
         got[name] = rt.to_host(sums, (len(model), layout.width))
-        ranges = rt.to_host(res.isect.ranges, (res.tiles_x * res.tiles_y, 2), np.uint32)
-    assert len(tile_runs(ranges, max(int(np.ceil(0.1 * len(model))), 1))) >= 4
+    assert walked["one run"] == (1, False) and walked["runs"][0] >= 4 and walked["runs with room"][1]
     assert np.isfinite(got["runs"]).all() and np.count_nonzero(got["runs"][:, -5:]) > 100
-    assert np.array_equal(got["runs"], got["one run"]) and np.array_equal(got["per block"], got["one run"])
+    for name in ("runs", "runs with room", "per block"):
+        assert np.array_equal(got[name], got["one run"]), name
 
 
 @pytest.mark.parametrize("shape", SHAPES)
@@ -170,7 +178,7 @@ def test_split_sums_of_the_subgroup_reduction_are_its_twins(rt, rng, candidates)
     """DC4GS' split sums in the GPU shape: reduced over 32-lane subgroups (KHR or PTX), each lane
     testing its own pixel against the crossing candidates, they are the bits of the portable twin (32 pixels per
     work-item, whose crossing ranges span two rows), split sums and all; and the same bits again when the frame is
-    launched in runs of tiles (other work-groups, other launches)."""
+    walked in runs (other launches, tiles cut between them)."""
     if rt.caps.subgroups is None:
         pytest.skip("needs subgroups: cl_khr_subgroup_shuffle with Intel's required subgroup size (Intel's CPU "
                     'runtime: DC4GS_DEVICE="Intel(R) OpenCL") or NVIDIA\'s inline PTX')
@@ -184,7 +192,7 @@ def test_split_sums_of_the_subgroup_reduction_are_its_twins(rt, rng, candidates)
     g = DeviceGaussians(rt, model)
     res = renderer.render(g, cam, 3, bg)
     geometry = SplitGeometry(renderer.context)(g, cam, res, candidates)
-    runs = replace(SHAPES["gpu"], subgroups=rt.caps.subgroups, pair_chunk=0.1, min_run_tiles=1)   # 4 runs or more
+    runs = replace(SHAPES["gpu"], subgroups=rt.caps.subgroups, pair_chunk=0.1, min_run_tiles=1)   # many runs
     backwards = {name: RasterizeBackward(ctx) for name, ctx in (
         ("subgroups", renderer.context), ("twin", StageContext(rt, SHAPES["gpu"])),
         ("subgroups in runs", StageContext(rt, runs)))}
@@ -197,28 +205,26 @@ def test_split_sums_of_the_subgroup_reduction_are_its_twins(rt, rng, candidates)
     assert np.array_equal(got["subgroups in runs"].view(np.uint32), got["twin"].view(np.uint32))
 
 
-def spanning_runs(rt, res, tuning, n: int) -> tuple[int, list, list]:
-    """From the isect arrays: how many Gaussians have pairs in more than one of the frame's runs of tiles, the
-    runs, and each run's Gaussians (those whose first and last pairs' runs enclose it)."""
-    ranges = rt.to_host(res.isect.ranges, (res.tiles_x * res.tiles_y, 2), np.uint32)
-    runs = tile_runs(ranges, max(int(np.ceil(tuning.pair_chunk * n)), 1), tuning.min_run_tiles)
-    touched = rt.to_host(res.proj.tiles_touched, n, np.uint32)
-    first = rt.to_host(res.isect.pair_first, n, np.uint32)[touched > 0]
+def spanning_runs(rt, res, tuning, n: int) -> tuple[int, int, np.ndarray]:
+    """From the isect arrays: how many Gaussians have pairs in more than one of the frame's runs (pair_runs), the
+    runs, and each Gaussian's first and last run as run_spans keeps them (0, 0 for one with no pair)."""
+    runs, per_run = pair_runs(res.isect.n_pairs, n, res.tiles_x * res.tiles_y, tuning)
+    touched = rt.to_host(res.proj.tiles_touched, n, np.uint32).astype(np.int64)
+    first = rt.to_host(res.isect.pair_first, n, np.uint32).astype(np.int64)
     pair_of_emission = rt.to_host(res.isect.pair_of_emission, res.isect.n_pairs, np.uint32)
-    run_ends = [r[3] for r in runs]
-    first_run = np.searchsorted(run_ends, pair_of_emission[first], side="right")
-    last_run = np.searchsorted(run_ends, pair_of_emission[first + touched[touched > 0] - 1], side="right")
-    ids = np.flatnonzero(touched > 0)
-    members = [ids[(first_run <= r) & (r <= last_run)] for r in range(len(runs))]
-    return int((first_run != last_run).sum()), runs, members
+    some = touched > 0
+    first_run, last_run = np.zeros(n, np.uint32), np.zeros(n, np.uint32)
+    first_run[some] = pair_of_emission[first[some]] // per_run
+    last_run[some] = pair_of_emission[first[some] + touched[some] - 1] // per_run
+    return int((first_run != last_run).sum()), runs, first_run << 16 | last_run
 
 
 @pytest.mark.parametrize("base", ["3dgs", "absgs", "pixelgs"])
 @pytest.mark.parametrize("pooling", ["view", "window"])
 def test_sum_pairs_folds_the_window_as_the_window_kernel_does(rt, rng, base, pooling):
     """sum_pairs folds a view's statistics into the window (window_fold.h) and only its gradients reach memory,
-    for a frame walked in one run and in runs of tiles (a Gaussian whose pairs span runs carries its partial sums
-    from run to run). Over two views (the second adds to a window holding the first), both give the same window
+    for a frame walked in one run and in runs (a Gaussian whose pairs span runs carries its partial sums from run
+    to run; run_spans' record of each one's runs and its count of them against the host's). Over two views (the second adds to a window holding the first), both give the same window
     and gradients, bit for bit, as the full sums folded by the window's own kernel."""
     from dc4gs_cl.densify import STRATEGIES
     from dc4gs_cl.statistics import GRADIENTS
@@ -248,20 +254,12 @@ def test_sum_pairs_folds_the_window_as_the_window_kernel_does(rt, rng, base, poo
                 sums, layout = backwards[name].folding(*args, window=gathering.window)
             assert layout == (GRADIENTS if name != "window kernel" else gathering.layout)
             if name == "runs":                   # a row for each Gaussian spanning runs, each taken once
-                ws = renderers[name].context.ws
-                carried = rt.to_host(ws.get(CARRY_TAKEN, 4), 1, np.uint32)[0]
-                spanning, runs, members = spanning_runs(rt, res, paths["runs"], len(model))
-                assert carried == spanning > 10 and len(runs) >= 4
-                assert ws.get(CARRY_ROWS, 4).size >= 4 * gathering.layout.width * spanning
-                # run_spans and each run's members against the host's, on a counter and a list poisoned first
-                stage = backwards[name].sum_pairs
-                rt.fill(ws.get(SPANNING, 4), np.uint32(0xFFFFFFFF), 4)
-                assert stage.run_spans(res, gathering.layout, gathering.window, runs) == spanning
-                for run in range(1, len(runs)):
-                    rt.fill(ws.get(RUN_MEMBERS, 4), np.uint32(0xFFFFFFFF), 4 * len(model))
-                    listed = stage.members(res, gathering.layout, gathering.window, run)
-                    count = int(rt.to_host(listed.count, 1, np.uint32)[0])
-                    assert np.array_equal(np.sort(rt.to_host(listed.ids, count, np.uint32)), members[run])
+                ctx = renderers[name].context
+                carried = rt.to_host(ctx.ws.get(CARRY_TAKEN, 4), 1, np.uint32)[0]
+                spanning, runs, spans = spanning_runs(rt, res, paths["runs"], len(model))
+                assert carried == spanning == ctx.frame_counts()["SPANNING"] > 10 and runs >= 4
+                assert ctx.ws.get(CARRY_ROWS, 4).size >= 4 * gathering.layout.width * spanning
+                assert np.array_equal(rt.to_host(ctx.ws.get(RUN_SPANS, 4), len(model), np.uint32), spans)
             grads[name] = rt.to_host(sums, (len(model), layout.width))[:, :GRADIENTS.width]
         assert np.isfinite(grads["fused"]).all() and np.count_nonzero(grads["fused"]) > 1000
         assert np.array_equal(grads["fused"], grads["window kernel"]) and np.array_equal(grads["runs"], grads["fused"])
@@ -272,26 +270,24 @@ def test_sum_pairs_folds_the_window_as_the_window_kernel_does(rt, rng, base, poo
         assert np.array_equal(windows["runs"][column], expected), column
 
 
-def test_tile_runs_cut_the_frame_into_runs_within_the_budget(rng):
-    counts = rng.integers(0, 40, 300)
-    counts[rng.choice(300, 60, replace=False)] = 0            # empty tiles: ranges (0, 0)
-    counts[17] = 500                                         # more than the budget: a run of its own
-    ends = np.cumsum(counts)
-    ranges = np.stack([ends - counts, ends], 1).astype(np.uint32)
-    ranges[counts == 0] = 0
-    budget = 100
-    for min_tiles in (1, 7):
-        runs = tile_runs(ranges, budget, min_tiles)
-        assert runs[0][0] == 0 and runs[-1][1] == 300 and runs[-1][3] == ends[-1]
-        for (t0, t1, p0, p1), nxt in zip(runs, runs[1:] + [None]):
-            assert p0 == ends[t0] - counts[t0] and p1 == ends[t1 - 1]
-            assert t1 - t0 >= min_tiles                          # the last run too: a short tail joins it
-            if nxt is not None:             # greedy: within the budget (or the floor), and the next tile would not fit
-                assert p1 - p0 <= budget or t1 - t0 == min_tiles
-                assert nxt[0] == t1 and p1 - p0 + counts[t1] > budget
-            else:                           # the last: a greedy run and a tail of fewer than min_tiles tiles
-                head = t1 - (min_tiles - 1)
-                assert ends[head - 1] - p0 <= budget or head - t0 <= min_tiles
+def test_pair_runs_hold_the_bound_within_the_budget(rng):
+    """A view's pairs (its room for them: the bound) in runs of consecutive pairs: one run unless the bound tops the
+    budget (pair_chunk slots per Gaussian) in a frame of at least 2 min_run_tiles tiles; then runs of at least the
+    budget, as few as cover the bound, and at most one per min_run_tiles tiles."""
+    for _ in range(500):
+        n, tiles = int(rng.integers(1, 5000)), int(rng.integers(1, 4000))
+        bound = int(rng.integers(0, 40 * n))
+        tuning = replace(SHAPES["cpu"], pair_chunk=float(rng.choice([0.1, 1.0, 2.5])),
+                         min_run_tiles=int(rng.choice([1, 16, 256])))
+        runs, per_run = pair_runs(bound, n, tiles, tuning)
+        budget = max(int(np.ceil(tuning.pair_chunk * n)), 1)
+        if bound <= budget or tiles < 2 * tuning.min_run_tiles:
+            assert (runs, per_run) == (1, max(bound, 1))
+            continue
+        assert per_run >= budget and (runs - 1) * per_run < bound <= runs * per_run
+        assert 2 <= runs <= tiles // tuning.min_run_tiles
+        assert per_run == budget or per_run - 1 < bound / (tiles // tuning.min_run_tiles) <= per_run
+    assert pair_runs(10 ** 6, 1000, 10 ** 4, replace(SHAPES["cpu"], pair_sums=False)) == (1, 10 ** 6)
 
 
 def one_view_window(rt, model, cam, target, background, strategy):

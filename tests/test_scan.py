@@ -53,3 +53,23 @@ def test_exclusive_scan_of_a_count_on_the_device(rt, rng, shape):
         np.testing.assert_array_equal(got[:n], np.concatenate([[0], np.cumsum(values[:n], dtype=np.uint64)[:-1]])[:n])
         assert (got[n:] == POISON).all()
         assert rt.to_host(total, 2, np.uint32).tolist() == [n, values[:n].sum()]
+
+
+@pytest.mark.parametrize("shape", SHAPES)
+def test_gathering_scan_scans_the_elements_in_the_order_given(rt, rng, shape):
+    """gather=True: element i is in[order[i]] (the intersection scans the visible Gaussians' tile counts in depth
+    order), over a count taken from the device; nothing past it written."""
+    scan = ExclusiveScan(StageContext(rt, SHAPES[shape]), gather=True)
+    n_all = 40_000
+    for n in [0, 1, 257, int(rng.integers(2, n_all)), n_all]:
+        values = rng.integers(0, 50, n_all).astype(np.uint32)
+        order = rng.permutation(n_all).astype(np.uint32)
+        dst = rt.to_device(np.full(n_all, POISON, np.uint32))
+        total = rt.to_device(np.array([n, POISON], np.uint32))
+        scan(rt.to_device(values), dst, n_all, total, 1, count=total, count_at=0, order=rt.to_device(order))
+        gathered = values[order[:n]].astype(np.uint64)
+        got = rt.to_host(dst, n_all, np.uint32)
+        np.testing.assert_array_equal(got[:n], np.concatenate([[0], np.cumsum(gathered)[:-1]])[:n])
+        assert (got[n:] == POISON).all() and rt.to_host(total, 2, np.uint32).tolist() == [n, gathered.sum()]
+    with pytest.raises(ValueError):
+        scan(rt.to_device(values), dst, n_all, total, 1)

@@ -14,6 +14,7 @@ import pytest
 
 from dc4gs_cl.cli import main
 from dc4gs_cl.config import TrainConfig
+from dc4gs_cl.constants import CARRY_OVERFLOWED, PAIRS_OVERFLOWED
 from dc4gs_cl.densify import DC4GSConfig
 from dc4gs_cl.metrics import psnr
 from dc4gs_cl.run_folder import CHECKPOINT, LOCK, RunFolder
@@ -319,14 +320,15 @@ def test_check_finite_on_the_command_line(tmp_path):
 
 
 @pytest.mark.parametrize("strategy, walk", [("3dgs", "one run"), ("absgs+dc4gs", "one run"),
-                                            ("absgs+dc4gs", "runs of tiles")])
-def test_a_view_that_overflows_its_pair_capacity_runs_again_to_the_same_model(rt, monkeypatch, strategy, walk):
-    """The trainer sizes a view's pair buffers by a capacity and reads nothing back until the iteration is queued; a
-    view with more pairs changes nothing on the device and runs again with room. Forced here every few iterations
-    (a densification step among them): the model, its moments and the window are those of a run that never
-    overflowed, bit for bit."""
+                                            ("absgs+dc4gs", "runs")])
+def test_a_view_that_overflows_its_room_runs_again_to_the_same_model(rt, monkeypatch, strategy, walk):
+    """The trainer sizes a view's pair buffers by a capacity, and the backward's carry rows (for the Gaussians
+    whose pairs span its runs) by another, and reads nothing back until the iteration is queued; a view with more
+    changes nothing on the device and runs again with room. Forced here every few iterations (a densification
+    step among them): the model, its moments and the window are those of a run that never overflowed, bit for
+    bit."""
     from dc4gs_cl.render import Tuning
-    if walk == "runs of tiles":   # each view's backward in several runs of a few tiles (their plan read back)
+    if walk == "runs":   # each view's backward in several runs of consecutive pairs, the window folded in them
         for_device = Tuning.for_device
         monkeypatch.setattr(Tuning, "for_device", staticmethod(
             lambda caps: replace(for_device(caps), pair_chunk=0.3, min_run_tiles=4)))
@@ -335,16 +337,22 @@ def test_a_view_that_overflows_its_pair_capacity_runs_again_to_the_same_model(rt
                       dc4gs=DC4GSConfig(dcc=True, dcs=True) if "dc4gs" in strategy else DC4GSConfig())
     steady, forced = Trainer(cfg, scene, rt), Trainer(cfg, scene, rt)
     overflows = []
-    counts = forced.renderer.intersect.counts
-    monkeypatch.setattr(forced.renderer.intersect, "counts", lambda: overflows.append(counts()[2]) or counts())
+    counts = forced.context.frame_counts
+    monkeypatch.setattr(forced.context, "frame_counts", lambda: overflows.append(counts()["OVERFLOWED"]) or counts())
     densify_at = [it for it in range(1, 201) if steady.strategy.actions(it).densify]
     assert densify_at, "the test wants a densification step to overflow"
     for it in range(1, 201):
         steady.step()
         if it % 7 == 0 or it == densify_at[0]:
             forced.pair_capacity = 1
+        elif it % 5 == 0:
+            forced.carry_rows = 1
         forced.step()
-    assert overflows.count(True) >= 200 // 7 and forced.model.n == steady.model.n > len(scene.points)
+    assert overflows.count(PAIRS_OVERFLOWED) >= 200 // 7 and forced.model.n == steady.model.n > len(scene.points)
+    if walk == "runs":   # views in runs, carrying sums: most of those given one row overflowed it
+        assert overflows.count(CARRY_OVERFLOWED) >= 200 // 5 // 2
+    else:
+        assert CARRY_OVERFLOWED not in overflows   # one run: no carry
     a, b = steady.model.download(), forced.model.download()
     for what, mine, theirs in [("params", a.params, b.params), ("m", a.m, b.m), ("v", a.v, b.v),
                                ("window", steady.strategy.window.download(), forced.strategy.window.download())]:

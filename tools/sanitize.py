@@ -242,9 +242,10 @@ class Recording(Runtime):
 class Backward:
     """The rest of a training iteration after a forward, in one variant: the sums per pair or by float
     atomics, a pixel mask or none, the strategy whose statistics it gathers (None: the window has closed,
-    the gradients alone, written out rather than stepped by Adam); runs: the per-pair slots held for one
-    tile at a time (the backward walked in runs of tiles, the view folded in sum_pairs, Gaussians spanning runs
-    carried between them), and the split sums added per column block (Tuning.split_sums_per_block)."""
+    the gradients alone, written out rather than stepped by Adam); runs: the per-pair slots held for a tile's
+    worth of pairs at a time (the backward walked in runs of consecutive pairs, most tiles cut between two, the
+    view folded in sum_pairs, Gaussians spanning runs carried between them), and the split sums added per column
+    block (Tuning.split_sums_per_block)."""
     pair_sums: bool
     masked: bool
     strategy: str | None
@@ -254,7 +255,7 @@ class Backward:
 # Each forward (its switches; off, they change the backward's build too) and the backward variants run on
 # it: together every kernel, and every variant training builds: the statistics of 3DGS, of AbsGS with
 # DC4GS' split sums and of Pixel-GS with DCS pooled over the window and tracked, the masked loss and
-# backward, both sums modes (the slots in one run of tiles and in runs of one tile), Adam's fused step and the
+# backward, both sums modes (the slots in one run and in runs of a tile's worth of pairs), Adam's fused step and the
 # plain gradients.
 FORWARDS = (
     ({}, (Backward(True, False, "absgs+dc4gs", runs=True), Backward(True, True, "pixelgs+dcs"),
@@ -342,7 +343,7 @@ def overflowed_view(rt: Runtime, shape: str, model, cam, target, background, lrs
                                                       gathering.geometry, None, gathering.window)
         ProjectBackward(ctx).step(gaussians.params, cam, model.sh_degree, res, sums, layout,
                                   gaussians.adam.step_value(lrs), gaussians.adam.m, gaussians.adam.v)
-        if not renderer.intersect.counts()[2]:
+        if not ctx.frame_counts()["OVERFLOWED"]:
             raise RuntimeError("the view given room for half its pairs did not say it overflowed")
     except Refused:
         pass

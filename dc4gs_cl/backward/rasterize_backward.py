@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 import warnings
+from typing import NamedTuple
 
 import numpy as np
 import pyopencl as cl
@@ -14,10 +15,11 @@ from ..errors import DeviceError
 from ..render.rasterize import background_value, raster_defines
 from ..render.renderer import RenderResult
 from ..render.stage import Stage, visible_rows
+from ..render.tuning import Tuning
 from ..runtime import SUBGROUP_SOURCES
 from ..statistics import GRADIENTS, SumsLayout
 from .densify_stats import DensifyStats, WindowFold
-from .sum_pairs import SumPairs
+from .sum_pairs import Carry, SumPairs
 
 # Workspace buffers (render/workspace.py)
 SUMS = "backward.sums"              # [N*width] the view's per-Gaussian sums (returned)
@@ -113,66 +115,82 @@ class RasterizeBackward(Stage):
         view's mask (H x W uint8, 0 = masked out), whose masked pixels add nothing."""
         return self.folding(res, dL_dimage, background, layout, geometry, keep)[0]
 
+    def plan(self, res: RenderResult, layout: SumsLayout, window: WindowFold | None = None,
+             carry_rows: int | None = None) -> RunPlan:
+        """How the view's pairs will be walked (pair_runs) and, walked in runs with the window folded by sum_pairs,
+        its carry: with carry_rows rows, a view with more Gaussians spanning runs void on the device (the trainer
+        queues this before anything that changes lasting state, and runs the view again with more); None: as many
+        as it has, read back."""
+        tuning, n = self.ctx.tuning, res.proj.n
+        runs, per_run = pair_runs(res.isect.pair_bound, n, res.tiles_x * res.tiles_y, tuning)
+        fused = window is not None and tuning.pair_sums and runs <= tuning.max_folded_runs
+        rows = 0
+        if runs > 1 and n:
+            self.sum_pairs.run_spans(res, layout, window if fused else None, per_run, runs,
+                                     carry_rows if fused else None)
+            if fused:
+                rows = self.ctx.frame_counts()["SPANNING"] if carry_rows is None else carry_rows
+        return RunPlan(runs, per_run, fused, self.sum_pairs.carry(layout, n, rows) if fused else None)
+
     def folding(self, res: RenderResult, dL_dimage: cl.Buffer, background, layout: SumsLayout,
                 geometry: cl.Buffer | None = None, keep: cl.Buffer | None = None,
-                window: WindowFold | None = None) -> tuple[cl.Buffer, SumsLayout]:
+                window: WindowFold | None = None, plan: RunPlan | None = None) -> tuple[cl.Buffer, SumsLayout]:
         """As a call, and with a window (layout with statistics), the view's statistics folded into it: by
         sum_pairs as it adds up each Gaussian's slots (the sums returned then hold the gradients alone, and the
-        per-Gaussian statistics never reach memory: 124 of 160 bytes per Gaussian with DC4GS; in a few runs of
-        tiles, Tuning.max_folded_runs, only the Gaussians whose pairs span runs hold theirs between runs, in carry
-        rows), else (float atomics, or more runs) by the window's own kernel. The sums and their layout."""
+        per-Gaussian statistics never reach memory: 124 of 160 bytes per Gaussian with DC4GS; in a few runs,
+        Tuning.max_folded_runs, only the Gaussians whose pairs span runs hold theirs between runs, in carry rows),
+        else (float atomics, or more runs) by the window's own kernel. plan: the view's (self.plan, with this
+        layout and window), made here where not given. The sums and their layout."""
         if layout.split_candidates and geometry is None:
             raise ValueError("split costs need the split geometry of the view")
         rt, tuning = self.rt, self.ctx.tuning
-        n, p, tiles = res.proj.n, res.isect.pair_bound, res.tiles_x * res.tiles_y
-        runs = [(0, tiles, 0, p)]
-        if tuning.pair_sums:
-            budget = max(math.ceil(tuning.pair_chunk * n), 1)
-            if p > budget and tiles >= 2 * tuning.min_run_tiles:
-                runs = tile_runs(rt.to_host(res.isect.ranges, (tiles, 2), np.uint32), budget, tuning.min_run_tiles)
-        fused = window is not None and tuning.pair_sums and len(runs) <= tuning.max_folded_runs
-        out_layout = GRADIENTS if fused else layout
+        n, bound, tiles = res.proj.n, res.isect.pair_bound, res.tiles_x * res.tiles_y
+        plan = plan or self.plan(res, layout, window)
+        out_layout = GRADIENTS if plan.fused else layout
         sums = self.ws.get(SUMS, 4 * out_layout.width * max(n, 1))
         if tuning.pair_sums:
-            target = self.ws.get(PAIR_SUMS, 4 * layout.width * max(max(r[3] - r[2] for r in runs), 1))
+            target = self.ws.get(PAIR_SUMS, 4 * layout.width * max(min(plan.pairs_per_run, bound), 1))
         else:
             target = sums
             rt.fill(sums, np.float32(0), 4 * layout.width * n)
-        fold = window if fused else None
-        # Past the first run, sum_pairs covers only the Gaussians with a pair in the run (members).
-        spanning = self.sum_pairs.run_spans(res, layout, fold, runs) if len(runs) > 1 and n else 0
-        carry = self.sum_pairs.carry(layout, n, spanning) if fused else None
+        fold = window if plan.fused else None
         variant = {**layout.defines(), "PIXEL_MASK": int(keep is not None)}
         k = self.fitted_kernels(variant)
         items = self.items(self.shape(variant))
         split_geometry = geometry if geometry is not None else sums
-        for run, (t0, t1, p0, p1) in enumerate(runs):
-            rt.launch("rasterize_backward", k["rasterize_backward"], (t1 - t0) * items, items,
-                      np.int32(res.width), np.int32(res.height), np.int32(res.tiles_x), np.int32(t0), np.uint32(p0),
+        for run in range(plan.runs):
+            p0, p1 = run * plan.pairs_per_run, min(bound, (run + 1) * plan.pairs_per_run)
+            rt.launch("rasterize_backward", k["rasterize_backward"], tiles * items, items,
+                      np.int32(res.width), np.int32(res.height), np.int32(res.tiles_x), np.uint32(p0), np.uint32(p1),
                       background_value(background), res.isect.ranges, res.isect.gaussian_of_pair, res.proj.mean2d,
                       res.proj.conic_opacity, res.proj.rgb, res.proj.alpha_extent, res.raster.final_T,
                       res.raster.last_pair, dL_dimage, split_geometry, *([keep] if keep is not None else []), target)
             if tuning.pair_sums:
-                members = self.sum_pairs.members(res, layout, fold, run) if run else None
-                self.sum_pairs(res, layout, target, p0, p1, split_geometry, sums, fold, carry, members)
+                self.sum_pairs(res, layout, target, p0, p1, run, plan.runs, split_geometry, sums, fold, plan.carry)
         self.check(lambda: {"sums": visible_rows(rt, sums, rt.to_host(res.proj.radius, n, np.int32),
                                                  out_layout.width)})
-        if window is not None and not fused:
+        if window is not None and not plan.fused:
             self.densify_stats(res, sums, geometry, window)
         return sums, out_layout
 
 
-def tile_runs(ranges: np.ndarray, budget: int, min_tiles: int = 1) -> list[tuple[int, int, int, int]]:
-    """The frame's tiles cut into runs of consecutive tiles with at most `budget` pairs each, except that a run
-    holds at least min_tiles tiles, and fewer than min_tiles left over join the last run (a launch of a few
-    tiles would leave cores idle): (first tile, end tile, first pair, end pair) per run. ranges: (tiles, 2),
-    each tile's (first pair, end pair), (0, 0) when empty; a tile's pairs follow the previous tile's."""
-    ends = np.cumsum(ranges[:, 1].astype(np.int64) - ranges[:, 0])   # pairs up to and including each tile
-    runs, t0, tiles = [], 0, len(ranges)
-    while t0 < tiles:
-        p0 = int(ends[t0 - 1]) if t0 else 0
-        t1 = max(int(np.searchsorted(ends, p0 + budget, side="right")), t0 + min_tiles)
-        t1 = tiles if tiles - t1 < min_tiles else t1
-        runs.append((t0, t1, p0, int(ends[t1 - 1])))
-        t0 = t1
-    return runs
+class RunPlan(NamedTuple):
+    """How a view's backward walks its pairs: in `runs` runs of pairs_per_run consecutive pairs (pair_runs),
+    its statistics folded by sum_pairs (fused) with this carry (runs > 1), or not."""
+    runs: int
+    pairs_per_run: int
+    fused: bool
+    carry: Carry | None
+
+
+def pair_runs(bound: int, n: int, tiles: int, tuning: Tuning) -> tuple[int, int]:
+    """The runs of consecutive pairs a view with room for `bound` pairs is walked in, and the pairs per run: one
+    run unless the pairs outnumber the slots held at once (Tuning.pair_chunk per Gaussian) in a frame of at least
+    2 min_run_tiles tiles, and at most one run per min_run_tiles tiles (a launch ends with cores idle behind its
+    slowest tiles). Fixed on the host from the bound alone, so that nothing is read back: a run past the view's
+    pairs has nothing to do."""
+    budget = max(math.ceil(tuning.pair_chunk * n), 1)
+    if not tuning.pair_sums or bound <= budget or tiles < 2 * tuning.min_run_tiles:
+        return 1, max(bound, 1)
+    per_run = max(budget, -(-bound // (tiles // tuning.min_run_tiles)))
+    return -(-bound // per_run), per_run

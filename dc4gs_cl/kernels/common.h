@@ -29,9 +29,12 @@
 #define UNPACKED_WORK_ITEMS
 #endif
 
-// A frame whose pairs overflowed the capacity it was given (frame [FRAME_WORDS] uint, constants.py): the kernels
-// that change lasting state (parameters, Adam's moments, the window, the loss' sums) or read every pair of a
-// Gaussian return at once, so that the iteration can run again as if it never had.
+// A frame whose pairs overflowed the capacity it was given, or whose Gaussians spanning runs the carry rows it was
+// given (frame [FRAME_WORDS] uint, constants.py; FRAME_OVERFLOWED holds which: the bits PAIRS_OVERFLOWED and
+// CARRY_OVERFLOWED): the kernels that change lasting state (parameters, Adam's moments, the window, the loss'
+// sums) or read every pair of a Gaussian return at once, so that the iteration can run again as if it never had.
+REQUIRE_DEFINED(PAIRS_OVERFLOWED);
+REQUIRE_DEFINED(CARRY_OVERFLOWED);
 #define FRAME_VOID(frame) ((frame)[FRAME_OVERFLOWED] != 0u)
 
 #define MINF(a, b) ((a) < (b) ? (a) : (b))

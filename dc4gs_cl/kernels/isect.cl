@@ -10,17 +10,17 @@
 //   compact_visible:    tiles_touched [N], visible_offset [N] (exclusive scan of tiles_touched != 0), depth [N]
 //                       -> visible_ids [V], depth_keys [V] (uint bits of the positive depth, which sort
 //                       like the floats), frame: atomic min and max of the keys
-//   gather_tile_counts: ids_by_depth [V], tiles_touched [N] -> counts [V]
-//   emit_pairs:         ids_by_depth [V], pair_offset [V] (exclusive scan of counts), mean2d [N*2],
+//   (exclusive scan of tiles_touched [ids_by_depth [i]], i < V: pair_offset [V], P)
+//   emit_pairs:         ids_by_depth [V], pair_offset [V], mean2d [N*2],
 //                       radius [N], alpha_extent [N*2] -> per pair in emission order e < C: tile_of_emission [C],
 //                       emission [C] (= e, the values the tile sort carries), gaussian_of_emission [C];
 //                       per visible Gaussian g: pair_first [N], its first e (its pairs are e .. e + tiles - 1);
 //                       frame's OVERFLOWED where P > C (the pairs from C on are not written)
 //   (stable sort of (tile_of_emission, emission) by tile, of the first min(P, C))
 //   gather_pairs:       emission_sorted [C], gaussian_of_emission [C] -> gaussian_of_pair [C] (the list the
-//                       rasterizer walks), pair_of_emission [C] (where each emitted pair landed)
-//   tile_ranges:        tile_of_pair [C] (sorted by tile) -> ranges [tiles*2] (first pair, end pair);
-//                       the host zero-fills ranges first, so empty tiles stay (0, 0)
+//                       rasterizer walks), pair_of_emission [C] (where each emitted pair landed); and
+//                       tile_of_pair [C] (sorted by tile) -> ranges [tiles*2] (first pair, end pair), the host
+//                       zero-filling ranges first, so empty tiles stay (0, 0)
 
 #include "tiles.h"
 
@@ -50,12 +50,6 @@ void compact_visible(const uint n, __global const uint *tiles_touched, __global 
     }
 }
 
-__kernel void gather_tile_counts(__global const uint *frame, __global const uint *ids_by_depth,
-                                 __global const uint *tiles_touched, __global uint *counts) {
-    uint i = get_global_id(0);
-    if (i < frame[FRAME_VISIBLE]) counts[i] = tiles_touched[ids_by_depth[i]];
-}
-
 __kernel void emit_pairs(__global uint *frame, const uint capacity, const int tiles_x, const int tiles_y,
                          __global const uint *ids_by_depth,
                          __global const uint *pair_offset, __global const float *mean2d,
@@ -69,7 +63,8 @@ __kernel void emit_pairs(__global uint *frame, const uint capacity, const int ti
     uint at = pair_offset[i];
     pair_first[g] = at;
     // the one Gaussian whose pairs reach past the capacity says so (P > C)
-    if (at <= capacity && capacity < at + (uint)((rect.z - rect.x) * (rect.w - rect.y))) frame[FRAME_OVERFLOWED] = 1u;
+    if (at <= capacity && capacity < at + (uint)((rect.z - rect.x) * (rect.w - rect.y)))
+        frame[FRAME_OVERFLOWED] = PAIRS_OVERFLOWED;
     for (int ty = rect.y; ty < rect.w; ++ty)
         for (int tx = rect.x; tx < rect.z && at < capacity; ++tx) {
             tile_of_emission[at] = (uint)(ty * tiles_x + tx);
@@ -80,19 +75,13 @@ __kernel void emit_pairs(__global uint *frame, const uint capacity, const int ti
 }
 
 __kernel void gather_pairs(__global const uint *frame, const uint capacity, __global const uint *emission_sorted,
-                           __global const uint *gaussian_of_emission, __global uint *gaussian_of_pair,
-                           __global uint *pair_of_emission) {
-    uint i = get_global_id(0);
-    if (i >= min(frame[FRAME_PAIRS], capacity)) return;
+                           __global const uint *gaussian_of_emission, __global const uint *tile_of_pair,
+                           __global uint *gaussian_of_pair, __global uint *pair_of_emission, __global uint *ranges) {
+    uint i = get_global_id(0), p = min(frame[FRAME_PAIRS], capacity);
+    if (i >= p) return;
     uint e = emission_sorted[i];
     gaussian_of_pair[i] = gaussian_of_emission[e];
     pair_of_emission[e] = i;
-}
-
-__kernel void tile_ranges(__global const uint *frame, const uint capacity, __global const uint *tile_of_pair,
-                          __global uint *ranges) {
-    uint i = get_global_id(0), p = min(frame[FRAME_PAIRS], capacity);
-    if (i >= p) return;
     uint t = tile_of_pair[i];
     if (i == 0 || tile_of_pair[i - 1] != t) ranges[2 * t] = i;
     if (i == p - 1 || tile_of_pair[i + 1] != t) ranges[2 * t + 1] = i + 1;

@@ -7,12 +7,15 @@
 //       offsets SUM_<FIELD> and SUM_WIDTH are -D options from dc4gs_cl/statistics.py, SumsLayout). Two designs
 //       (-D PAIR_SUMS):
 //         0: sums [N*SUM_WIDTH], added to with float atomics (the host zeroes it first);
-//         1: sums [(pair_end - pair0)*SUM_WIDTH], one slot per pair of this launch's tiles (pair p at slot
+//         1: sums [(pair_end - pair0)*SUM_WIDTH], one slot per pair of this launch's run (pair p at slot
 //            p - pair0), written in full (zeros for pairs past the walk) except the split sums of a Gaussian
 //            with no split line, which sum_pairs skips; no atomics; sum_pairs (sum_pairs.cl) then adds each
 //            Gaussian's slots in a fixed order: deterministic.
-//       A launch walks the tiles tile0 .. tile0 + groups - 1; the host cuts a frame with many pairs into
-//       such runs (dc4gs_cl/backward/rasterize_backward.py, tile_runs) so fewer slots are held at once.
+//       A launch covers every tile and writes the slots of the pairs pair0 .. pair_end - 1 (a run: the host cuts
+//       a frame with many pairs into runs of consecutive pairs so that fewer slots are held at once, with nothing
+//       read back: dc4gs_cl/backward/rasterize_backward.py, pair_runs); a tile with none of them returns at once,
+//       one holding the run's first pairs is walked down to them only, one holding its last from its own last
+//       blended pair (those past the run walked, not written: they set T and the colour behind).
 //       The terms:
 //         SUM_MEAN2D +0,1   dL/dmean2d, px
 //         SUM_CONIC  +0,1,2 dL/d(a, b, c) of conic_opacity
@@ -333,7 +336,7 @@ ALWAYS_INLINE int2 crossing_range(const float4 line, const float *tk, const int4
 #endif
 
 __kernel __attribute__((reqd_work_group_size(ITEMS_PER_TILE, 1, 1))) SUBGROUP_SIZE_ATTRIBUTE
-void rasterize_backward(const int width, const int height, const int tiles_x, const int tile0, const uint pair0,
+void rasterize_backward(const int width, const int height, const int tiles_x, const uint pair0, const uint pair_end,
                         const float4 background,
                         __global const uint *ranges, __global const uint *gaussian_of_pair,
                         __global const float *mean2d, __global const float *conic_opacity, __global const float *rgb,
@@ -344,9 +347,11 @@ void rasterize_backward(const int width, const int height, const int tiles_x, co
                         __global const uchar *keep,
 #endif
                         __global float *sums) {
-    const int tile = tile0 + (int)get_group_id(0), lid = get_local_id(0);
+    const int tile = get_group_id(0), lid = get_local_id(0);
     const int x0 = (tile % tiles_x) * TILE_SIZE, y0 = (tile / tiles_x) * TILE_SIZE;
-    const int first = ranges[2 * tile];
+    const int first = ranges[2 * tile], range_end = ranges[2 * tile + 1];
+    if (range_end <= (int)pair0 || first >= (int)pair_end) return;     // none of the run's pairs: the whole group
+    const int lo = max(first, (int)pair0), hi = min(range_end, (int)pair_end);   // the run's pairs in this tile
     const float ndc_x = 0.5f * (float)width, ndc_y = 0.5f * (float)height;
 
     __local float2 l_mean[BATCH];
@@ -405,14 +410,14 @@ void rasterize_backward(const int width, const int height, const int tiles_x, co
     const int end = my_end;
 #endif
 #if PAIR_SUMS
-    // Pairs no pixel reached still own a slot: zero it.
-    const int range_end = ranges[2 * tile + 1];
-    for (int k = lid; k < (range_end - end) * SUM_WIDTH; k += ITEMS_PER_TILE)
-        sums[(size_t)(end - pair0) * SUM_WIDTH + k] = 0.f;
+    // The run's pairs no pixel reached still own a slot: zero it.
+    const int unreached = max(end, lo);
+    for (int k = lid; k < (hi - unreached) * SUM_WIDTH; k += ITEMS_PER_TILE)
+        sums[(size_t)(unreached - pair0) * SUM_WIDTH + k] = 0.f;
 #endif
 
-    for (int top = end; top > first; top -= BATCH) {
-        const int base = max(first, top - BATCH), count = top - base;
+    for (int top = end; top > lo; top -= BATCH) {
+        const int base = max(lo, top - BATCH), count = top - base;
         barrier(CLK_LOCAL_MEM_FENCE);
         for (int j = lid; j < count; j += ITEMS_PER_TILE) {
             uint g = gaussian_of_pair[base + j];
@@ -517,7 +522,8 @@ void rasterize_backward(const int width, const int height, const int tiles_x, co
                 for (int k = 0; k < SUM_WIDTH; ++k) part[k] = k < used ? acc[k] : 0.f;
 #endif
 #elif PAIR_SUMS
-                for (int k = 0; k < used; ++k) sums[(size_t)(base + j - pair0) * SUM_WIDTH + k] = acc[k];
+                if (idx < hi)
+                    for (int k = 0; k < used; ++k) sums[(size_t)(idx - pair0) * SUM_WIDTH + k] = acc[k];
 #else
                 __global float *dst = sums + (size_t)l_gaussian[j] * SUM_WIDTH;
                 for (int k = 0; k < used; ++k)
@@ -525,9 +531,10 @@ void rasterize_backward(const int width, const int height, const int tiles_x, co
 #endif
             }
 #if ITEMS_PER_TILE > 1
-            // The chunk's sums: the owners' rows added in owner order, into each pair's slot.
+            // The chunk's sums: the owners' rows added in owner order, into the slots of the run's pairs.
             barrier(CLK_LOCAL_MEM_FENCE);
-            for (int k = lid; k < (chunk_top - chunk_base) * SUM_WIDTH; k += ITEMS_PER_TILE) {
+            const int in_run = min(chunk_top, hi - base) - chunk_base;
+            for (int k = lid; k < in_run * SUM_WIDTH; k += ITEMS_PER_TILE) {
                 float v = l_part[k];
                 for (int o = 1; o < PART_OWNERS; ++o) v += l_part[o * PART_CHUNK * SUM_WIDTH + k];
 #if PAIR_SUMS

@@ -41,7 +41,7 @@ class Intersections:
 
 class Intersect(Stage):
     FILE = "isect.cl"
-    KERNELS = ("compact_visible", "gather_tile_counts", "emit_pairs", "gather_pairs", "tile_ranges")
+    KERNELS = ("compact_visible", "emit_pairs", "gather_pairs")
 
     def __init__(self, ctx: StageContext):
         """ctx.options.depth_sort_bits: sort only the top this-many of the depth bits that differ (an
@@ -50,11 +50,11 @@ class Intersect(Stage):
         self.tuning = ctx.tuning
         self.depth_sort_bits = ctx.options.depth_sort_bits
         self.flag_scan = ExclusiveScan(ctx, flags=True)
-        self.count_scan = ExclusiveScan(ctx)
+        self.count_scan = ExclusiveScan(ctx, gather=True)
         self.sort = RadixSort(ctx)
         k = self.kernels()
-        self.k_compact, self.k_gather, self.k_emit = k["compact_visible"], k["gather_tile_counts"], k["emit_pairs"]
-        self.k_gather_pairs, self.k_ranges = k["gather_pairs"], k["tile_ranges"]
+        self.k_compact, self.k_emit = k["compact_visible"], k["emit_pairs"]
+        self.k_gather_pairs = k["gather_pairs"]
 
     def defines(self) -> dict:
         return {**self.ctx.options.defines(), "ISECT_WG": self.ctx.tuning.isect_wg}
@@ -75,22 +75,20 @@ class Intersect(Stage):
                       proj.depth, visible_ids, depth_keys, frame)
         lo, hi = 0, DEPTH_KEY_BITS
         if self.depth_sort_bits is not None:   # the top bits of those that differ: the keys' range read back first
-            counts = rt.to_host(frame, len(FRAME_WORDS), np.uint32)
-            kmin, kmax = int(counts[FRAME["DEPTH_KEY_MIN"]]), int(counts[FRAME["DEPTH_KEY_MAX"]])
+            counts = self.ctx.frame_counts()
+            kmin, kmax = counts["DEPTH_KEY_MIN"], counts["DEPTH_KEY_MAX"]
             hi = (kmin ^ kmax).bit_length() if kmin <= kmax else 0
             lo = max(0, hi - self.depth_sort_bits)
         _, ids_by_depth = self.sort(depth_keys, visible_ids, n, lo, hi, stage="sort", count=frame,
                                     count_at=FRAME["VISIBLE"])
 
-        pair_offset = ws.get("isect.pair_offset", 4 * n)
-        if n:
-            rt.launch_items("isect", self.k_gather, n, wg, frame, ids_by_depth, proj.tiles_touched, pair_offset)
-        self.count_scan(pair_offset, pair_offset, n, frame, FRAME["PAIRS"], stage="isect", count=frame,
-                        count_at=FRAME["VISIBLE"])
+        pair_offset = ws.get("isect.pair_offset", 4 * n)   # the visible Gaussians' first pairs, by depth
+        self.count_scan(proj.tiles_touched, pair_offset, n, frame, FRAME["PAIRS"], stage="isect", count=frame,
+                        count_at=FRAME["VISIBLE"], order=ids_by_depth)
         v = p = None
         if pair_capacity is None:
-            counts = rt.to_host(frame, len(FRAME_WORDS), np.uint32)
-            v, p = int(counts[FRAME["VISIBLE"]]), int(counts[FRAME["PAIRS"]])
+            counts = self.ctx.frame_counts()
+            v, p = counts["VISIBLE"], counts["PAIRS"]
         c = p if pair_capacity is None else pair_capacity
 
         tile_of_emission = ws.get("isect.tile_of_emission", 4 * c)
@@ -110,13 +108,7 @@ class Intersect(Stage):
         rt.fill(ranges, np.uint32(0), 8 * tiles)
         if c:
             rt.launch_items("isect", self.k_gather_pairs, c, wg, frame, np.uint32(c), emission_sorted,
-                            gaussian_of_emission, gaussian_of_pair, pair_of_emission)
-            rt.launch_items("isect", self.k_ranges, c, wg, frame, np.uint32(c), tile_of_pair, ranges)
+                            gaussian_of_emission, tile_of_pair, gaussian_of_pair, pair_of_emission, ranges)
         return Intersections(n_visible=v, n_pairs=p, pair_bound=c, ranges=ranges, gaussian_of_pair=gaussian_of_pair,
                              tile_of_pair=tile_of_pair, pair_of_emission=pair_of_emission, pair_first=pair_first,
                              depth_bits=hi - lo, tile_bits=tile_bits)
-
-    def counts(self) -> tuple[int, int, bool]:
-        """The last frame's (visible Gaussians, pairs, whether the pairs overflowed its capacity), read back."""
-        counts = self.rt.to_host(self.ctx.frame, len(FRAME_WORDS), np.uint32)
-        return int(counts[FRAME["VISIBLE"]]), int(counts[FRAME["PAIRS"]]), bool(counts[FRAME["OVERFLOWED"]])

@@ -37,6 +37,10 @@ class StageContext:
         self.frame = rt.buffer(4 * len(FRAME_WORDS))
         rt.fill(self.frame, np.uint32(0), self.frame.size)
 
+    def frame_counts(self) -> dict[str, int]:
+        """The last frame's counts, read back (a blocking read): constants.FRAME_WORDS, each word's value."""
+        return dict(zip(FRAME_WORDS, map(int, self.rt.to_host(self.frame, len(FRAME_WORDS), np.uint32))))
+
 
 class Stage:
     FILE: str                      # kernels/<FILE>

@@ -78,6 +78,7 @@ class Trainer:
         self.iteration = 0
         self.camera_stack: list[int] = []
         self.pair_capacity = 0   # the pairs a view's buffers hold; grows when a view has more (step)
+        self.carry_rows = 0      # the backward's carry rows, for Gaussians whose pairs span its runs (likewise)
         initial = initial_model(scene.points, scene.colors, self.rng, cfg.sh_degree)
         if cfg.max_gaussians is not None and len(initial) > cfg.max_gaussians:
             raise InputError(None, f"--max-gaussians {cfg.max_gaussians:,} is below the {len(initial):,} Gaussians the "
@@ -104,15 +105,20 @@ class Trainer:
     # one iteration ------------------------------------------------------------------------------------
     def step(self) -> None:
         """One iteration. The host waits once, for the view's counts, once the whole iteration is queued: a view
-        whose pairs overflowed the capacity it was given (render/isect.py) changed nothing on the device
-        (kernels/common.h FRAME_VOID), and runs again, host state rewound, with room for them."""
+        whose pairs overflowed the capacity it was given (render/isect.py), or whose Gaussians spanning the
+        backward's runs its carry rows (RasterizeBackward.plan), changed nothing on the device (kernels/common.h
+        FRAME_VOID), and runs again, host state rewound, with room for them."""
         before = self._host_state()
         while True:
             actions = self._queue_iteration()
-            _, pairs, overflowed = self.renderer.intersect.counts()
-            if not overflowed:
+            counts = self.context.frame_counts()
+            if not counts["OVERFLOWED"]:
                 break
-            self.pair_capacity = int(pairs * (1 + BUFFER_HEADROOM))   # room for busier views than this one
+            # room for busier views than this one
+            if counts["PAIRS"] > self.pair_capacity:
+                self.pair_capacity = int(counts["PAIRS"] * (1 + BUFFER_HEADROOM))
+            if counts["SPANNING"] > self.carry_rows:
+                self.carry_rows = int(counts["SPANNING"] * (1 + BUFFER_HEADROOM))
             self._restore(before)
         if self.iteration in self.cfg.save_at:   # before this iteration's densification and opacity limits, as Inria saves
             self.save_model()
@@ -138,12 +144,15 @@ class Trainer:
         # --check-finite reads each stage's outputs as it goes: the view sized exactly, so that none is left void
         capacity = None if self.context.check.enabled else self.pair_capacity
         res = self.renderer.render(self.params, cam, self.sh_degree, background, capacity)
-        self.loss(res.raster.image, target_buf, cam.width, cam.height, dL_dimage, keep=keep_buf,
-                  kept=np.count_nonzero(keep) if keep is not None else 0)
         actions = Actions() if self.frozen else s.actions(it)
         gathering = s.gather(it, self.params, cam, res)
+        # before the loss: a view that needs more carry rows is void before any lasting state changes
+        plan = self.rasterize_backward.plan(res, gathering.layout, gathering.window,
+                                            None if capacity is None else self.carry_rows)
+        self.loss(res.raster.image, target_buf, cam.width, cam.height, dL_dimage, keep=keep_buf,
+                  kept=np.count_nonzero(keep) if keep is not None else 0)
         sums, layout = self.rasterize_backward.folding(res, dL_dimage, background, gathering.layout,
-                                                       gathering.geometry, keep_buf, gathering.window)
+                                                       gathering.geometry, keep_buf, gathering.window, plan)
         if actions.optimiser_step:
             lrs = self.schedule.learning_rates(it, self.scene.extent, actions.opacity_steps)
             self.project_backward.step(self.params, cam, self.sh_degree, res, sums, layout,
@@ -156,8 +165,10 @@ class Trainer:
                 dict(self.model.adam.steps))
 
     def _restore(self, state: tuple) -> None:
-        self.iteration, rng, self.camera_stack, self.loss.calls, steps = state
+        """Back to a _host_state (copies: a view may run again more than once, pairs then carry rows short)."""
+        self.iteration, rng, camera_stack, self.loss.calls, steps = state
         self.rng.bit_generator.state = rng
+        self.camera_stack = list(camera_stack)
         self.model.adam.steps = dict(steps)
 
     def start_from(self, gs: GaussianSet, iteration: int) -> None:
