@@ -35,8 +35,9 @@ class Tuning:
     # window's own kernel, as the fold (vectorised past a barrier) runs masked for every Gaussian a run's launch
     # covers, and carries more sums between more runs (PoCL, AbsGS + DC4GS: 400k Gaussians at 576x432 in 3 runs,
     # sum_pairs as fast and 1,480 -> 1,369 bytes per Gaussian; a million at 1280x720 in 5 runs, sum_pairs and
-    # densify_stats 376 + 23 -> 473 ms for 1,502 -> 1,400 bytes per Gaussian)
-    max_folded_runs: int = 3
+    # densify_stats 376 + 23 -> 473 ms for 1,502 -> 1,400 bytes per Gaussian). 4, not 3, since the runs cover the
+    # trainer's pair room (1.125x the pairs), which adds a run to frames such as gsplat's garden (3 runs -> 4)
+    max_folded_runs: int = 4
     # backward with DC4GS' split sums: a column block's 25 split terms added after its pixels' walk, in explicit
     # vector adds, instead of inside the walk (exact: the same adds in the same order). Intel's CPU runtime
     # compiles the walk with them inside 7x slower than without (AVX2, 48k Gaussians, 192x144: 99.8 against 14.4
