@@ -149,7 +149,7 @@ class RasterizeBackward(Stage):
         out_layout = GRADIENTS if plan.fused else layout
         sums = self.ws.get(SUMS, 4 * out_layout.width * max(n, 1))
         if tuning.pair_sums:
-            target = self.ws.get(PAIR_SUMS, 4 * layout.width * max(min(plan.pairs_per_run, bound), 1))
+            target = self.ws.get(PAIR_SUMS, 4 * layout.width * plan.pairs_per_run)
         else:
             target = sums
             rt.fill(sums, np.float32(0), 4 * layout.width * n)

@@ -23,11 +23,10 @@ NO_ROW_LIMIT = 0xFFFFFFFF                  # run_spans' carry_rows where none is
 
 class Carry(NamedTuple):
     """Where a view walked in runs keeps the partial sums of the Gaussians whose pairs span runs, while sum_pairs
-    folds the window (kernels/sum_pairs.cl): each one's row, the rows taken, the rows (how many)."""
+    folds the window (kernels/sum_pairs.cl): each one's row, the rows taken, the rows."""
     slot: cl.Buffer      # [N] uint
     taken: cl.Buffer     # [1] uint, zeroed for each view
     rows: cl.Buffer      # [rows * SUM_WIDTH] float
-    count: int
 
 
 class SumPairs(Stage):
@@ -58,10 +57,9 @@ class SumPairs(Stage):
         yet; with none, sum_pairs touches no carry."""
         taken = self.ws.get(CARRY_TAKEN, 4)
         if not rows:
-            return Carry(taken, taken, taken, 0)
+            return Carry(taken, taken, taken)
         self.rt.fill(taken, np.uint32(0), 4)
-        return Carry(self.ws.get(CARRY_SLOT, 4 * max(n, 1)), taken, self.ws.get(CARRY_ROWS, 4 * layout.width * rows),
-                     rows)
+        return Carry(self.ws.get(CARRY_SLOT, 4 * max(n, 1)), taken, self.ws.get(CARRY_ROWS, 4 * layout.width * rows))
 
     def __call__(self, res: RenderResult, layout: SumsLayout, pair_sums: cl.Buffer, pair0: int, pair_end: int,
                  run: int, runs: int, split_geometry: cl.Buffer, sums: cl.Buffer, window: WindowFold | None = None,
@@ -72,7 +70,7 @@ class SumPairs(Stage):
         N x GRADIENTS.width."""
         n = res.proj.n
         if n:
-            folding = [*window.args(res), window.rows, *carry[:3]] if window is not None else []
+            folding = [*window.args(res), window.rows, *carry] if window is not None else []
             spans = self.ws.get(RUN_SPANS, 4 * max(n, 1)) if runs > 1 else sums
             self.rt.launch_items("sum_pairs", self.variant(layout, window)["sum_pairs"], n, PER_GAUSSIAN_WG,
                                  self.ctx.frame, np.uint32(n), np.uint32(pair0), np.uint32(pair_end), np.uint32(run),
