@@ -173,11 +173,12 @@ def test_split_sums_of_candidates_out_of_order(rt, rng, shape):
     assert (np.abs(unreversed - got["in order"]) <= 1e-5 * scale).all()
 
 
-@pytest.mark.parametrize("candidates", [5, 15])   # 40 sums, padded to 64 (2 per lane), and 90, to 128 (4)
+@pytest.mark.parametrize("candidates", [5, 15])   # 25 split sums (one piece of 32 in the full walk) and 75 (three)
 def test_split_sums_of_the_subgroup_reduction_are_its_twins(rt, rng, candidates):
     """DC4GS' split sums in the GPU shape: reduced over 32-lane subgroups (KHR or PTX), each lane
-    testing its own pixel against the crossing candidates, they are the bits of the portable twin (32 pixels per
-    work-item, whose crossing ranges span two rows), split sums and all; and the same bits again when the frame is
+    testing its own pixel against the candidates crossing the subgroup's two rows (only those reduced, the others
+    zeros or the pair's totals), they are the bits of the portable twin (32 pixels per work-item, the same two rows
+    in 16-column blocks), split sums and all; and the same bits again when the frame is
     walked in runs (other launches, tiles cut between them)."""
     if rt.caps.subgroups is None:
         pytest.skip("needs subgroups: cl_khr_subgroup_shuffle with Intel's required subgroup size (Intel's CPU "

@@ -29,8 +29,10 @@ SUBGROUP = 32             # lanes that reduce a pair's sums in the GPU shape (NV
 TWIN = {"PIXELS_PER_ITEM": SUBGROUP, "COL_BLOCK": TILE_SIZE, "SUBGROUP": 0}   # its portable twin (see the kernel)
 # The cooperative shapes' partial sums: PART_CHUNK pairs' worth at a time, in at most PART_BYTES of local memory
 # and at most PART_CHUNK_MAX pairs (a barrier per chunk). In the GPU shape at its batch of 256 a work-group holds
-# 25.6 KB for 3DGS' sums with statistics (as with the local float adds before) and 36.9 KB with DC4GS' (62.5 KB
-# before): on a 228 KB NVIDIA H100 / H200 multiprocessor 8 work-groups of 256 (its 2,048 threads) and 6 (3 before).
+# 25.6 KB for 3DGS' sums with statistics and 37.1 KB with DC4GS'. Registers, not local memory, bound the work-groups
+# an NVIDIA multiprocessor holds (tools/ptx_occupancy.py, clang + ptxas for sm_86): 56 per item for AbsGS, 100 for
+# AbsGS + DC4GS, 4 and 2 work-groups of 256 (91 and 255 with 600 bytes spilled before the reduction held at most 32
+# values and no select between two of its array's elements: 2 and 1).
 PART_BYTES, PART_CHUNK_MAX = 16 * 1024, 32
 
 
@@ -84,10 +86,9 @@ class RasterizeBackward(Stage):
         tuning = self.ctx.tuning
         shape = {"SUBGROUP": 0}
         if tuning.pixels_per_item == 1:
-            width = variant["SUM_WIDTH"]   # padded to a power of two, at least 16, for the transposed butterfly
             sources = {f"SUBGROUP_{name.upper()}": value for name, value in SUBGROUP_SOURCES.items()}
-            shape = ({"SUBGROUP": SUBGROUP, "SUBGROUP_SOURCE": SUBGROUP_SOURCES[self.subgroups], **sources,
-                      "SUM_PAD": max(16, 1 << (width - 1).bit_length())} if self.subgroups else TWIN)
+            shape = ({"SUBGROUP": SUBGROUP, "SUBGROUP_SOURCE": SUBGROUP_SOURCES[self.subgroups], **sources}
+                     if self.subgroups else TWIN)
         items = self.items(shape)
         owners = items // (shape["SUBGROUP"] or 1)   # partial rows per pair
         fitting = PART_BYTES // (4 * owners * variant["SUM_WIDTH"])

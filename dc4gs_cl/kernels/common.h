@@ -120,13 +120,13 @@ DEFINE_ATOMIC_ADD_FLOAT(local_add_float, __local)
 // A split-geometry row (statistics.geometry_record, GEO_*) whose view gives the Gaussian a split line.
 #define HAS_SPLIT_LINE(geo) ((geo)[GEO_DIR] != 0.f || (geo)[GEO_DIR + 1] != 0.f)
 
-// total[SPLIT_WIDTH]: a SUM row's sums over all the pair's (or view's) pixels in the split lanes' order
-// (SPLIT_<LANE>, statistics.SPLIT_LANES), from its dc sums (u_x, u_y, count) and abs sums: a side's sums are a
-// candidate's left sums or these totals minus them.
+// SPLIT_TOTAL_AT(v): the SUM field holding split lane v's total over all the pair's (or view's) pixels, from its dc
+// sums (u_x, u_y, count) and abs sums; SPLIT_TOTALS: total[SPLIT_WIDTH], a SUM row's totals in the split lanes'
+// order (SPLIT_<LANE>, statistics.SPLIT_LANES): a side's sums are a candidate's left sums or these totals minus them.
+#define SPLIT_TOTAL_AT(v) ((v) == SPLIT_UX ? SUM_DC : (v) == SPLIT_UY ? SUM_DC + 1 : (v) == SPLIT_COUNT ? SUM_DC + 2 \
+                           : (v) == SPLIT_ABS_X ? SUM_ABS : SUM_ABS + 1)
 #define SPLIT_TOTALS(total, row)                                                                   \
     float total[SPLIT_WIDTH];                                                                      \
-    total[SPLIT_UX] = (row)[SUM_DC]; total[SPLIT_UY] = (row)[SUM_DC + 1];                          \
-    total[SPLIT_COUNT] = (row)[SUM_DC + 2];                                                        \
-    total[SPLIT_ABS_X] = (row)[SUM_ABS]; total[SPLIT_ABS_Y] = (row)[SUM_ABS + 1]
+    for (int lane_ = 0; lane_ < SPLIT_WIDTH; ++lane_) total[lane_] = (row)[SPLIT_TOTAL_AT(lane_)]
 
 #endif

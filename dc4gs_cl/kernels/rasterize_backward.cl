@@ -42,7 +42,10 @@
 //      pairwise by halves), which for 32 pixels per item in 16-column blocks is the same tree as the butterfly:
 //      the portable twin, computing the subgroup path's bits.
 //   Each subgroup (or item) writes its sums of PART_CHUNK pairs to its row of l_part; after the chunk the rows
-//   are added in subgroup order (0, 1, ...) and the pair's slot written. Multiply-adds are not contracted
+//   are added in subgroup order (0, 1, ...) and the pair's slot written. With split sums a row holds only the
+//   split sums of the candidates crossing its pixels (l_cross: the range, crossing_range, over the subgroup's
+//   pixels, so that its lanes walk and reduce alike); the others are zeros or the row's totals (row_sum), filled
+//   in as the rows are added. Multiply-adds are not contracted
 //   (FP_CONTRACT OFF) in these shapes, so a pixel's terms round alike however the items are laid out.
 
 #if PIXELS_PER_ITEM < TILE_SIZE * TILE_SIZE     // ITEMS_PER_TILE > 1 (raster.h), before any code
@@ -97,40 +100,49 @@ inline int subgroup_any(const int predicate) {
 #error "SUBGROUP_SOURCE must be SUBGROUP_KHR or SUBGROUP_PTX"
 #endif
 #define PART_OWNERS (ITEMS_PER_TILE / SUBGROUP)
-// -D SUM_PAD: SUM_WIDTH padded to a power of two (at least 16) for the transposed butterfly (subgroup_sums); each
-// lane keeps SUM_PAD / SUBGROUP sums after the halving steps, or, narrower, SUBGROUP / SUM_PAD lanes hold each sum.
-REQUIRE_DEFINED(SUM_PAD);
-#define SUMS_PER_LANE (SUM_PAD > SUBGROUP ? SUM_PAD / SUBGROUP : 1)
-#define LANES_PER_SUM (SUM_PAD < SUBGROUP ? SUBGROUP / SUM_PAD : 1)
 
-// A pair's SUM_WIDTH sums (acc, those past `used` zero) over the subgroup's lanes into its partial row `part`,
-// each sum by the butterfly's tree (xor masks 16 .. 1), in 62 shuffles for 64 sums, not 5 per sum: at each step
-// a lane keeps half of its values (the upper half where its lane bit is set), sends the other half to its partner
-// and adds what it receives to what it keeps (the same two partial sums the plain butterfly adds); once it holds
-// one value the remaining steps reduce that one. Lane l ends with sums base .. base + SUMS_PER_LANE - 1.
-ALWAYS_INLINE void subgroup_sums(const float *acc, const int used, const int lane, __local float *part) {
-    float v[SUM_PAD];
-    for (int k = 0; k < SUM_PAD; ++k) v[k] = k < used ? acc[k] : 0.f;
-    int base = 0;
-    #pragma unroll
-    for (int step = 0; step < SUBGROUP_MASK_BITS; ++step) {
-        const int mask = (SUBGROUP / 2) >> step, kept = (SUM_PAD >> step) / 2;
-        if (kept >= 1) {
-            const int upper = (lane & mask) != 0;
-            #pragma unroll
-            for (int i = 0; i < kept; ++i) {
-                const float keep = upper ? v[i + kept] : v[i], send = upper ? v[i] : v[i + kept];
-                v[i] = keep + shuffle_xor(send, mask);
-            }
-            base += upper ? kept : 0;
-        } else {
-            v[0] += shuffle_xor(v[0], mask);
-        }
+// A pair's sums acc[0 .. used - 1] (used <= PAD, a power of two <= SUBGROUP) over the subgroup's lanes into
+// part[0 .. used - 1], each sum by the butterfly's tree (xor masks 16 .. 1), in PAD - 1 + log2(SUBGROUP / PAD)
+// shuffles (31 for 32 sums), not 5 per sum: at each step a lane keeps half of its values (the upper half where its
+// lane bit is set), sends the other half to its partner and adds what it receives to what it keeps (the same two
+// partial sums the plain butterfly adds); once it holds one value the remaining steps reduce that one. Lane l ends
+// with sum `base`, which SUBGROUP / PAD lanes hold. One function per PAD, so that every loop has a literal trip
+// count: a pad passed in left the compiler's unrolling to after inlining, too late (values held in memory).
+#define DEFINE_SUBGROUP_SUMS(name, PAD)                                                                     \
+    ALWAYS_INLINE void name(const float *acc, const int used, const int lane, __local float *part) {         \
+        float v[PAD];                                                                                      \
+        _Pragma("unroll") for (int k = 0; k < PAD; ++k) v[k] = k < used ? acc[k] : 0.f;                    \
+        int base = 0;                                                                                      \
+        _Pragma("unroll") for (int step = 0; step < SUBGROUP_MASK_BITS; ++step) {                          \
+            const int mask = (SUBGROUP / 2) >> step, kept = (PAD >> step) / 2;                             \
+            if (kept >= 1) {                                                                               \
+                const int upper = (lane & mask) != 0;                                                      \
+                _Pragma("unroll") for (int i = 0; i < kept; ++i) {                                         \
+                    const float lo = v[i], hi = v[i + kept];                                               \
+                    const float keep = upper ? hi : lo, send = upper ? lo : hi;                            \
+                    v[i] = keep + shuffle_xor(send, mask);                                                 \
+                }                                                                                          \
+                base += upper ? kept : 0;                                                                  \
+            } else {                                                                                       \
+                v[0] += shuffle_xor(v[0], mask);                                                           \
+            }                                                                                              \
+        }                                                                                                  \
+        if (lane % (SUBGROUP / PAD) == 0 && base < used) part[base] = v[0];                                \
     }
-    if (lane % LANES_PER_SUM == 0)
-        for (int i = 0; i < SUMS_PER_LANE; ++i)
-            if (base + i < SUM_WIDTH) part[base + i] = v[i];
+DEFINE_SUBGROUP_SUMS(subgroup_sums_16, 16)
+DEFINE_SUBGROUP_SUMS(subgroup_sums_32, 32)
+
+// acc[0 .. used - 1] of at most `bound` sums (a constant at each call) into part; a row wider than SUBGROUP in
+// pieces of SUBGROUP sums: at most 32 values held at once.
+ALWAYS_INLINE void subgroup_row(const float *acc, const int used, const int bound, const int lane,
+                                __local float *part) {
+    if (bound <= 16) {
+        subgroup_sums_16(acc, used, lane, part);
+    } else {
+        for (int o = 0; o < bound; o += SUBGROUP) subgroup_sums_32(acc + o, used - o, lane, part + o);
+    }
 }
+
 #else
 #define SUBGROUP_SIZE_ATTRIBUTE
 #define PART_OWNERS ITEMS_PER_TILE
@@ -157,6 +169,16 @@ typedef float2 floatB;
 typedef float floatB;
 #define LOADB(a) ((a)[0])
 #define STOREB(v, a) ((a)[0] = (v))
+#endif
+
+// The CPU shape's slot for a pair: sum k of its row (acc, compact with split sums: row_sum), and the sums written
+// (a Gaussian with no split line leaves its split sums unwritten: sum_pairs skips them).
+#if SPLIT_CANDIDATES
+#define ROW_SUM(acc, k) row_sum(acc, cross.x, cross.y, k)
+#define SLOT_USED (HAS_SPLIT_LINE(sg) ? SUM_WIDTH : SUM_SPLIT)
+#else
+#define ROW_SUM(acc, k) ((acc)[k])
+#define SLOT_USED SUM_WIDTH
 #endif
 
 // Sums whose lanes the pixel walk adds to in place: all but the split sums, whose lanes (split_lanes, from
@@ -295,24 +317,36 @@ ALWAYS_INLINE float lane_total(const float *lane) {
 }
 
 #if SPLIT_CANDIDATES
+// The rectangle of pixels a crossing range covers (item-relative rows and columns from its first, row0 and col0):
+// with subgroups, the subgroup's (whole rows), so that its lanes walk alike and reduce the same candidates; else
+// the work-item's pixels.
+#if SUBGROUP
+#define CROSS_ROWS (SUBGROUP / TILE_SIZE)
+#define CROSS_COLS TILE_SIZE
+#else
+#define CROSS_ROWS ROWS_PER_ITEM
+#define CROSS_COLS COLS_PER_ITEM
+#endif
+
 // The split candidates a pair's walk must test per pixel: (lo, hi), candidates lo .. hi - 1. t(q) rounds
-// monotonically in each pixel coordinate, so over the pixels a pair's walk visits (the item's rows within the span,
-// its column blocks that meet the span) t lies within its values at the 4 corners: a candidate above them all has
-// every walked pixel on its left (its left sums are the pair's totals), one at or below them none (zeros); only
-// those in between, "crossing", are tested per pixel. A margin far above float rounding around t_k keeps pixels
-// the walk might round across t_k tested: exact. The t_k increase with k (the candidates' order along the
-// projected axis), so those with none left come first, those with all left last; were they out of order, every
-// candidate counts as crossing. Large Gaussians span several tiles, each crossed by one or two candidates' lines.
-// (Ternaries, not the integer min and max builtins, which PoCL calls rather than inlines: once per pair.)
+// monotonically in each pixel coordinate, so over the pixels the walk visits in the rectangle at (row0, col0) (its
+// rows within the span, its column blocks that meet the span) t lies within its values at the 4 corners: a
+// candidate above them all has every walked pixel on its left (its left sums are the pair's totals), one at or
+// below them none (zeros); only those in between, "crossing", are tested per pixel. A margin far above float
+// rounding around t_k keeps pixels the walk might round across t_k tested: exact. The t_k increase with k (the
+// candidates' order along the projected axis), so those with none left come first, those with all left last; were
+// they out of order, every candidate counts as crossing. Large Gaussians span several tiles, each crossed by one
+// or two candidates' lines. (Ternaries, not the integer min and max builtins, which PoCL calls rather than
+// inlines: once per pair.)
 ALWAYS_INLINE int2 crossing_range(const float4 line, const float *tk, const int4 span, const int x0, const int y0,
                                   const int row0, const int col0) {
-    const int a = span.x - col0, b = span.y - col0;                   // the span, item-relative
+    const int a = span.x - col0, b = span.y - col0;                   // the span, rectangle-relative
     const int r_lo = span.z > row0 ? span.z - row0 : 0;
-    const int r_hi = span.w - row0 < ROWS_PER_ITEM - 1 ? span.w - row0 : ROWS_PER_ITEM - 1;
-    if (b < 0 || a > COLS_PER_ITEM - 1 || a > b || r_lo > r_hi)        // no pixel walked: none left of any
+    const int r_hi = span.w - row0 < CROSS_ROWS - 1 ? span.w - row0 : CROSS_ROWS - 1;
+    if (b < 0 || a > CROSS_COLS - 1 || a > b || r_lo > r_hi)          // no pixel walked: none left of any
         return (int2)(SPLIT_CANDIDATES, SPLIT_CANDIDATES);
     const int c_lo = (a > 0 ? a : 0) / COL_BLOCK * COL_BLOCK;
-    const int c_hi = (b < COLS_PER_ITEM - 1 ? b : COLS_PER_ITEM - 1) / COL_BLOCK * COL_BLOCK + COL_BLOCK - 1;
+    const int c_hi = (b < CROSS_COLS - 1 ? b : CROSS_COLS - 1) / COL_BLOCK * COL_BLOCK + COL_BLOCK - 1;
     float t_min = 0.f, t_max = 0.f, extent = 0.f;
     for (int corner = 0; corner < 4; ++corner) {
         // the pixel centres as the kernel sets px and py
@@ -333,6 +367,20 @@ ALWAYS_INLINE int2 crossing_range(const float4 line, const float *tk, const int4
     }
     return in_order ? (int2)(none_left, SPLIT_CANDIDATES - all_left) : (int2)(0, SPLIT_CANDIDATES);
 }
+
+// Sum k (< SUM_WIDTH) of a pair's row held compactly (row: its sums before SUM_SPLIT, then the split sums of the
+// crossing candidates lo .. hi - 1 alone, crossing_range): a candidate below lo has none of the pixels on its left
+// (zeros), one at or past hi all of them (the row's totals).
+#define DEFINE_ROW_SUM(name, space)                                                                   \
+    ALWAYS_INLINE float name(space const float *row, const int lo, const int hi, const int k) {      \
+        if (k < SUM_SPLIT) return row[k];                                                            \
+        const int candidate = (k - SUM_SPLIT) / SPLIT_WIDTH, v = (k - SUM_SPLIT) % SPLIT_WIDTH;       \
+        if (candidate < lo) return 0.f;                                                              \
+        if (candidate < hi) return row[SUM_SPLIT + SPLIT_WIDTH * (candidate - lo) + v];              \
+        return row[SPLIT_TOTAL_AT(v)];                                                               \
+    }
+DEFINE_ROW_SUM(row_sum, __private)
+DEFINE_ROW_SUM(part_row_sum, __local)
 #endif
 
 __kernel __attribute__((reqd_work_group_size(ITEMS_PER_TILE, 1, 1))) SUBGROUP_SIZE_ATTRIBUTE
@@ -364,16 +412,24 @@ void rasterize_backward(const int width, const int height, const int tiles_x, co
 #endif
 #if ITEMS_PER_TILE > 1
     __local float l_part[PART_OWNERS * PART_CHUNK * SUM_WIDTH];   // [owner][pair of the chunk][sum]
+#if SPLIT_CANDIDATES
+    __local uchar2 l_cross[PART_OWNERS * PART_CHUNK];   // each row's crossing range: its split sums kept compactly
+#endif
     __local int l_end;
 #if SUBGROUP
-    const int owner = lid / SUBGROUP, lane = lid % SUBGROUP;
+    const int owner = lid / SUBGROUP, lane = lid % SUBGROUP, owner_lane = lane;
 #else
-    const int owner = lid;
+    const int owner = lid, owner_lane = 0;
 #endif
 #endif
 
     const int row0 = (lid * PIXELS_PER_ITEM) / TILE_SIZE;            // first tile row this item owns
     const int col0 = (lid * PIXELS_PER_ITEM) % TILE_SIZE;            // and first column (0 for whole rows)
+#if SPLIT_CANDIDATES && SUBGROUP
+    const int cross_row0 = lid / SUBGROUP * CROSS_ROWS, cross_col0 = 0;   // the subgroup's rows (crossing_range)
+#elif SPLIT_CANDIDATES
+    const int cross_row0 = row0, cross_col0 = col0;
+#endif
     // Per pixel: T (after the Gaussian being visited), dL/dpixel colour (dr, dg, db), and
     // behind = sum over the Gaussians already visited (those behind) of w c . dL/dpixel, the only way the
     // colour behind enters the gradient; bg_term = T_final background . dL/dpixel.
@@ -464,70 +520,80 @@ void rasterize_backward(const int width, const int height, const int tiles_x, co
                 // t(q) = (q - c0) . dir < t_k (t_0 = 0); no split terms where the view gave no line (dir = 0).
                 __local const float *sg = l_split + j * GEO_WIDTH;
                 const float4 line = (float4)(sg[GEO_ORIGIN], sg[GEO_ORIGIN + 1], sg[GEO_DIR], sg[GEO_DIR + 1]);
-                const int split_ok = HAS_SPLIT_LINE(sg);
                 float tk[SPLIT_CANDIDATES];
                 tk[0] = 0.f;
                 for (int k = 1; k < SPLIT_CANDIDATES; ++k) tk[k] = sg[GEO_T + k - 1];
-                // Only the candidates whose line crosses the pixels walked take split terms in the walk: lo .. hi - 1.
-                int2 cross = split_ok ? crossing_range(line, tk, span, x0, y0, row0, col0)
-                                      : (int2)(SPLIT_CANDIDATES, SPLIT_CANDIDATES);
+                // Only the candidates whose line crosses the pixels walked take split terms in the walk: lo .. hi - 1
+                // (none where the view gave no line).
+                int2 cross = HAS_SPLIT_LINE(sg) ? crossing_range(line, tk, span, x0, y0, cross_row0, cross_col0)
+                                                : (int2)(SPLIT_CANDIDATES, SPLIT_CANDIDATES);
                 if (cross.y - cross.x > MAX_FEW_CROSSING) cross = (int2)(0, SPLIT_CANDIDATES);   // the walk over all
                 const int n_cross = cross.y - cross.x;
                 __private float (*split_lanes)[COL_BLOCK] = lanes + SUM_SPLIT;   // private, not generic (CL3.0)
-                for (int k = 0; k < SPLIT_WIDTH * n_cross; ++k)
-                    for (int cc = 0; cc < COL_BLOCK; ++cc) split_lanes[k][cc] = 0.f;
-                // One call per crossing count, each its own vectorised loop (see backward_pair).
-#define WALK(n_split) backward_pair(m, co, c, idx, span, row0, col0, ndc_x, ndc_y, line, tk + cross.x, n_split, \
-                                        px, py, dr, dg, db, bg_term, last, T, behind, lanes, split_lanes)
-                if (n_cross == 0) WALK(0);
-                else if (n_cross == 1) WALK(1);
-#if MAX_FEW_CROSSING >= 2
-                else if (n_cross == 2) WALK(2);
-#endif
-                else WALK(SPLIT_CANDIDATES);
-#undef WALK
-                for (int k = 0; k < LANE_SUMS; ++k) acc[k] = lane_total(lanes[k]);
-                // Sums this pair fills: the split ones only where the view gave the Gaussian a line. A candidate with
-                // every walked pixel on its left has the pair's totals as its left sums (the same terms in the same
-                // order; in the CPU shape the walk's contracted mul-adds may round the total's u terms one ulp
-                // apart), one with none zeros.
-                const int used = split_ok ? SUM_WIDTH : SUM_SPLIT;
-                if (split_ok) {
-                    SPLIT_TOTALS(total, acc);
-                    for (int k = 0; k < SPLIT_CANDIDATES; ++k)
-                        for (int v = 0; v < SPLIT_WIDTH; ++v)
-                            acc[SUM_SPLIT + SPLIT_WIDTH * k + v] = k < cross.x ? 0.f : total[v];
-                    for (int k = 0; k < n_cross; ++k)
-                        for (int v = 0; v < SPLIT_WIDTH; ++v)
-                            acc[SUM_SPLIT + SPLIT_WIDTH * (cross.x + k) + v] =
-                                lane_total(split_lanes[SPLIT_WIDTH * k + v]);
+                // acc: the pair's row held compactly (row_sum), its sums before SUM_SPLIT then the crossing
+                // candidates' split sums. One walk per crossing count, each its own vectorised loop (see
+                // backward_pair), with its constant count of split sums.
+#define WALK(n_split)                                                                                          \
+                {                                                                                              \
+                    for (int k = 0; k < SPLIT_WIDTH * n_split; ++k)                                            \
+                        for (int cc = 0; cc < COL_BLOCK; ++cc) split_lanes[k][cc] = 0.f;                       \
+                    backward_pair(m, co, c, idx, span, row0, col0, ndc_x, ndc_y, line, tk + cross.x, n_split,  \
+                                  px, py, dr, dg, db, bg_term, last, T, behind, lanes, split_lanes);           \
+                    for (int k = 0; k < SUM_SPLIT + SPLIT_WIDTH * n_split; ++k) acc[k] = lane_total(lanes[k]); \
                 }
+                if (n_cross == 0) WALK(0)
+                else if (n_cross == 1) WALK(1)
+#if MAX_FEW_CROSSING >= 2
+                else if (n_cross == 2) WALK(2)
+#endif
+                else WALK(SPLIT_CANDIDATES)
+#undef WALK
+                const int used = SUM_SPLIT + SPLIT_WIDTH * n_cross;   // acc's sums
 #else
                 const float no_split[1] = {0.f};
                 backward_pair(m, co, c, idx, span, row0, col0, ndc_x, ndc_y, (float4)(0.f), no_split, 0, px, py, dr,
                               dg, db, bg_term, last, T, behind, lanes, lanes);
-                for (int k = 0; k < LANE_SUMS; ++k) acc[k] = lane_total(lanes[k]);
+                for (int k = 0; k < SUM_WIDTH; ++k) acc[k] = lane_total(lanes[k]);
                 const int used = SUM_WIDTH;
 #endif
 #if ITEMS_PER_TILE > 1
+                // The pair's row, compact, into this owner's partial row (the chunk's end adds the owners' rows).
                 __local float *part = l_part + (owner * PART_CHUNK + j - chunk_base) * SUM_WIDTH;
+#if SPLIT_CANDIDATES
+                if (owner_lane == 0) l_cross[owner * PART_CHUNK + j - chunk_base] = convert_uchar2(cross);
+#endif
 #if SUBGROUP
-                // The subgroup's sums of the pair; a pair that none of its pixels took part in adds zeros.
+                // The subgroup's sums of the pair (each subgroup's lanes reduce alike: their crossing range is the
+                // subgroup's, and the split sums' width is decided by a vote); a pair that none of its pixels took
+                // part in adds zeros.
                 if (subgroup_any(touched)) {
-                    subgroup_sums(acc, used, lane, part);
+#if SPLIT_CANDIDATES
+                    subgroup_row(acc, SUM_SPLIT, SUM_SPLIT, lane, part);
+                    if (subgroup_any(n_cross > MAX_FEW_CROSSING))
+                        subgroup_row(acc + SUM_SPLIT, used - SUM_SPLIT, SPLIT_WIDTH * SPLIT_CANDIDATES, lane,
+                                     part + SUM_SPLIT);
+                    else if (subgroup_any(n_cross > 0))
+                        subgroup_row(acc + SUM_SPLIT, used - SUM_SPLIT, SPLIT_WIDTH * MAX_FEW_CROSSING, lane,
+                                     part + SUM_SPLIT);
+#else
+                    subgroup_row(acc, SUM_WIDTH, SUM_WIDTH, lane, part);
+#endif
                 } else {
-                    for (int k = lane; k < SUM_WIDTH; k += SUBGROUP) part[k] = 0.f;
+                    for (int k = lane; k < used; k += SUBGROUP) part[k] = 0.f;
                 }
 #else
-                for (int k = 0; k < SUM_WIDTH; ++k) part[k] = k < used ? acc[k] : 0.f;
+                for (int k = 0; k < used; ++k) part[k] = acc[k];
 #endif
 #elif PAIR_SUMS
+                // (a Gaussian with no split line: its split sums left unwritten, as sum_pairs skips them)
                 if (idx < hi)
-                    for (int k = 0; k < used; ++k) sums[(size_t)(idx - pair0) * SUM_WIDTH + k] = acc[k];
+                    for (int k = 0; k < SLOT_USED; ++k) sums[(size_t)(idx - pair0) * SUM_WIDTH + k] = ROW_SUM(acc, k);
 #else
                 __global float *dst = sums + (size_t)l_gaussian[j] * SUM_WIDTH;
-                for (int k = 0; k < used; ++k)
-                    if (acc[k] != 0.f) atomic_add_float(dst + k, acc[k]);
+                for (int k = 0; k < SLOT_USED; ++k) {
+                    const float v = ROW_SUM(acc, k);
+                    if (v != 0.f) atomic_add_float(dst + k, v);
+                }
 #endif
             }
 #if ITEMS_PER_TILE > 1
@@ -535,8 +601,19 @@ void rasterize_backward(const int width, const int height, const int tiles_x, co
             barrier(CLK_LOCAL_MEM_FENCE);
             const int in_run = min(chunk_top, hi - base) - chunk_base;
             for (int k = lid; k < in_run * SUM_WIDTH; k += ITEMS_PER_TILE) {
+#if SPLIT_CANDIDATES
+                const int pair = k / SUM_WIDTH, sum = k - pair * SUM_WIDTH;
+                float v = 0.f;
+                for (int o = 0; o < PART_OWNERS; ++o) {
+                    const int row = o * PART_CHUNK + pair;
+                    const int2 cross = convert_int2(l_cross[row]);
+                    const float x = part_row_sum(l_part + row * SUM_WIDTH, cross.x, cross.y, sum);
+                    v = o ? v + x : x;
+                }
+#else
                 float v = l_part[k];
                 for (int o = 1; o < PART_OWNERS; ++o) v += l_part[o * PART_CHUNK * SUM_WIDTH + k];
+#endif
 #if PAIR_SUMS
                 sums[(size_t)(base + chunk_base - pair0) * SUM_WIDTH + k] = v;
 #else
