@@ -94,6 +94,15 @@ def backward_case(rt, rng, tuning, opaque: int = 0):
     renderer = Renderer(rt, tuning, poison=True)
     res = renderer.render(DeviceGaussians(rt, model), cam, 3, bg)
     dL_dimage = rng.normal(size=(cam.height, cam.width, 3)).astype(np.float32)
+    # No loss gradient on the pixels whose blend float32 may decide otherwise than the float64 reference (seed
+    # 3752190318: one pixel at the alpha clamp moved a Gaussian's mean2d sum by its whole term, 5.4e-4 of the
+    # frame's): there the two compute a different function, not its rounding.
+    p = download_projected(rt, res, res.proj.n)
+    undecided = undecided_pixels(p["mean2d"], p["conic_opacity"][:, :3], p["conic_opacity"][:, 3],
+                                 rt.to_host(res.proj.depth, res.proj.n).astype(np.float64), p["gaussian_of_pair"],
+                                 p["ranges"], cam.width, cam.height, res.tiles_x)
+    assert undecided.mean() < 0.05
+    dL_dimage[undecided] = 0.0
     return renderer, res, cam, bg, dL_dimage
 
 

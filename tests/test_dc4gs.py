@@ -13,6 +13,7 @@ from dc4gs_cl.densify import AbsGS, DC4GSConfig
 from dc4gs_cl.reference.dc4gs import split_costs_from_sums, split_geometry_reference
 from dc4gs_cl.reference.rasterize import rasterize_backward_reference
 from dc4gs_cl.render import DeviceGaussians, Renderer
+from dc4gs_cl.render.isect import PAIR_TEMPORARIES
 from dc4gs_cl.statistics import SPLIT_COSTS, SumsLayout, geometry_record
 
 
@@ -173,11 +174,11 @@ def test_split_sums_of_candidates_out_of_order(rt, rng, shape):
     assert (np.abs(unreversed - got["in order"]) <= 1e-5 * scale).all()
 
 
-@pytest.mark.parametrize("candidates", [5, 15])   # 25 split sums (one piece of 32 in the full walk) and 75 (three)
+@pytest.mark.parametrize("candidates", [5, 15])
 def test_split_sums_of_the_subgroup_reduction_are_its_twins(rt, rng, candidates):
     """DC4GS' split sums in the GPU shape: reduced over 32-lane subgroups (KHR or PTX), each lane
-    testing its own pixel against the candidates crossing the subgroup's two rows (only those reduced, the others
-    zeros or the pair's totals), they are the bits of the portable twin (32 pixels per work-item, the same two rows
+    testing its own pixel against the candidates crossing the subgroup's two rows after the walk (only those
+    reduced, the others zeros or the pair's totals), they are the bits of the portable twin (32 pixels per work-item, the same two rows
     in 16-column blocks), split sums and all; and the same bits again when the frame is
     walked in runs (other launches, tiles cut between them)."""
     if rt.caps.subgroups is None:
@@ -206,10 +207,11 @@ def test_split_sums_of_the_subgroup_reduction_are_its_twins(rt, rng, candidates)
     assert np.array_equal(got["subgroups in runs"].view(np.uint32), got["twin"].view(np.uint32))
 
 
-def spanning_runs(rt, res, tuning, n: int) -> tuple[int, int, np.ndarray]:
-    """From the isect arrays: how many Gaussians have pairs in more than one of the frame's runs (pair_runs), the
-    runs, and each Gaussian's first and last run as run_spans keeps them (0, 0 for one with no pair)."""
-    runs, per_run = pair_runs(res.isect.n_pairs, n, res.tiles_x * res.tiles_y, tuning)
+def spanning_runs(rt, res, tuning, n: int, width: int) -> tuple[int, int, np.ndarray]:
+    """From the isect arrays: how many Gaussians have pairs in more than one of the frame's runs (pair_runs, slots
+    of `width` sums), the runs, and each Gaussian's first and last run as run_spans keeps them (0, 0 for one with no
+    pair)."""
+    runs, per_run = pair_runs(res.isect.n_pairs, n, res.tiles_x * res.tiles_y, tuning, width)
     touched = rt.to_host(res.proj.tiles_touched, n, np.uint32).astype(np.int64)
     first = rt.to_host(res.isect.pair_first, n, np.uint32).astype(np.int64)
     pair_of_emission = rt.to_host(res.isect.pair_of_emission, res.isect.n_pairs, np.uint32)
@@ -257,7 +259,8 @@ def test_sum_pairs_folds_the_window_as_the_window_kernel_does(rt, rng, base, poo
             if name == "runs":                   # a row for each Gaussian spanning runs, each taken once
                 ctx = renderers[name].context
                 carried = rt.to_host(ctx.ws.get(CARRY_TAKEN, 4), 1, np.uint32)[0]
-                spanning, runs, spans = spanning_runs(rt, res, paths["runs"], len(model))
+                spanning, runs, spans = spanning_runs(rt, res, paths["runs"], len(model),
+                                                      gathering.layout.width)
                 assert carried == spanning == ctx.frame_counts()["SPANNING"] > 10 and runs >= 4
                 assert ctx.ws.get(CARRY_ROWS, 4).size >= 4 * gathering.layout.width * spanning
                 assert np.array_equal(rt.to_host(ctx.ws.get(RUN_SPANS, 4), len(model), np.uint32), spans)
@@ -273,22 +276,25 @@ def test_sum_pairs_folds_the_window_as_the_window_kernel_does(rt, rng, base, poo
 
 def test_pair_runs_hold_the_bound_within_the_budget(rng):
     """A view's pairs (its room for them: the bound) in runs of consecutive pairs: one run unless the bound tops the
-    budget (pair_chunk slots per Gaussian) in a frame of at least 2 min_run_tiles tiles; then runs of at least the
-    budget, as few as cover the bound, and at most one per min_run_tiles tiles."""
+    budget (pair_chunk slots per Gaussian, or fewer where the frame's pair temporaries hold fewer slots of the
+    width) in a frame of at least 2 min_run_tiles tiles; then runs of at least the budget, as few as cover the bound,
+    and at most one per min_run_tiles tiles."""
     for _ in range(500):
         n, tiles = int(rng.integers(1, 5000)), int(rng.integers(1, 4000))
-        bound = int(rng.integers(0, 40 * n))
+        bound, width = int(rng.integers(0, 40 * n)), int(rng.choice([9, 12, 15, 40, 90]))
         tuning = replace(SHAPES["cpu"], pair_chunk=float(rng.choice([0.1, 1.0, 2.5])),
                          min_run_tiles=int(rng.choice([1, 16, 256])))
-        runs, per_run = pair_runs(bound, n, tiles, tuning)
-        budget = max(int(np.ceil(tuning.pair_chunk * n)), 1)
+        runs, per_run = pair_runs(bound, n, tiles, tuning, width)
+        budget = max(min(int(np.ceil(tuning.pair_chunk * n)), len(PAIR_TEMPORARIES) * bound // width), 1)
         if bound <= budget or tiles < 2 * tuning.min_run_tiles:
             assert (runs, per_run) == (1, max(bound, 1))
             continue
         assert per_run >= budget and (runs - 1) * per_run < bound <= runs * per_run
         assert 2 <= runs <= tiles // tuning.min_run_tiles
         assert per_run == budget or per_run - 1 < bound / (tiles // tuning.min_run_tiles) <= per_run
-    assert pair_runs(10 ** 6, 1000, 10 ** 4, replace(SHAPES["cpu"], pair_sums=False)) == (1, 10 ** 6)
+        # the slots fit in the room of the pair temporaries unless the tiles cap the runs
+        assert per_run * width <= max(len(PAIR_TEMPORARIES) * bound, width) or per_run > budget
+    assert pair_runs(10 ** 6, 1000, 10 ** 4, replace(SHAPES["cpu"], pair_sums=False), 40) == (1, 10 ** 6)
 
 
 def one_view_window(rt, model, cam, target, background, strategy):

@@ -23,12 +23,15 @@ def render_and_download(rt, renderer, model, cam, background):
         "rgb": rt.to_host(proj.rgb, (n, 3)), "depth": rt.to_host(proj.depth, n),
         "radius": rt.to_host(proj.radius, n, np.int32), "alpha_extent": rt.to_host(proj.alpha_extent, (n, 2)),
         "tiles_touched": rt.to_host(proj.tiles_touched, n, np.uint32),
-        "tile_of_pair": rt.to_host(res.isect.tile_of_pair, p, np.uint32),
         "gaussian_of_pair": rt.to_host(res.isect.gaussian_of_pair, p, np.uint32),
         "ranges": rt.to_host(res.isect.ranges, (res.tiles_x * res.tiles_y, 2), np.uint32),
         "image": res.image(rt), "final_T": rt.to_host(res.raster.final_T, (h, w)),
         "last_pair": rt.to_host(res.raster.last_pair, (h, w), np.int32),
     }
+    # each pair's tile, from the tiles' ranges (the sort's tile keys are temporaries, gone after the render)
+    first, end = host["ranges"][:, 0].astype(np.int64), host["ranges"][:, 1].astype(np.int64)
+    host["tile_of_pair"] = np.repeat(np.arange(len(first), dtype=np.uint32), end - first)
+    assert len(host["tile_of_pair"]) == p
     return res, host
 
 

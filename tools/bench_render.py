@@ -106,7 +106,8 @@ def sort_comparison(rt: Runtime, renderer: Renderer, res, runs: int) -> list[str
     tiles_touched = rt.to_host(res.proj.tiles_touched, n, np.uint32)
     visible = np.flatnonzero(tiles_touched > 0).astype(np.uint32)
     depth_keys = depth[visible].view(np.uint32)
-    tile_of_pair = rt.to_host(res.isect.tile_of_pair, p, np.uint32)
+    ranges = rt.to_host(res.isect.ranges, (res.tiles_x * res.tiles_y, 2), np.uint32).astype(np.int64)
+    tile_of_pair = np.repeat(np.arange(len(ranges), dtype=np.uint32), ranges[:, 1] - ranges[:, 0])   # the tile keys
     gaussian_of_pair = rt.to_host(res.isect.gaussian_of_pair, p, np.uint32)
     tile_bits = res.isect.tile_bits
     depth_bits = res.isect.depth_bits   # what the frame's depth sort sorted (DEPTH_KEY_BITS)

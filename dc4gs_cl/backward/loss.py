@@ -8,6 +8,7 @@ import numpy as np
 import pyopencl as cl
 
 from ..render.stage import Stage, StageContext, halvings
+from ..render.workspace import PAIR_SCRATCH
 
 LAMBDA_DSSIM = 0.2      # L = (1 - LAMBDA_DSSIM) L1 + LAMBDA_DSSIM (1 - SSIM)
 SSIM_C1 = 0.01 ** 2
@@ -70,14 +71,18 @@ class Loss(Stage):
             raise ValueError(f"image size {width} x {height}")
         rt, n3w, h = self.rt, 3 * width, height
         m = n3w * h
-        if keep is not None:   # both images zeroed under the mask, into scratch: neither input is changed
-            image, target = (self.mask(stage, src, keep, self.ws.get(f"loss.masked_{name}", 4 * m), width * h)
-                             for name, src in (("image", image), ("target", target)))
-        scale = 3 * max(kept, 1) if keep is not None else m   # the floats the mean is over
         groups_x = -(-n3w // (self.seg * self.wg))
+        # temporaries, dead once the loss is queued (PAIR_SCRATCH: the frame's pairs are gathered by now)
+        masked = ("masked_image", "masked_target") if keep is not None else ()
+        scratch = self.ws.scratch(PAIR_SCRATCH, {**{name: 4 * m for name in (*masked, "d0", "d1", "d2")},
+                                                 "partial": 4 * 3 * groups_x * h})
+        if keep is not None:   # both images zeroed under the mask, into scratch: neither input is changed
+            image, target = (self.mask(stage, src, keep, scratch[name], width * h)
+                             for name, src in (("masked_image", image), ("masked_target", target)))
+        scale = 3 * max(kept, 1) if keep is not None else m   # the floats the mean is over
         shape, local = (groups_x * self.wg, h), (self.wg, 1)
-        d = [self.ws.get(f"loss.d{q}", 4 * m) for q in range(3)]
-        partial = self.ws.get("loss.partial", 4 * 3 * groups_x * h)
+        d = [scratch[f"d{q}"] for q in range(3)]
+        partial = scratch["partial"]
         args = (np.int32(n3w), np.int32(h))
         rt.launch(stage, self.k_ssim, shape, local, *args, np.float32(-LAMBDA_DSSIM / scale), image, target, *d, partial)
         if grad_out is not None:

@@ -12,10 +12,12 @@ import pyopencl as cl
 
 from ..constants import TILE_SIZE
 from ..errors import DeviceError
+from ..render.isect import PAIR_TEMPORARIES
 from ..render.rasterize import background_value, raster_defines
 from ..render.renderer import RenderResult
 from ..render.stage import Stage, visible_rows
 from ..render.tuning import Tuning
+from ..render.workspace import PAIR_SCRATCH
 from ..runtime import SUBGROUP_SOURCES
 from ..statistics import GRADIENTS, SumsLayout
 from .densify_stats import DensifyStats, WindowFold
@@ -23,16 +25,17 @@ from .sum_pairs import Carry, SumPairs
 
 # Workspace buffers (render/workspace.py)
 SUMS = "backward.sums"              # [N*width] the view's per-Gaussian sums (returned)
-PAIR_SUMS = "backward.pair_sums"    # [pairs of a run * layout.width] one slot per (tile, Gaussian) pair
+PAIR_SUMS = "pair_sums"             # [pairs of a run * layout.width] one slot per (tile, Gaussian) pair, in
+                                    # PAIR_SCRATCH: the frame's pair temporaries and the loss' are dead by then
 
 SUBGROUP = 32             # lanes that reduce a pair's sums in the GPU shape (NVIDIA's warp)
 TWIN = {"PIXELS_PER_ITEM": SUBGROUP, "COL_BLOCK": TILE_SIZE, "SUBGROUP": 0}   # its portable twin (see the kernel)
 # The cooperative shapes' partial sums: PART_CHUNK pairs' worth at a time, in at most PART_BYTES of local memory
 # and at most PART_CHUNK_MAX pairs (a barrier per chunk). In the GPU shape at its batch of 256 a work-group holds
 # 25.6 KB for 3DGS' sums with statistics and 37.1 KB with DC4GS'. Registers, not local memory, bound the work-groups
-# an NVIDIA multiprocessor holds (tools/ptx_occupancy.py, clang + ptxas for sm_86): 56 per item for AbsGS, 100 for
-# AbsGS + DC4GS, 4 and 2 work-groups of 256 (91 and 255 with 600 bytes spilled before the reduction held at most 32
-# values and no select between two of its array's elements: 2 and 1).
+# an NVIDIA multiprocessor holds (tools/ptx_occupancy.py, clang + ptxas for sm_86): 56 per item for AbsGS, 72 for
+# AbsGS + DC4GS, 4 and 3 work-groups of 256 (91 and 255 with 600 bytes spilled before the split sums were reduced
+# candidate by candidate after the walk and the reduction held no select between two of its array's elements: 2, 1).
 PART_BYTES, PART_CHUNK_MAX = 16 * 1024, 32
 
 
@@ -123,7 +126,7 @@ class RasterizeBackward(Stage):
         queues this before anything that changes lasting state, and runs the view again with more); None: as many
         as it has, read back."""
         tuning, n = self.ctx.tuning, res.proj.n
-        runs, per_run = pair_runs(res.isect.pair_bound, n, res.tiles_x * res.tiles_y, tuning)
+        runs, per_run = pair_runs(res.isect.pair_bound, n, res.tiles_x * res.tiles_y, tuning, layout.width)
         fused = window is not None and tuning.pair_sums and runs <= tuning.max_folded_runs
         rows = 0
         if runs > 1 and n:
@@ -150,7 +153,7 @@ class RasterizeBackward(Stage):
         out_layout = GRADIENTS if plan.fused else layout
         sums = self.ws.get(SUMS, 4 * out_layout.width * max(n, 1))
         if tuning.pair_sums:
-            target = self.ws.get(PAIR_SUMS, 4 * layout.width * plan.pairs_per_run)
+            target = self.ws.scratch(PAIR_SCRATCH, {PAIR_SUMS: 4 * layout.width * plan.pairs_per_run})[PAIR_SUMS]
         else:
             target = sums
             rt.fill(sums, np.float32(0), 4 * layout.width * n)
@@ -184,13 +187,16 @@ class RunPlan(NamedTuple):
     carry: Carry | None
 
 
-def pair_runs(bound: int, n: int, tiles: int, tuning: Tuning) -> tuple[int, int]:
-    """The runs of consecutive pairs a view with room for `bound` pairs is walked in, and the pairs per run: one
-    run unless the pairs outnumber the slots held at once (Tuning.pair_chunk per Gaussian) in a frame of at least
+def pair_runs(bound: int, n: int, tiles: int, tuning: Tuning, width: int) -> tuple[int, int]:
+    """The runs of consecutive pairs a view with room for `bound` pairs is walked in, and the pairs per run, for
+    slots of `width` sums: one run unless the pairs outnumber the slots held at once in a frame of at least
     2 min_run_tiles tiles, and at most one run per min_run_tiles tiles (a launch ends with cores idle behind its
-    slowest tiles). Fixed on the host from the bound alone, so that nothing is read back: a run past the view's
-    pairs has nothing to do."""
-    budget = max(math.ceil(tuning.pair_chunk * n), 1)
+    slowest tiles). The slots held at once: Tuning.pair_chunk per Gaussian, or fewer where the frame's pair
+    temporaries (PAIR_SCRATCH, whose room the slots take over) hold fewer, so that wide slots (DC4GS' 40 sums) add
+    nothing to the peak. Fixed on the host from the bound alone, so that nothing is read back: a run past the
+    view's pairs has nothing to do."""
+    room = len(PAIR_TEMPORARIES) * bound // width
+    budget = max(min(math.ceil(tuning.pair_chunk * n), room), 1)
     if not tuning.pair_sums or bound <= budget or tiles < 2 * tuning.min_run_tiles:
         return 1, max(bound, 1)
     per_run = max(budget, -(-bound // (tiles // tuning.min_run_tiles)))

@@ -129,6 +129,7 @@ inline int subgroup_any(const int predicate) {
         }                                                                                                  \
         if (lane % (SUBGROUP / PAD) == 0 && base < used) part[base] = v[0];                                \
     }
+DEFINE_SUBGROUP_SUMS(subgroup_sums_8, 8)     // a candidate's SPLIT_WIDTH split sums
 DEFINE_SUBGROUP_SUMS(subgroup_sums_16, 16)
 DEFINE_SUBGROUP_SUMS(subgroup_sums_32, 32)
 
@@ -188,6 +189,13 @@ typedef float floatB;
 // Crossing counts with a walk of their own (each a copy of the walk); more take the walk over all candidates.
 // Up to 4 measured no faster than up to 2 on PoCL (the built-in scene, where 30% of the walked pixels have 3 or 4).
 #define MAX_FEW_CROSSING (SPLIT_CANDIDATES < 2 ? SPLIT_CANDIDATES : 2)
+// With subgroups (a pixel per item) the walk records its pixel instead (backward_pair's `pixel`): t along the
+// candidate line, whether g != 0, then the values of the split lanes (u_x, u_y, 1, |g_x|, |g_y| in SPLIT_<LANE>
+// order) that a candidate with the pixel on its left adds.
+#define PIXEL_T 0
+#define PIXEL_HAS_G 1
+#define PIXEL_VALUE 2
+#define PIXEL_RECORD (PIXEL_VALUE + SPLIT_WIDTH)
 #else
 #define LANE_SUMS SUM_WIDTH
 #endif
@@ -195,14 +203,14 @@ typedef float floatB;
 // One pair: this work-item's pixels within the Gaussian's reach, walked back past the Gaussian; its terms
 // summed per lane of a column block into lanes. n_split, a constant at each call, adds the split terms of that
 // many candidates, at t_split[0 .. n_split - 1], into split_lanes (SPLIT_WIDTH per candidate): each call then
-// compiles to
-// its own vectorised loop (a run-time test or trip count inside the loop stops vectorisation: 6x slower).
+// compiles to its own vectorised loop (a run-time test or trip count inside the loop stops vectorisation: 6x
+// slower). With subgroups (one pixel) it records the pixel's split inputs in `pixel` (PIXEL_RECORD) instead.
 ALWAYS_INLINE void backward_pair(const float2 m, const float4 co, const float3 c, const int idx, const int4 span,
                                  const int row0, const int col0, const float ndc_x, const float ndc_y,
                                  const float4 line, const float *t_split, const int n_split,
                                  const float *px, const float *py, const float *dr, const float *dg, const float *db,
                                  const float *bg_term, const int *last, float *T, float *behind,
-                                 float lanes[][COL_BLOCK], float split_lanes[][COL_BLOCK]) {
+                                 float lanes[][COL_BLOCK], float split_lanes[][COL_BLOCK], float *pixel) {
     FOR_BLOCKS_IN_REACH(span, row0, col0)
 #if SPLIT_CANDIDATES && SPLIT_SUMS_PER_BLOCK
     float sv[1 + SPLIT_WIDTH][COL_BLOCK];   // the block's pixels: t along the candidate line, then the split lanes
@@ -244,7 +252,15 @@ ALWAYS_INLINE void backward_pair(const float2 m, const float4 co, const float3 c
         lanes[SUM_DC][cc - c0] += gx * inv;
         lanes[SUM_DC + 1][cc - c0] += gy * inv;
         lanes[SUM_DC + 2][cc - c0] += g2 > 0.f ? 1.f : 0.f;
-#if SPLIT_CANDIDATES
+#if SPLIT_CANDIDATES && SUBGROUP
+        // The item's one pixel: what its split terms are made of, each candidate's reduced after the walk
+        // (PIXEL_RECORD); the walk holds no split lanes.
+        pixel[PIXEL_T] = (px[p] - line.x) * line.z + (py[p] - line.y) * line.w;
+        pixel[PIXEL_HAS_G] = g2 > 0.f ? 1.f : 0.f;
+        pixel[PIXEL_VALUE + SPLIT_UX] = gx * inv; pixel[PIXEL_VALUE + SPLIT_UY] = gy * inv;
+        pixel[PIXEL_VALUE + SPLIT_COUNT] = 1.f;
+        pixel[PIXEL_VALUE + SPLIT_ABS_X] = ABSF(gx); pixel[PIXEL_VALUE + SPLIT_ABS_Y] = ABSF(gy);
+#elif SPLIT_CANDIDATES
         if (n_split) {
         float t_q = (px[p] - line.x) * line.z + (py[p] - line.y) * line.w;
         float has_g = g2 > 0.f ? 1.f : 0.f;
@@ -523,12 +539,19 @@ void rasterize_backward(const int width, const int height, const int tiles_x, co
                 float tk[SPLIT_CANDIDATES];
                 tk[0] = 0.f;
                 for (int k = 1; k < SPLIT_CANDIDATES; ++k) tk[k] = sg[GEO_T + k - 1];
-                // Only the candidates whose line crosses the pixels walked take split terms in the walk: lo .. hi - 1
-                // (none where the view gave no line).
+                // Only the candidates whose line crosses the pixels walked take split terms: lo .. hi - 1 (none where the
+                // view gave no line).
                 int2 cross = HAS_SPLIT_LINE(sg) ? crossing_range(line, tk, span, x0, y0, cross_row0, cross_col0)
                                                 : (int2)(SPLIT_CANDIDATES, SPLIT_CANDIDATES);
+#if SUBGROUP
+                // One walk, with no split lanes: the crossing candidates' terms come from the pixel after it.
+                float pixel[PIXEL_RECORD];
+                for (int k = 0; k < PIXEL_RECORD; ++k) pixel[k] = 0.f;   // out of the pair's reach: no split term
+                backward_pair(m, co, c, idx, span, row0, col0, ndc_x, ndc_y, line, tk, 0, px, py, dr, dg, db, bg_term,
+                              last, T, behind, lanes, lanes, pixel);
+                for (int k = 0; k < SUM_SPLIT; ++k) acc[k] = lane_total(lanes[k]);
+#else
                 if (cross.y - cross.x > MAX_FEW_CROSSING) cross = (int2)(0, SPLIT_CANDIDATES);   // the walk over all
-                const int n_cross = cross.y - cross.x;
                 __private float (*split_lanes)[COL_BLOCK] = lanes + SUM_SPLIT;   // private, not generic (CL3.0)
                 // acc: the pair's row held compactly (row_sum), its sums before SUM_SPLIT then the crossing
                 // candidates' split sums. One walk per crossing count, each its own vectorised loop (see
@@ -538,21 +561,23 @@ void rasterize_backward(const int width, const int height, const int tiles_x, co
                     for (int k = 0; k < SPLIT_WIDTH * n_split; ++k)                                            \
                         for (int cc = 0; cc < COL_BLOCK; ++cc) split_lanes[k][cc] = 0.f;                       \
                     backward_pair(m, co, c, idx, span, row0, col0, ndc_x, ndc_y, line, tk + cross.x, n_split,  \
-                                  px, py, dr, dg, db, bg_term, last, T, behind, lanes, split_lanes);           \
+                                  px, py, dr, dg, db, bg_term, last, T, behind, lanes, split_lanes, NULL);     \
                     for (int k = 0; k < SUM_SPLIT + SPLIT_WIDTH * n_split; ++k) acc[k] = lane_total(lanes[k]); \
                 }
-                if (n_cross == 0) WALK(0)
-                else if (n_cross == 1) WALK(1)
+                const int n_walked = cross.y - cross.x;
+                if (n_walked == 0) WALK(0)
+                else if (n_walked == 1) WALK(1)
 #if MAX_FEW_CROSSING >= 2
-                else if (n_cross == 2) WALK(2)
+                else if (n_walked == 2) WALK(2)
 #endif
                 else WALK(SPLIT_CANDIDATES)
 #undef WALK
-                const int used = SUM_SPLIT + SPLIT_WIDTH * n_cross;   // acc's sums
+#endif
+                const int used = SUM_SPLIT + SPLIT_WIDTH * (cross.y - cross.x);   // the row's sums, held compactly
 #else
                 const float no_split[1] = {0.f};
                 backward_pair(m, co, c, idx, span, row0, col0, ndc_x, ndc_y, (float4)(0.f), no_split, 0, px, py, dr,
-                              dg, db, bg_term, last, T, behind, lanes, lanes);
+                              dg, db, bg_term, last, T, behind, lanes, lanes, NULL);
                 for (int k = 0; k < SUM_WIDTH; ++k) acc[k] = lane_total(lanes[k]);
                 const int used = SUM_WIDTH;
 #endif
@@ -563,18 +588,23 @@ void rasterize_backward(const int width, const int height, const int tiles_x, co
                 if (owner_lane == 0) l_cross[owner * PART_CHUNK + j - chunk_base] = convert_uchar2(cross);
 #endif
 #if SUBGROUP
-                // The subgroup's sums of the pair (each subgroup's lanes reduce alike: their crossing range is the
-                // subgroup's, and the split sums' width is decided by a vote); a pair that none of its pixels took
-                // part in adds zeros.
+                // The subgroup's sums of the pair; a pair that none of its pixels took part in adds zeros.
                 if (subgroup_any(touched)) {
 #if SPLIT_CANDIDATES
                     subgroup_row(acc, SUM_SPLIT, SUM_SPLIT, lane, part);
-                    if (subgroup_any(n_cross > MAX_FEW_CROSSING))
-                        subgroup_row(acc + SUM_SPLIT, used - SUM_SPLIT, SPLIT_WIDTH * SPLIT_CANDIDATES, lane,
-                                     part + SUM_SPLIT);
-                    else if (subgroup_any(n_cross > 0))
-                        subgroup_row(acc + SUM_SPLIT, used - SUM_SPLIT, SPLIT_WIDTH * MAX_FEW_CROSSING, lane,
-                                     part + SUM_SPLIT);
+                    // Then each crossing candidate's split sums, from each lane's pixel (the terms the twin's walk
+                    // adds to zero lanes): 5 values held at a time, not 25 through the walk. The crossing range is the
+                    // subgroup's, and a vote makes the candidates reduced the same across a wider hardware subgroup.
+                    #pragma unroll
+                    for (int k = 0; k < SPLIT_CANDIDATES; ++k) {
+                        const int crossing = k >= cross.x && k < cross.y;
+                        if (!subgroup_any(crossing)) continue;
+                        const float left = pixel[PIXEL_T] < tk[k] ? pixel[PIXEL_HAS_G] : 0.f;
+                        float terms[SPLIT_WIDTH];
+                        for (int v = 0; v < SPLIT_WIDTH; ++v) terms[v] = 0.f + left * pixel[PIXEL_VALUE + v];
+                        subgroup_sums_8(terms, crossing ? SPLIT_WIDTH : 0, lane,
+                                        part + SUM_SPLIT + SPLIT_WIDTH * (crossing ? k - cross.x : 0));
+                    }
 #else
                     subgroup_row(acc, SUM_WIDTH, SUM_WIDTH, lane, part);
 #endif

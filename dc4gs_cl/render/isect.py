@@ -19,10 +19,13 @@ from .project import Projected
 from .scan import ExclusiveScan
 from .sort import RadixSort
 from .stage import Stage, StageContext
+from .workspace import PAIR_SCRATCH
 
 DEPTH_KEY_BITS = 31   # a depth key is the float bits of a depth beyond the near plane: positive, the sign bit 0
 FRAME_START = np.array([0xFFFFFFFF if word == "DEPTH_KEY_MIN" else 0 for word in FRAME_WORDS], np.uint32)
 FRAME = {word: i for i, word in enumerate(FRAME_WORDS)}
+# A uint per pair each, dead once the pairs are gathered (in PAIR_SCRATCH): the emission arrays, the tile sort's
+PAIR_TEMPORARIES = ("tile_of_emission", "emission", "gaussian_of_emission", "keys", "vals")
 
 
 @dataclass
@@ -32,7 +35,6 @@ class Intersections:
     pair_bound: int              # C, the pairs the buffers hold: the capacity given, else n_pairs
     ranges: cl.Buffer            # [tiles*2] uint (first pair, end pair)
     gaussian_of_pair: cl.Buffer  # [C] uint, grouped by tile, front to back inside a tile
-    tile_of_pair: cl.Buffer      # [C] uint
     pair_of_emission: cl.Buffer  # [C] uint: Gaussian g's pairs sit at pair_of_emission[pair_first[g] + k],
     pair_first: cl.Buffer        # [N] uint   k < tiles_touched[g] (valid where tiles_touched > 0)
     depth_bits: int              # key bits the depth sort used (DEPTH_KEY_BITS, fewer with depth_sort_bits)
@@ -91,9 +93,9 @@ class Intersect(Stage):
             v, p = counts["VISIBLE"], counts["PAIRS"]
         c = p if pair_capacity is None else pair_capacity
 
-        tile_of_emission = ws.get("isect.tile_of_emission", 4 * c)
-        emission = ws.get("isect.emission", 4 * c)
-        gaussian_of_emission = ws.get("isect.gaussian_of_emission", 4 * c)
+        scratch = ws.scratch(PAIR_SCRATCH, {name: 4 * c for name in PAIR_TEMPORARIES})
+        tile_of_emission, emission = scratch["tile_of_emission"], scratch["emission"]
+        gaussian_of_emission = scratch["gaussian_of_emission"]
         pair_first = ws.get("isect.pair_first", 4 * n)
         if n:
             rt.launch_items("isect", self.k_emit, n, wg, frame, np.uint32(c), np.int32(tiles_x), np.int32(tiles_y),
@@ -101,7 +103,8 @@ class Intersect(Stage):
                             tile_of_emission, emission, gaussian_of_emission, pair_first)
         tile_bits = (tiles - 1).bit_length()
         tile_of_pair, emission_sorted = self.sort(tile_of_emission, emission, c, 0, tile_bits, stage="sort",
-                                                  count=frame, count_at=FRAME["PAIRS"])
+                                                  count=frame, count_at=FRAME["PAIRS"],
+                                                  scratch=(scratch["keys"], scratch["vals"]))
         gaussian_of_pair = ws.get("isect.gaussian_of_pair", 4 * c)
         pair_of_emission = ws.get("isect.pair_of_emission", 4 * c)
         ranges = ws.get("isect.ranges", 8 * tiles)
@@ -110,5 +113,5 @@ class Intersect(Stage):
             rt.launch_items("isect", self.k_gather_pairs, c, wg, frame, np.uint32(c), emission_sorted,
                             gaussian_of_emission, tile_of_pair, gaussian_of_pair, pair_of_emission, ranges)
         return Intersections(n_visible=v, n_pairs=p, pair_bound=c, ranges=ranges, gaussian_of_pair=gaussian_of_pair,
-                             tile_of_pair=tile_of_pair, pair_of_emission=pair_of_emission, pair_first=pair_first,
-                             depth_bits=hi - lo, tile_bits=tile_bits)
+                             pair_of_emission=pair_of_emission, pair_first=pair_first, depth_bits=hi - lo,
+                             tile_bits=tile_bits)

@@ -60,11 +60,13 @@ class RadixSort(Stage):
         return min(self.tuning.sort_blocks, -(-n // (self.wg * KEYS_PER_ITEM if self.wg > 1 else 1)))
 
     def __call__(self, keys: cl.Buffer, vals: cl.Buffer, n: int, bit_lo: int = 0, bit_hi: int = 32,
-                 stage: str = "sort", count: cl.Buffer | None = None, count_at: int = 0) -> tuple[cl.Buffer, cl.Buffer]:
+                 stage: str = "sort", count: cl.Buffer | None = None, count_at: int = 0,
+                 scratch: tuple[cl.Buffer, cl.Buffer] | None = None) -> tuple[cl.Buffer, cl.Buffer]:
         """Sort n (key, value) pairs by key bits [bit_lo, bit_hi), or, with `count`, the first count[count_at]
         (the count the device wrote; n, the bound, sizes the launches and buffers), so that the host reads nothing
-        back first. Returns the buffers holding the result: the inputs themselves or workspace buffers (which
-        later calls may overwrite)."""
+        back first. scratch: buffers of n keys and n values that the passes alternate with (default: workspace
+        buffers). Returns the buffers holding the result: the inputs themselves or the scratch ones (which later
+        calls may overwrite)."""
         plan = digit_plan(bit_lo, bit_hi, self.tuning.radix_bits) if n > 1 else []
         if not plan:
             return keys, vals
@@ -73,7 +75,7 @@ class RadixSort(Stage):
         spine = (1 << self.tuning.radix_bits) * blocks
         hist = self.ws.get("sort.hist", 4 * spine)
         src = (keys, vals)
-        dst = (self.ws.get("sort.keys", 4 * n), self.ws.get("sort.vals", 4 * n))
+        dst = scratch or (self.ws.get("sort.keys", 4 * n), self.ws.get("sort.vals", 4 * n))
         counted = device_count(n, count, count_at, hist)
         for shift, bits in plan:
             args = (*counted, np.uint32(shift), np.uint32((1 << bits) - 1))

@@ -24,7 +24,8 @@ class Tuning:
     # ranking each tile's keys in local memory (GPUs: coalesced loads and stores, 8-bit digits without a ballot)
     sort_wg: int = 1
     pair_sums: bool = True  # backward: per-pair slots summed per Gaussian (deterministic) instead of float atomics
-    # backward with pair_sums: the slots held at once, in pairs per Gaussian; a frame with room for more pairs is
+    # backward with pair_sums: the slots held at once, in pairs per Gaussian (fewer where the frame's pair temporaries
+    # hold fewer: rasterize_backward.pair_runs); a frame with room for more pairs is
     # walked in runs of consecutive pairs, each run's slots summed before the next, at most one run per
     # min_run_tiles tiles: a launch ends with cores idle behind its slowest tiles (PoCL, 48k Gaussians: 2 runs of
     # ~54 tiles at 192x144 cost +20% of the backward; 4 runs of 90-476 tiles at 576x432, +1%)
