@@ -9,7 +9,9 @@ from __future__ import annotations
 
 import argparse
 import shutil
+import signal
 import sys
+import threading
 from functools import reduce
 from pathlib import Path
 
@@ -24,7 +26,24 @@ from .errors import DeviceError, InputError, OutputError
 from .files import replace_folder, staging_folder
 from .finite import NonFiniteError
 from .scene.builtin import BUILTIN_SCENE
-from .scene.camera import TEST_SPLITS
+from .scene.camera import TEST_SPLITS, view_sizes
+
+SCENE_COMMANDS = ("train", "eval", "render", "view")   # they read scenes, through pycolmap where COLMAP
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM where training's own handling is not in force (it stops at an iteration boundary): exit 143."""
+
+
+def stop_cleanly_on_sigterm() -> None:
+    """SIGTERM a clean exit (143, one line) wherever it comes: importing pycolmap installs glog's failure handler,
+    which on SIGTERM printed a native stack dump and left what was being made; ours goes in after that import."""
+    import pycolmap  # noqa: F401  (the import is what installs its handler)
+
+    def terminate(signum, frame):
+        raise Terminated()
+    signal.signal(signal.SIGTERM, terminate)
+
 
 BUILTIN_ITERATIONS = 5_000   # the default run on the built-in scene: about five minutes on 2 CPU cores
 
@@ -396,7 +415,7 @@ def _train_locked(args, run) -> int:
             run.clear()
         run.write_settings(cfg, scene)
     print(f"device: {describe(rt.device)}\nscene: {cfg.scene} ({len(scene.train)} train / {len(scene.test)} test "
-          f"views, {scene.train[0].width}x{scene.train[0].height}), strategy {trainer.strategy.label}, "
+          f"views, {view_sizes(scene.train + scene.test)}), strategy {trainer.strategy.label}, "
           f"{cfg.iterations:,} iterations, {trainer.model.n:,} initial Gaussians\noutput: {run}", file=sys.stderr)
     start, first = time.perf_counter(), trainer.iteration
     if live is not None:
@@ -459,7 +478,11 @@ COMMANDS = {"devices": cmd_devices, "render": cmd_render, "train": cmd_train, "e
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv if argv is not None else (sys.argv[1:] or ["train"]))
+    previous = signal.getsignal(signal.SIGTERM)
+    handles_signals = args.command in SCENE_COMMANDS and threading.current_thread() is threading.main_thread()
     try:
+        if handles_signals:
+            stop_cleanly_on_sigterm()
         return COMMANDS[args.command](args)
     except OutputError as e:
         print(f"dc4gs-cl {args.command}: error: {e}", file=sys.stderr)
@@ -470,9 +493,15 @@ def main(argv: list[str] | None = None) -> int:
     except NonFiniteError as e:   # --check-finite
         print(f"dc4gs-cl {args.command}: error: {e}", file=sys.stderr)
         return 3
+    except Terminated:
+        print(f"dc4gs-cl {args.command}: terminated", file=sys.stderr)
+        return 128 + signal.SIGTERM
     except KeyboardInterrupt:
         print(f"dc4gs-cl {args.command}: interrupted", file=sys.stderr)
         return 130
+    finally:
+        if handles_signals:
+            signal.signal(signal.SIGTERM, previous if previous is not None else signal.SIG_DFL)
 
 
 if __name__ == "__main__":

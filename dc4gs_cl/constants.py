@@ -23,6 +23,10 @@ QUAT_NORM_MIN = 1e-15          # a quaternion shorter than this is the identity 
                                # its squared norm stays a normal float32, where the inverse square root is exact
 COLOR_MAX = 1e4                # a Gaussian's colour is clamped to [0, COLOR_MAX]: far above any trained colour,
                                # low enough that the loss's fourth powers of pixel values stay finite in float32
+# A model's values as read (ply.read_ply) and exported: trained ones lie far inside; beyond, float32 overflows in
+# the kernels' covariances (a scale's square) or an export's exp(log scale), or a camera's transform of the mean.
+MAX_ABS_LOG_SCALE = 40.0         # |log scale|: e^40 ~ 2e17 px-sized scales square to 5e34 < float32's 3.4e38
+MAX_ABS_MEAN = 1e15              # |mean| in scene units: a rotation and translation of it stay far below overflow
 
 SH_C0 = 0.28209479177387814
 SH_C1 = 0.4886025119029199

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .constants import SH_MAX_DEGREE, sh_coeffs
+from .constants import MAX_ABS_LOG_SCALE, MAX_ABS_MEAN, SH_MAX_DEGREE, sh_coeffs
 from .errors import InputError
 from .files import write_atomic
 from .model import GaussianModel
@@ -217,5 +217,18 @@ def _to_model(path, cols, names: list[str]) -> GaussianModel:
         raise InputError(path, f"{bad.sum()} NaN or Inf values ({where})")
     n, rest = len(v), (len(names) - len(_FIXED)) // 3  # columns as in _FIXED, then f_rest
     sh = np.concatenate([v[:, None, 3:6], v[:, 14:].reshape(n, 3, rest).transpose(0, 2, 1)], axis=1)
-    return GaussianModel(means=v[:, 0:3], log_scales=v[:, 7:10], quats=v[:, 10:14], opacity_logits=v[:, 6],
-                         sh=sh)
+    model = GaussianModel(means=v[:, 0:3], log_scales=v[:, 7:10], quats=v[:, 10:14], opacity_logits=v[:, 6],
+                          sh=sh)
+    check_ranges(path, model)
+    return model
+
+
+def check_ranges(path, model: GaussianModel) -> None:
+    """InputError naming the first Gaussian whose mean or log scale lies beyond what the kernels and the exports
+    keep finite (constants.MAX_ABS_MEAN, MAX_ABS_LOG_SCALE)."""
+    for what, values, limit in (("mean", model.means, MAX_ABS_MEAN), ("log scale", model.log_scales, MAX_ABS_LOG_SCALE)):
+        beyond = np.flatnonzero((np.abs(values) > limit).any(axis=1))
+        if len(beyond):
+            i = int(beyond[0])
+            raise InputError(path, f"{len(beyond)} Gaussians with a {what} beyond +-{limit:g} (Gaussian {i}: "
+                                   f"{', '.join(f'{x:g}' for x in values[i])})")

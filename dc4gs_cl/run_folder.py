@@ -45,6 +45,8 @@ CORRUPT_CHECKPOINT = "checkpoint.corrupt.npz"   # a checkpoint found corrupt, se
 LOCK = ".lock"   # held by the run writing the folder (RunFolder.locked), the holder's PID inside
 RESULTS, PER_VIEW = "results.json", "per_view.json"
 METRICS = "metrics.jsonl"
+# The numbers a metrics row may hold (train/log.py writes them; report plots them), and stage_ms: stage -> ms
+METRIC_NUMBERS = ("loss", "train_psnr", "gaussians", "it_per_s", "elapsed_s", "test_psnr", "test_ssim", "test_views")
 RUN_FILES = (CONFIG, "cfg_args", "cameras.json", CHECKPOINT, PREVIOUS_CHECKPOINT, CORRUPT_CHECKPOINT, RESULTS, PER_VIEW,
              METRICS, "results.corrupt.json", "per_view.corrupt.json")
 RUN_DIRS = ("point_cloud", "test", "train")
@@ -77,8 +79,16 @@ def _read_checkpoint_file(path: Path) -> tuple[dict[str, np.ndarray], dict]:
     return arrays, meta
 
 
-def _one_line(e: Exception) -> str:
+def _one_line(e: Exception | str) -> str:
     return " ".join(str(e).split())
+
+
+def _is_int(value) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool)
+
+
+def _is_number(value) -> bool:   # NaN included: a rate over no time is written as NaN
+    return _is_int(value) or isinstance(value, float)
 
 
 @dataclass
@@ -315,7 +325,9 @@ class RunFolder:
 
     def read_metrics(self) -> list[dict]:
         """The metrics rows in the order written. Appending is not atomic: a last line cut short by a crash is
-        left out, as is any line that is not a JSON object with an integer "iteration"."""
+        left out, as is any line that is not a JSON object with an integer "iteration". A row whose numbers are
+        not numbers (METRIC_NUMBERS, stage_ms) is an InputError naming its line: what reads the rows may compute
+        with them."""
         try:
             lines = self.metrics_path.read_text(encoding="utf-8").splitlines()
         except FileNotFoundError:
@@ -323,12 +335,20 @@ class RunFolder:
         except (OSError, UnicodeDecodeError) as e:
             raise InputError(self.metrics_path, f"unreadable metrics ({_one_line(e)})") from None
         rows = []
-        for line in lines:
+        for number, line in enumerate(lines, 1):
             try:
                 row = json.loads(line)
             except ValueError:
                 continue
-            if isinstance(row, dict) and isinstance(row.get("iteration"), int):
+            if isinstance(row, dict) and _is_int(row.get("iteration")):
+                wrong = [(k, row[k]) for k in METRIC_NUMBERS if k in row and not _is_number(row[k])]
+                stages = row.get("stage_ms", {})
+                if not isinstance(stages, dict) or not all(_is_number(v) for v in stages.values()):
+                    wrong.append(("stage_ms", stages))
+                if wrong:
+                    key, value = wrong[0]
+                    raise InputError(self.metrics_path, f"line {number}: {key} is {_one_line(repr(value))[:60]}, "
+                                                        "not a number")
                 rows.append(row)
         return rows
 

@@ -292,6 +292,19 @@ def test_unwritable_output_leaves_nothing(tmp_path, rng, fmt):
     assert [p.name for p in tmp_path.iterdir()] == [folder.name] and not list(folder.iterdir())
 
 
+@pytest.mark.parametrize("fmt", list(FORMATS))
+def test_no_export_of_values_beyond_what_stays_finite(tmp_path, rng, fmt):
+    """A model whose log scale overflows float32 once exponentiated (a .splat held inf) is refused before
+    anything is written, naming the Gaussian (a PLY with one is refused when read)."""
+    m = model_for(rng, 1)
+    m.log_scales[2, 0] = 1e30
+    path = tmp_path / f"model{FORMATS[fmt][0]}"
+    with pytest.raises(InputError) as e:
+        export_model(m, path)
+    assert e.value.path == str(path) and "log scale beyond" in str(e.value) and "Gaussian 2:" in str(e.value)
+    assert not list(tmp_path.iterdir())
+
+
 def test_output_inside_a_file(tmp_path, rng):
     (tmp_path / "file").write_bytes(b"")
     with pytest.raises(OutputError):

@@ -222,3 +222,28 @@ def test_a_damaged_results_file_is_set_aside_not_the_evaluation(tmp_path, capsys
     assert (out / "results.corrupt.json").read_text() == damage
     assert list(json.loads((out / "results.json").read_text())) == ["ours_3"]
     assert "ours_3" in json.loads((out / "per_view.json").read_text())   # the intact one merged as before
+
+
+@pytest.mark.parametrize("command", ["train", "render"])
+def test_sigterm_while_the_scene_loads_is_a_clean_exit(tmp_path, command):
+    """SIGTERM before training's own handling is in force (here while the scene loads, as during image decoding):
+    exit 143 with one line and no new output folder, not pycolmap's native stack dump (its import installs glog's
+    failure handler, which killed the process with a 27-frame trace)."""
+    import signal
+    import subprocess
+    import sys
+    out = tmp_path / "new"
+    args = {"train": ["train", *SMALL, "--iterations", "5", "--out", str(out)],
+            "render": ["render", "--scene", "builtin", "--out", str(out)]}[command]
+    done = subprocess.run([sys.executable, "-c", (
+        "import os, signal, sys, time\n"
+        "import dc4gs_cl.scene as scenes\n"
+        "def loading(*a, **k):\n"
+        "    os.kill(os.getpid(), signal.SIGTERM)\n"
+        "    time.sleep(30)\n"
+        "scenes.builtin_scene = loading\n"
+        "from dc4gs_cl.cli import main\n"
+        f"sys.exit(main({args!r}))")], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 128 + signal.SIGTERM, (done.returncode, done.stderr[-2000:])
+    assert done.stderr.strip().splitlines() == [f"dc4gs-cl {command}: terminated"], done.stderr[-2000:]
+    assert not out.exists()

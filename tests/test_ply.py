@@ -87,7 +87,7 @@ def rng():
 @pytest.mark.parametrize("degree", [0, 1, 2, 3])
 def test_round_trip_is_bit_exact(tmp_path, rng, degree):
     model = random_model(rng, 1000, degree)
-    model.means[0] = [-0.0, np.float32(1e-45), np.finfo(np.float32).max]  # sign of zero, subnormal, max
+    model.sh[0, 0] = [-0.0, np.float32(1e-45), np.finfo(np.float32).max]  # sign of zero, subnormal, max
     write_ply(tmp_path / "a.ply", model)
     back = read_ply(tmp_path / "a.ply")
     assert back.sh_degree == degree
@@ -228,6 +228,14 @@ def bad_file(tmp_path, rng, case):
                  for t, n, v in vertex(model, {"x": "double"})[2]]
         write_custom(path, [("vertex", 10, props)])
         return path, "10 NaN or Inf values (10 in x)"  # beyond float32
+    if case == "huge log scale":   # finite, but its exp overflows an export's float32 (a .splat held inf)
+        model.log_scales[4, 2] = 1e30
+        write_ply(path, model)
+        return path, "1 Gaussians with a log scale beyond +-40 (Gaussian 4:"
+    if case == "huge mean":
+        model.means[[1, 6], 0] = [3e15, -1e30]
+        write_ply(path, model)
+        return path, "2 Gaussians with a mean beyond +-1e+15 (Gaussian 1:"
     if case == "no Gaussians":
         write_custom(path, [("vertex", 0, [(t, n, []) for t, n, _ in good[2]])])
         return path, "no Gaussians"
@@ -239,8 +247,8 @@ def bad_file(tmp_path, rng, case):
 
 BAD_CASES = ["missing", "directory", "magic", "empty file", "no end_header", "bad count", "bad type",
              "bad format", "no vertex", "missing properties", "f_rest count", "f_rest numbering",
-             "truncated", "truncated ascii", "bad ascii", "non-finite", "double overflow", "no Gaussians",
-             "vertex list"]
+             "truncated", "truncated ascii", "bad ascii", "non-finite", "double overflow", "huge log scale",
+             "huge mean", "no Gaussians", "vertex list"]
 
 
 @pytest.mark.parametrize("case", BAD_CASES)

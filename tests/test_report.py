@@ -54,3 +54,22 @@ def test_report_bad_input(two_runs, tmp_path, capsys, problem):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and str(out if problem == "suffix" else target) in err[0]
     assert not out.exists()
+
+
+@pytest.mark.parametrize("row", ['{"iteration": 20, "loss": "0.1"}', '{"iteration": 20, "loss": 0.1, "gaussians": [1]}',
+                                 '{"iteration": 20, "test_psnr": true}', '{"iteration": 20, "stage_ms": {"loss": "x"}}',
+                                 '{"iteration": 20, "stage_ms": [1, 2]}'])
+def test_report_names_a_metrics_row_of_the_wrong_type(two_runs, tmp_path, capsys, row):
+    """A metrics.jsonl row whose numbers are not numbers: one line naming the file and the row, not a traceback
+    from the plotting (a line cut short by a crash is still passed over)."""
+    import shutil
+    run = tmp_path / "run"
+    shutil.copytree(two_runs[0], run)
+    metrics = run / "metrics.jsonl"
+    lines = metrics.read_text().splitlines()
+    metrics.write_text("\n".join([lines[0], row, *lines[1:], '{"iteration": 3'] ) + "\n")
+    out = tmp_path / "r.html"
+    assert main(["report", str(run), "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and str(metrics) in err[0] and "line 2" in err[0], err
+    assert not out.exists()

@@ -519,3 +519,18 @@ def test_output_names_stay_inside_the_output_folder_and_clashes_are_refused(tmp_
     frames = [{"file_path": "x/y"}, {"file_path": "x_y"}]
     with pytest.raises(InputError, match="'x/y' and 'x_y' would write one output file"):
         load_scene(nerf_scene(tmp_path / "clash", {"camera_angle_x": 1.0}, frames), test_every=0)
+
+
+def test_the_scene_line_states_mixed_view_sizes(tmp_path, capsys):
+    """A scene whose views differ in size says so on train's scene line (it showed the first view's size alone,
+    as if a 16x12 scene held a 1x1 view)."""
+    from dc4gs_cl.cli import main
+    root = tmp_path / "scene"
+    root.mkdir()
+    write_image(root / "odd.png", np.full((1, 1, 3), 0.5))      # a 1x1 view among 16x12 ones
+    nerf_scene(root, {"camera_angle_x": 0.9}, [{"file_path": f"./v{i}"} for i in range(3)] + [{"file_path": "./odd"}],
+               size=(16, 12))
+    assert main(["train", "--scene", str(root), "--iterations", "1", "--test-every", "0", "--out", str(tmp_path / "out"),
+                 "--no-progress"]) == 0
+    line = next(l for l in capsys.readouterr().err.splitlines() if l.startswith("scene:"))
+    assert "16x12 x 3, 1x1 x 1" in line, line

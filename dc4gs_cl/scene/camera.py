@@ -115,6 +115,19 @@ class Scene:
             self.read_mask(cam)
 
 
+def view_sizes(cameras: list[Camera], shown: int = 3) -> str:
+    """The views' image sizes for a one-line summary: "WxH" where they share one, else the most common first
+    with their counts ("400x400 x 5, 1x1 x 1"), at most `shown` of them and how many more."""
+    counts: dict[tuple[int, int], int] = {}
+    for cam in cameras:
+        counts[(cam.width, cam.height)] = counts.get((cam.width, cam.height), 0) + 1
+    if len(counts) <= 1:
+        return "".join(f"{w}x{h}" for w, h in counts)
+    common = sorted(counts.items(), key=lambda item: -item[1])
+    text = ", ".join(f"{w}x{h} x {n}" for (w, h), n in common[:shown])
+    return text + (f" and {len(common) - shown} more sizes" if len(common) > shown else "")
+
+
 def unique_file_stems(root: Path, cameras: list[Camera]) -> None:
     """InputError naming the first two views whose outputs would share a file name (Camera.file_stem): an image
     listed twice, or names that differ only in their folders' separators or root."""

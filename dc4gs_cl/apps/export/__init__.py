@@ -21,7 +21,7 @@ from pathlib import Path
 
 from ...errors import InputError
 from ...model import GaussianModel
-from ...ply import read_ply, write_ply
+from ...ply import check_ranges, read_ply, write_ply
 from ...run_folder import RunFolder
 from .compressed_ply import read_compressed_ply, write_compressed_ply
 from .splat import read_splat, write_splat
@@ -52,6 +52,7 @@ def export_model(model: GaussianModel, path: str | os.PathLike, fmt: str | None 
     fmt = export_format(path, fmt)
     if len(model) == 0:
         raise InputError(path, "no Gaussians to export")
+    check_ranges(path, model)   # (a model read from a PLY was checked there) no format then holds an Inf
     FORMATS[fmt][1](Path(path), model)
 
 
