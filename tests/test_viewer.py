@@ -132,6 +132,49 @@ def test_publish_renders_nothing_without_a_browser(served):
         viewer.publish(None, 0, i)   # a model of None would fail any render: nobody is watching, none is made
 
 
+class ClientCamera:
+    """What a websocket client sets: viser's CameraHandle fields, any values it likes."""
+    def __init__(self, **values):
+        self.image_width, self.image_height, self.fov, self.aspect = 640, 480, 1.0, 640 / 480
+        self.wxyz, self.position = (1.0, 0.0, 0.0, 0.0), (0.0, -3.0, 0.0)
+        self.__dict__.update(values)
+
+
+def client_view(camera: ClientCamera, sent: list):
+    from types import SimpleNamespace
+    from dc4gs_cl.apps.viewer import _View
+    scene = SimpleNamespace(set_background_image=lambda image, **_: sent.append(image.shape))
+    return _View(SimpleNamespace(camera=camera, scene=scene))
+
+
+@pytest.mark.parametrize("values", [{"image_width": 8000, "image_height": 40}, {"image_width": 100_000},
+                                    {"fov": float("nan")},
+                                    {"image_width": -5}, {"aspect": float("inf")}, {"position": (1e300, 0, 0)},
+                                    {"wxyz": (0, 0, 0, 0)}, {"image_height": "tall"}])
+def test_a_client_cannot_ask_for_an_unbounded_frame(served, capsys, values):
+    """A client's canvas size, field of view and pose are whatever it sends (a frame size of 100000 killed
+    training with the viewer on): a frame is at most the slider's largest side, and a value that is not a finite
+    number in range gets no frame and one warning, not an exception in the training thread."""
+    viewer, _, _ = served
+    sent = []
+    viewer._max_side.value = 100_000          # what a client's slider message may carry
+    for _ in range(3):
+        viewer._send_frame(client_view(ClientCamera(**values), sent), 1.0, in_training=False)
+    err = capsys.readouterr().err
+    if values.get("image_width") == 8000:     # the slider's value clamped to its largest side
+        assert sent and sent[0][:2] == (20, 4096) and not err, (sent, err)
+    else:
+        assert not sent and err.count("viewer: ") == 1, err
+
+
+def test_a_render_failure_stays_in_the_viewer(served, capsys, monkeypatch):
+    viewer, _, _ = served
+    monkeypatch.setattr(viewer.renderer, "render", lambda *a, **k: (_ for _ in ()).throw(MemoryError("device")))
+    sent = []
+    viewer._send_frame(client_view(ClientCamera(), sent), 1.0, in_training=False)
+    assert not sent and "not rendered (MemoryError: device)" in capsys.readouterr().err
+
+
 def free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))

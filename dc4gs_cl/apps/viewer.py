@@ -32,6 +32,7 @@ from typing import TYPE_CHECKING, Callable
 
 import numpy as np
 
+from ..constants import MAX_ABS_MEAN
 from ..errors import InputError
 from ..scene.camera import Camera, scene_extent
 from ..scene.images import resize
@@ -52,6 +53,7 @@ LIVE_FRAMES_PER_SECOND = 2.0     # while training: each frame is a render the tr
 SIGNAL_POLL_SECONDS = 0.2        # serve_forever() wakes this often, so that Ctrl-C stops it
 PAUSE_POLL_SECONDS = 0.1         # while training is paused: how often publish() looks at the checkbox
 JPEG_QUALITY = 90
+MAX_CANVAS_SIDE = 1 << 14        # px: a client's canvas larger than this is no screen (a client sends what it likes)
 FRUSTUM_SCALE = 0.05             # frustum depth, as a fraction of the cameras' extent
 FRUSTUM_COLOR = (255, 120, 0)
 FRUSTUM_LINE_PX = 2.0
@@ -87,6 +89,27 @@ def view_camera(wxyz, position, fov_y: float, aspect: float, width: int, height:
     fy = 0.5 * height / tan_half
     fx = 0.5 * width / (aspect * tan_half)
     return Camera(name, width, height, fx, fy, 0.5 * width, 0.5 * height, R, -R @ np.asarray(position, np.float64))
+
+
+def client_frame(camera, max_side, scale: float) -> Camera | None:
+    """The frame a client's camera asks for (viser's CameraHandle: canvas size, field of view, aspect, pose), at
+    most max_side (clamped to the slider's range) a side, times scale; None where the client sent a value that is
+    not a finite number in range: whatever a websocket client sends, the render stays of a bounded size."""
+    try:
+        canvas = (int(camera.image_width), int(camera.image_height))
+        fov, aspect = float(camera.fov), float(camera.aspect)
+        wxyz, position = np.asarray(camera.wxyz, np.float64), np.asarray(camera.position, np.float64)
+        side = float(max_side)
+    except (TypeError, ValueError, OverflowError):
+        return None
+    if not (all(1 <= c <= MAX_CANVAS_SIDE for c in canvas) and 0 < fov < math.pi and 1e-3 <= aspect <= 1e3
+            and wxyz.shape == (4,) and position.shape == (3,) and np.isfinite(wxyz).all()
+            and np.linalg.norm(wxyz) > 0 and np.isfinite(position).all() and (np.abs(position) <= MAX_ABS_MEAN).all()
+            and math.isfinite(side)):
+        return None
+    low, high, _ = FRAME_SIDE_SLIDER
+    width, height = frame_size(*canvas, int(min(max(side, low), high)), scale)
+    return view_camera(wxyz / np.linalg.norm(wxyz), position, fov, aspect, width, height)
 
 
 def viser_pose(cam: Camera) -> tuple[np.ndarray, np.ndarray, float, float]:
@@ -190,6 +213,7 @@ class Viewer:
         self._next_live_frame = 0.0
         self._pause = None             # the "Pause training" checkbox, added by the first publish()
         self._last_frame = ""
+        self._warned: set[str] = set()
 
         with _quiet():
             self.server = viser.ViserServer(host=host, port=port, verbose=False)
@@ -375,22 +399,34 @@ class Viewer:
                 self._send_frame(view, 1.0, in_training)
 
     def _send_frame(self, view: _View, scale: float, in_training: bool) -> None:
-        camera = view.client.camera
         with self.lock:
             model = self._model
             if model is None or model.live != in_training:
                 return
             view.stale = False   # before reading the camera: a message arriving during the render marks it again
-            width, height = frame_size(camera.image_width, camera.image_height, int(self._max_side.value), scale)
-            cam = view_camera(camera.wxyz, camera.position, camera.fov, camera.aspect, width, height)
+            cam = client_frame(view.client.camera, self._max_side.value, scale)
+            if cam is None:
+                self._warn_once("a client's camera or frame size is not a finite number in range: no frame for it")
+                return
             start = time.perf_counter()
-            image = self.renderer.render(model.gaussians, cam, model.sh_degree, self.background).image(self.rt)
+            try:
+                image = self.renderer.render(model.gaussians, cam, model.sh_degree, self.background).image(self.rt)
+            except Exception as e:   # the viewer's failure stays the viewer's: training (the caller) goes on
+                self._warn_once(f"frame {cam.width}x{cam.height} not rendered ({type(e).__name__}: "
+                                f"{' '.join(str(e).split())[:200]})")
+                return
             seconds = time.perf_counter() - start
         view.client.scene.set_background_image(image, format="jpeg", jpeg_quality=JPEG_QUALITY)
         view.sharp = scale == 1.0
         view.camera = cam if view.sharp else None
-        self._last_frame = f"<br/>frame {width}x{height}: {seconds * 1e3:.0f} ms"
+        self._last_frame = f"<br/>frame {cam.width}x{cam.height}: {seconds * 1e3:.0f} ms"
         self._update_status()
+
+    def _warn_once(self, message: str) -> None:
+        """A viewer problem, on stderr the first time each is met (a client can repeat it at every frame)."""
+        if message not in self._warned:
+            self._warned.add(message)
+            print(f"viewer: {message}", file=sys.stderr)
 
 
 # the command ------------------------------------------------------------------------------------------------
