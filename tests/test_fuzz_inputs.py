@@ -124,6 +124,25 @@ def test_an_image_header_claiming_an_absurd_size_is_refused_before_decoding(tmp_
     assert "image header says 70000x1" in stops_naming(image, read_image, image)
 
 
+def test_an_image_that_decodes_beyond_the_memory_available_is_refused_before_training(tmp_path, rng, monkeypatch):
+    """A small file that decodes to the pixel cap (2^28 pixels: a PNG of 818 KB trained with 7 GB resident) is
+    refused when the scene is read, before any image is decoded, where its decoding needs more than half the memory
+    available (here 4 GiB): one line naming the file."""
+    import json
+    from dc4gs_cl.scene import images
+    transforms = build("transforms.json (instant-ngp)", tmp_path, rng)
+    doc = json.loads(transforms.read_text())
+    image = transforms.parent / doc["frames"][0]["file_path"]
+    data = bytearray(image.read_bytes())
+    assert data[1:4] == b"PNG"
+    data[16:24] = struct.pack(">II", 1 << 14, 1 << 14)   # IHDR: 16384 x 16384, and the chunk's CRC to match
+    data[29:33] = struct.pack(">I", zlib.crc32(bytes(data[12:29])))
+    image.write_bytes(bytes(data))
+    monkeypatch.setattr(images, "memory_available", lambda: 4 << 30)
+    assert "reading it needs 6.0 GiB" in stops_naming(image, load_scene, transforms.parent)
+    assert "more than 50% of the 4.0 GiB" in stops_naming(image, images.read_image, image)
+
+
 def test_config_values_of_the_wrong_type_are_named(tmp_path, rng):
     import json
     from dc4gs_cl.run_folder import RunFolder

@@ -17,6 +17,8 @@ from ..files import write_atomic
 RESIZE_FILTER = "cubic"
 MAX_IMAGE_SIDE = 1 << 16      # pixels: a larger side in an image or a camera is a damaged file, not a photo
 MAX_IMAGE_PIXELS = 1 << 28    # 268 Mpixel (16k x 16k): more is a damaged header, refused before decoding
+DECODE_COPIES = 2             # float32 copies of an image alive while it is read (decoded, then converted / resized)
+DECODE_MEMORY_SHARE = 0.5     # an image whose decoding needs more than this share of the memory available is refused
 
 
 def read_image(path: str | os.PathLike) -> np.ndarray:
@@ -45,11 +47,32 @@ def read_image(path: str | os.PathLike) -> np.ndarray:
 
 
 def _check_header(path: Path, spec) -> None:
-    """Sizes no photo has come from a damaged header: refuse them before decoding allocates for them."""
+    """Sizes no photo has come from a damaged header, and one whose decoding the memory available cannot hold (a
+    file of 818 KB can decode to 2^28 pixels): refuse them before decoding allocates for them."""
     if not (1 <= spec.width <= MAX_IMAGE_SIDE and 1 <= spec.height <= MAX_IMAGE_SIDE
             and spec.width * spec.height <= MAX_IMAGE_PIXELS and 1 <= spec.nchannels <= 4):
         raise InputError(path, f"image header says {spec.width}x{spec.height} pixels of {spec.nchannels} channels "
                                f"(at most {MAX_IMAGE_SIDE} a side, {MAX_IMAGE_PIXELS:,} pixels, 4 channels)")
+    need, available = DECODE_COPIES * 4 * spec.width * spec.height * max(spec.nchannels, 3), memory_available()
+    if available is not None and need > DECODE_MEMORY_SHARE * available:
+        raise InputError(path, f"image of {spec.width}x{spec.height} pixels: reading it needs {need / 2**30:.1f} GiB, "
+                               f"more than {DECODE_MEMORY_SHARE:.0%} of the {available / 2**30:.1f} GiB of memory "
+                               "available")
+
+
+def memory_available() -> int | None:
+    """Bytes of memory available to a new allocation (Linux' MemAvailable, else the free pages), None unknown."""
+    try:
+        with open("/proc/meminfo", encoding="ascii") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    try:
+        return os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    except (AttributeError, OSError, ValueError):
+        return None
 
 
 def _open(path: Path):
@@ -92,11 +115,16 @@ def _one_line(message: str) -> str:
 
 
 def image_size(path: str | os.PathLike) -> tuple[int, int]:
-    """(width, height) from the file header, without decoding pixels."""
+    """(width, height) from the file header, without decoding pixels; the header checked as read_image checks it
+    (the scene readers ask this of every image before training starts)."""
+    path = Path(path)
     with _decoder_messages_silenced(), _decoder_failures(path):
         inp = _open(path)
-        spec = inp.spec()
-        inp.close()
+        try:
+            spec = inp.spec()
+        finally:
+            inp.close()
+        _check_header(path, spec)
     return spec.width, spec.height
 
 
