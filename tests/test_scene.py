@@ -514,8 +514,9 @@ def test_output_names_stay_inside_the_output_folder_and_clashes_are_refused(tmp_
     assert not outside.exists()
 
     frames = [{"file_path": "a"}, {"file_path": "b"}, {"file_path": "a"}]
-    with pytest.raises(InputError, match="'a' is listed twice"):
+    with pytest.raises(InputError, match="'a' is listed twice") as e:   # named: the file listing the views
         load_scene(nerf_scene(tmp_path / "twice", {"camera_angle_x": 1.0}, frames), test_every=0)
+    assert e.value.path == str(tmp_path / "twice" / "transforms.json")
     frames = [{"file_path": "x/y"}, {"file_path": "x_y"}]
     with pytest.raises(InputError, match="'x/y' and 'x_y' would write one output file"):
         load_scene(nerf_scene(tmp_path / "clash", {"camera_angle_x": 1.0}, frames), test_every=0)

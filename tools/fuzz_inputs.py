@@ -145,6 +145,10 @@ def colmap_scene(root: Path, rng, kind: str) -> Path:
 def read_scene(root: Path):
     scene = load_scene(root, test_every=0)
     scene.read_all_images()
+    for c in scene.train:   # every view's outputs named inside the folder they go to
+        stem = c.file_stem
+        if "/" in stem or "\\" in stem or stem in ("", ".", ".."):
+            raise AssertionError(f"view {c.name!r}: output name {stem!r} leaves its folder")
     cams = [(c.name, c.width, c.height, c.fx, c.fy, c.cx, c.cy, c.R, c.t) for c in scene.train]
     return {"cameras": cams, "points": scene.points, "colors": scene.colors,
             "images": [scene.image(c) for c in scene.train]}
@@ -313,6 +317,35 @@ def image_wrong_size(data: bytes, rng, path) -> bytes:
     return out
 
 
+def png_bomb(data: bytes, rng, path) -> bytes:
+    """The PNG header claiming a size at or near the pixel cap (16384 x 16384: a small file that decodes to 2^28
+    pixels), its CRC made to match: refused from the header (the size, or the memory its decoding needs)."""
+    import struct
+    import zlib
+    side = int(rng.choice([1 << 14, (1 << 14) - 1, 1 << 15]))
+    out = bytearray(data)
+    out[16:24] = struct.pack(">II", side, side)
+    out[29:33] = struct.pack(">I", zlib.crc32(bytes(out[12:29])))
+    return bytes(out)
+
+
+def json_hostile_name(data: bytes, rng, path) -> bytes:
+    """A frame's image named by an absolute path or through ".." (the same image, reached another way): read,
+    its outputs must still be named inside the run folder (Camera.file_stem, checked by read_scene)."""
+    doc = json.loads(data)
+    frame = doc["frames"][int(rng.integers(len(doc["frames"])))]
+    image = (path.parent / frame["file_path"]).resolve()
+    frame["file_path"] = str(image) if rng.random() < 0.5 else f"images/../images/{image.name}"
+    return json.dumps(doc).encode()
+
+
+def json_duplicate_frame(data: bytes, rng, path) -> bytes:
+    """A frame listed twice: refused naming the image (one view's outputs would overwrite the other's)."""
+    doc = json.loads(data)
+    doc["frames"].append(dict(doc["frames"][int(rng.integers(len(doc["frames"])))]))
+    return json.dumps(doc).encode()
+
+
 def exr_nan_pixels(data: bytes, rng, path) -> bytes:
     tmp = path.with_name("nan.exr")
     pixels = image_pixels(rng, 4 if "rgba" in path.parent.parent.name else 3)
@@ -325,7 +358,7 @@ def exr_nan_pixels(data: bytes, rng, path) -> bytes:
 
 # Mutations that must never be read silently (truncation and emptiness are always detectable: each format
 # either states its length or ends in a recognisable way), and those that may change values undetectably.
-MUST_FAIL = {"truncate", "empty", "huge count", "wrong size", "non-finite pixels"}
+MUST_FAIL = {"truncate", "empty", "huge count", "wrong size", "non-finite pixels", "bomb", "duplicate frame"}
 
 
 @dataclass
@@ -358,6 +391,7 @@ def train_cli(path: Path, out: Path) -> list[str]:
 BASIC = {"truncate": truncate, "flip": flip, "empty": empty}
 IMAGE = {**BASIC, "wrong size": image_wrong_size}
 JSON = {**BASIC, "wrong type": json_wrong_type, "non-finite": json_non_finite}
+SCENE_JSON = {**JSON, "hostile name": json_hostile_name, "duplicate frame": json_duplicate_frame}
 
 
 def _formats() -> list[Format]:
@@ -365,7 +399,8 @@ def _formats() -> list[Format]:
         Format(f"image {label}", lambda root, rng, e=ext, d=dtype, c=ch: nerf_scene(root, rng, e, d, c, "image"),
                read_from_scene, dict(IMAGE, **extra), cli=train_cli)
         for label, ext, dtype, ch, extra in (
-            ("png", ".png", "uint8", 3, {}), ("png rgba", ".png", "uint8", 4, {}), ("png 16-bit", ".png", "uint16", 3, {}),
+            ("png", ".png", "uint8", 3, {"bomb": png_bomb}), ("png rgba", ".png", "uint8", 4, {"bomb": png_bomb}),
+            ("png 16-bit", ".png", "uint16", 3, {"bomb": png_bomb}),
             ("jpeg", ".jpg", "uint8", 3, {}), ("exr", ".exr", "half", 3, {"non-finite pixels": exr_nan_pixels}),
             ("exr rgba", ".exr", "half", 4, {"non-finite pixels": exr_nan_pixels}))]
     colmap = [
@@ -378,10 +413,10 @@ def _formats() -> list[Format]:
         Format("ply", ply_input, read_ply_values,
                {**BASIC, "huge count": ply_huge_count, "non-finite": binary_non_finite(4, ply_body)},
                cli=lambda path, out: ["render", "--ply", str(path), "--scene", "builtin", "-r", "8", "--out", str(out)]),
-        Format("transforms.json (instant-ngp)", lambda root, rng: nerf_scene(root, rng), read_from_scene, JSON,
+        Format("transforms.json (instant-ngp)", lambda root, rng: nerf_scene(root, rng), read_from_scene, SCENE_JSON,
                cli=train_cli),
         Format("transforms_train.json (Blender)", lambda root, rng: nerf_scene(root, rng, style="blender"),
-               read_from_scene, JSON, cli=train_cli),
+               read_from_scene, SCENE_JSON, cli=train_cli),
         Format("checkpoint", checkpoint_input, read_checkpoint, BASIC, checksum=True),
         Format("config.json", config_input, lambda path: RunFolder(path.parent).read_config().to_json(), JSON,
                cli=lambda path, out: ["eval", "--model", str(path.parent)]),

@@ -49,15 +49,17 @@ def load_scene(path: str | os.PathLike, resolution: int | None = None, cache_dir
     if not path.exists():
         raise InputError(path, "scene folder not found")
     points = colors = None
-    if path.is_dir() and colmap.model_dir(path) is not None:
+    root = path if path.is_dir() else path.parent
+    if path.is_dir() and (model := colmap.model_dir(path)) is not None:
         cameras, distorted, points, colors = colmap.read_colmap(path)
         train, test = split_train_test(cameras, test_every, test_split)
+        listing = next((f for f in (model / "images.bin", model / "images.txt") if f.is_file()), model)
     elif files := nerf.transforms_files(path):
         train, test, distorted = nerf.read_nerf(files, test_every, test_split)
+        listing = files[0] if len(files) == 1 else root
     else:
         raise InputError(path, "not a COLMAP or NeRF scene: expected sparse/0/ or transforms*.json")
-    root = path if path.is_dir() else path.parent
-    unique_file_stems(root, train + test)
+    unique_file_stems(listing, train + test)   # named: the file listing the views (the folder, for several)
     train = [c.at_resolution(resolution, DEFAULT_MAX_WIDTH) for c in with_masks(root, train)]
     test = [c.at_resolution(resolution, DEFAULT_MAX_WIDTH) for c in with_masks(root, test)]
     background = np.full(3, 1.0 if white_background else 0.0, dtype=np.float32)

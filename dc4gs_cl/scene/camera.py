@@ -128,9 +128,10 @@ def view_sizes(cameras: list[Camera], shown: int = 3) -> str:
     return text + (f" and {len(common) - shown} more sizes" if len(common) > shown else "")
 
 
-def unique_file_stems(root: Path, cameras: list[Camera]) -> None:
-    """InputError naming the first two views whose outputs would share a file name (Camera.file_stem): an image
-    listed twice, or names that differ only in their folders' separators or root."""
+def unique_file_stems(where: Path, cameras: list[Camera]) -> None:
+    """InputError (about `where`: the file listing the views) naming the first two views whose outputs would share
+    a file name (Camera.file_stem): an image listed twice, or names that differ only in their folders' separators or
+    root."""
     seen: dict[str, str] = {}
     for cam in cameras:
         other = seen.get(cam.file_stem)
@@ -138,7 +139,7 @@ def unique_file_stems(root: Path, cameras: list[Camera]) -> None:
         if other is not None:
             problem = (f"image {cam.name!r} is listed twice" if other == cam.name else
                        f"views {other!r} and {cam.name!r} would write one output file ({cam.file_stem!r}.png)")
-            raise InputError(root, f"{problem}: every view needs a name of its own")
+            raise InputError(where, f"{problem}: every view needs a name of its own")
 
 
 def scene_extent(cameras: list[Camera]) -> float:
