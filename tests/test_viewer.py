@@ -102,6 +102,42 @@ def test_the_page_is_served_and_a_taken_port_refused(served, rt):
         Viewer(rt, Renderer(rt), [], port=port)
 
 
+def connect(viewer, path: str, origin: str | None = None):
+    """A scripted websocket client (viser's subprotocol, so that it gets past viser's version check): the close
+    code once the viewer has decided (None: still open after a second), and whether it was sent any message."""
+    from websockets.exceptions import ConnectionClosed
+    from websockets.sync.client import connect as ws_connect
+    port = viewer.server.get_port()
+    headers = {"Origin": origin} if origin else None
+    with ws_connect(f"ws://127.0.0.1:{port}{path}", subprotocols=[f"viser-v{viser.__version__}"],
+                    additional_headers=headers, open_timeout=10) as ws:
+        got = False
+        try:
+            while True:
+                ws.recv(timeout=1.0)
+                got = True
+        except TimeoutError:
+            return None, got
+        except ConnectionClosed as e:
+            return e.rcvd.code if e.rcvd else None, got
+
+
+def test_a_connection_needs_the_token_and_the_page_s_own_origin(served, capsys):
+    """Any local process, or any site open in the browser, could connect and pause training or see the training
+    photos: a websocket without the url's token, or with another site's Origin, is closed before viser sends it
+    anything; the url's own address is admitted."""
+    viewer, _, _ = served
+    port = viewer.server.get_port()
+    token_path = viewer.url.split(f":{port}", 2)[2]
+    assert viewer.url.startswith(f"http://127.0.0.1:{port}/?websocket=ws://127.0.0.1:{port}/") and len(token_path) > 16
+    assert connect(viewer, "/") == (1008, False)
+    assert connect(viewer, "/" + "x" * len(viewer.token)) == (1008, False)
+    assert connect(viewer, token_path, origin="http://evil.example") == (1008, False)
+    assert "refused a connection" in capsys.readouterr().err
+    assert connect(viewer, token_path, origin=f"http://127.0.0.1:{port}") == (None, True)
+    assert connect(viewer, token_path) == (None, True)
+
+
 def view_args(*argv: str) -> argparse.Namespace:
     p = argparse.ArgumentParser()
     add_arguments(p)

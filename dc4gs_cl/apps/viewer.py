@@ -22,6 +22,7 @@ import contextlib
 import errno
 import io
 import math
+import secrets
 import socket
 import sys
 import threading
@@ -44,7 +45,7 @@ if TYPE_CHECKING:
     from ..runtime import Runtime
 
 DEFAULT_PORT = 8080
-DEFAULT_HOST = "127.0.0.1"       # this machine only: the viewer has no password
+DEFAULT_HOST = "127.0.0.1"       # this machine only; a connection also needs the printed url's token
 MAX_FRAME_SIDE = 640             # px: a still frame is the canvas scaled down to fit this; a GUI slider changes it
 FRAME_SIDE_SLIDER = (128, 4096, 32)  # px: that slider's range and step
 MOVING_SCALE = 0.5               # frames while the camera moves, relative to a still frame (a quarter the pixels)
@@ -214,6 +215,7 @@ class Viewer:
         self._pause = None             # the "Pause training" checkbox, added by the first publish()
         self._last_frame = ""
         self._warned: set[str] = set()
+        self.token = secrets.token_urlsafe(18)   # in the url: a connection without it is refused (_admitted)
 
         with _quiet():
             self.server = viser.ViserServer(host=host, port=port, verbose=False)
@@ -233,6 +235,7 @@ class Viewer:
                                                     initial_value=max_side)
         self._max_side.on_update(lambda _: self._model_changed())
         self._add_frustums(images)
+        self.server._websock_server.on_client_connect(self._admit)   # before anything is sent: see _admit
         self.server.on_client_connect(self._connected)
         self.server.on_client_disconnect(self._disconnected)
         self._worker = threading.Thread(target=self._serve, name="viewer", daemon=True)
@@ -240,8 +243,11 @@ class Viewer:
 
     @property
     def url(self) -> str:
+        """The page, with its websocket's address carrying the viewer's token (viser's client connects to the
+        address its `websocket` parameter gives)."""
         host = "localhost" if self.host in ("0.0.0.0", "::") else self.host
-        return f"http://{host}:{self.server.get_port()}"
+        address = f"{host}:{self.server.get_port()}"
+        return f"http://{address}/?websocket=ws://{address}/{self.token}"
 
     def __enter__(self) -> "Viewer":
         return self
@@ -363,6 +369,23 @@ class Viewer:
             view.moved_at, view.stale = time.monotonic(), True
             self._notify()
         self._notify()
+
+    async def _admit(self, connection: "viser.infra.WebsockClientConnection") -> None:
+        """A new websocket stays only if its path holds the viewer's token (the printed url carries it, as Jupyter's
+        does) and a browser's Origin is the page's own (its Host), so that neither another site open in the
+        browser nor another local user without the link can connect. Run by viser's websocket server on each
+        connection before it sends the client anything or reads a message from it; a refused one is closed there.
+        (viser keeps each connection's handshake on that server, in private attributes: viser is pinned.)"""
+        websocket = self.server._websock_server._live_connections.get(connection.client_id)
+        request = getattr(websocket, "request", None)
+        if request is not None:
+            origin, host = request.headers.get("Origin"), request.headers.get("Host")
+            if (request.path.split("?")[0] == f"/{self.token}"
+                    and (origin is None or origin in (f"http://{host}", f"https://{host}"))):
+                return
+        self._warn_once("refused a connection without this viewer's link (its token) or from another site's page")
+        if websocket is not None:
+            await websocket.close(1008, "not this viewer's link")
 
     async def _disconnected(self, client: "viser.ClientHandle") -> None:
         self._views.pop(client.client_id, None)
