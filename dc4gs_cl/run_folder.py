@@ -194,7 +194,8 @@ class RunFolder:
     def locked(self):
         """Hold the folder for one run (an exclusive flock on its LOCK file, which names the holder's PID): a second
         run into it is an InputError naming that PID. The OS lets go when the process ends, however it ends. A
-        folder made for the lock alone is removed again if the run wrote nothing into it."""
+        folder made here is removed again if the run ends before writing its settings (refused, failed or stopped
+        while its scene loads: the undistorted images it cached so far go with it)."""
         made = not self.path.exists()
         try:
             self.path.mkdir(parents=True, exist_ok=True)
@@ -214,10 +215,8 @@ class RunFolder:
             yield self
         finally:
             os.close(fd)
-            if made and [p.name for p in self.path.iterdir()] == [LOCK]:
-                (self.path / LOCK).unlink(missing_ok=True)
-                with contextlib.suppress(OSError):
-                    self.path.rmdir()
+            if made and not (self.path / CONFIG).exists():
+                shutil.rmtree(self.path, ignore_errors=True)
 
     def remove_temporaries(self) -> list[Path]:
         """Remove the temporary files an interrupted write left (files.temporary_sibling's names: a process killed
