@@ -127,6 +127,9 @@ DEFINE_ATOMIC_ADD_FLOAT(local_add_float, __local)
                            : (v) == SPLIT_ABS_X ? SUM_ABS : SUM_ABS + 1)
 #define SPLIT_TOTALS(total, row)                                                                   \
     float total[SPLIT_WIDTH];                                                                      \
-    for (int lane_ = 0; lane_ < SPLIT_WIDTH; ++lane_) total[lane_] = (row)[SPLIT_TOTAL_AT(lane_)]
+    total[SPLIT_UX] = (row)[SPLIT_TOTAL_AT(SPLIT_UX)]; total[SPLIT_UY] = (row)[SPLIT_TOTAL_AT(SPLIT_UY)];      \
+    total[SPLIT_COUNT] = (row)[SPLIT_TOTAL_AT(SPLIT_COUNT)];                                        \
+    total[SPLIT_ABS_X] = (row)[SPLIT_TOTAL_AT(SPLIT_ABS_X)];                                        \
+    total[SPLIT_ABS_Y] = (row)[SPLIT_TOTAL_AT(SPLIT_ABS_Y)]   /* constant indices (a loop here: 13% slower) */
 
 #endif

@@ -44,7 +44,7 @@
 //   Each subgroup (or item) writes its sums of PART_CHUNK pairs to its row of l_part; after the chunk the rows
 //   are added in subgroup order (0, 1, ...) and the pair's slot written. With split sums a row holds only the
 //   split sums of the candidates crossing its pixels (l_cross: the range, crossing_range, over the subgroup's
-//   pixels, so that its lanes walk and reduce alike); the others are zeros or the row's totals (row_sum), filled
+//   pixels, so that its lanes walk and reduce alike); the others are zeros or the row's totals (part_row_sum), filled
 //   in as the rows are added. Multiply-adds are not contracted
 //   (FP_CONTRACT OFF) in these shapes, so a pixel's terms round alike however the items are laid out.
 
@@ -170,16 +170,6 @@ typedef float2 floatB;
 typedef float floatB;
 #define LOADB(a) ((a)[0])
 #define STOREB(v, a) ((a)[0] = (v))
-#endif
-
-// The CPU shape's slot for a pair: sum k of its row (acc, compact with split sums: row_sum), and the sums written
-// (a Gaussian with no split line leaves its split sums unwritten: sum_pairs skips them).
-#if SPLIT_CANDIDATES
-#define ROW_SUM(acc, k) row_sum(acc, cross.x, cross.y, k)
-#define SLOT_USED (HAS_SPLIT_LINE(sg) ? SUM_WIDTH : SUM_SPLIT)
-#else
-#define ROW_SUM(acc, k) ((acc)[k])
-#define SLOT_USED SUM_WIDTH
 #endif
 
 // Sums whose lanes the pixel walk adds to in place: all but the split sums, whose lanes (split_lanes, from
@@ -387,16 +377,14 @@ ALWAYS_INLINE int2 crossing_range(const float4 line, const float *tk, const int4
 // Sum k (< SUM_WIDTH) of a pair's row held compactly (row: its sums before SUM_SPLIT, then the split sums of the
 // crossing candidates lo .. hi - 1 alone, crossing_range): a candidate below lo has none of the pixels on its left
 // (zeros), one at or past hi all of them (the row's totals).
-#define DEFINE_ROW_SUM(name, space)                                                                   \
-    ALWAYS_INLINE float name(space const float *row, const int lo, const int hi, const int k) {      \
-        if (k < SUM_SPLIT) return row[k];                                                            \
-        const int candidate = (k - SUM_SPLIT) / SPLIT_WIDTH, v = (k - SUM_SPLIT) % SPLIT_WIDTH;       \
-        if (candidate < lo) return 0.f;                                                              \
-        if (candidate < hi) return row[SUM_SPLIT + SPLIT_WIDTH * (candidate - lo) + v];              \
-        return row[SPLIT_TOTAL_AT(v)];                                                               \
-    }
-DEFINE_ROW_SUM(row_sum, __private)
-DEFINE_ROW_SUM(part_row_sum, __local)
+ALWAYS_INLINE float part_row_sum(__local const float *row, const int lo, const int hi, const int k) {
+    if (k < SUM_SPLIT) return row[k];
+    const int candidate = (k - SUM_SPLIT) / SPLIT_WIDTH, v = (k - SUM_SPLIT) % SPLIT_WIDTH;
+    if (candidate < lo) return 0.f;
+    if (candidate < hi) return row[SUM_SPLIT + SPLIT_WIDTH * (candidate - lo) + v];
+    return row[SPLIT_TOTAL_AT(v)];
+}
+
 #endif
 
 __kernel __attribute__((reqd_work_group_size(ITEMS_PER_TILE, 1, 1))) SUBGROUP_SIZE_ATTRIBUTE
@@ -552,26 +540,34 @@ void rasterize_backward(const int width, const int height, const int tiles_x, co
                 for (int k = 0; k < SUM_SPLIT; ++k) acc[k] = lane_total(lanes[k]);
 #else
                 if (cross.y - cross.x > MAX_FEW_CROSSING) cross = (int2)(0, SPLIT_CANDIDATES);   // the walk over all
+                const int n_cross = cross.y - cross.x;
                 __private float (*split_lanes)[COL_BLOCK] = lanes + SUM_SPLIT;   // private, not generic (CL3.0)
-                // acc: the pair's row held compactly (row_sum), its sums before SUM_SPLIT then the crossing
-                // candidates' split sums. One walk per crossing count, each its own vectorised loop (see
-                // backward_pair), with its constant count of split sums.
-#define WALK(n_split)                                                                                          \
-                {                                                                                              \
-                    for (int k = 0; k < SPLIT_WIDTH * n_split; ++k)                                            \
-                        for (int cc = 0; cc < COL_BLOCK; ++cc) split_lanes[k][cc] = 0.f;                       \
-                    backward_pair(m, co, c, idx, span, row0, col0, ndc_x, ndc_y, line, tk + cross.x, n_split,  \
-                                  px, py, dr, dg, db, bg_term, last, T, behind, lanes, split_lanes, NULL);     \
-                    for (int k = 0; k < SUM_SPLIT + SPLIT_WIDTH * n_split; ++k) acc[k] = lane_total(lanes[k]); \
-                }
-                const int n_walked = cross.y - cross.x;
-                if (n_walked == 0) WALK(0)
-                else if (n_walked == 1) WALK(1)
+                for (int k = 0; k < SPLIT_WIDTH * n_cross; ++k)
+                    for (int cc = 0; cc < COL_BLOCK; ++cc) split_lanes[k][cc] = 0.f;
+                // One call per crossing count, each its own vectorised loop (see backward_pair).
+#define WALK(n_split) backward_pair(m, co, c, idx, span, row0, col0, ndc_x, ndc_y, line, tk + cross.x, n_split, \
+                                    px, py, dr, dg, db, bg_term, last, T, behind, lanes, split_lanes, NULL)
+                if (n_cross == 0) WALK(0);
+                else if (n_cross == 1) WALK(1);
 #if MAX_FEW_CROSSING >= 2
-                else if (n_walked == 2) WALK(2)
+                else if (n_cross == 2) WALK(2);
 #endif
-                else WALK(SPLIT_CANDIDATES)
+                else WALK(SPLIT_CANDIDATES);
 #undef WALK
+                for (int k = 0; k < LANE_SUMS; ++k) acc[k] = lane_total(lanes[k]);
+                // The full row: a candidate with every walked pixel on its left has the pair's totals as its left
+                // sums (the same terms in the same order; in the CPU shape the walk's contracted mul-adds may round
+                // the total's u terms one ulp apart), one with none zeros. (Its rows of partial sums: all crossing.)
+                if (HAS_SPLIT_LINE(sg)) {
+                    SPLIT_TOTALS(total, acc);
+                    for (int k = 0; k < SPLIT_CANDIDATES; ++k)
+                        for (int v = 0; v < SPLIT_WIDTH; ++v)
+                            acc[SUM_SPLIT + SPLIT_WIDTH * k + v] = k < cross.x ? 0.f : total[v];
+                    for (int k = 0; k < n_cross; ++k)
+                        for (int v = 0; v < SPLIT_WIDTH; ++v)
+                            acc[SUM_SPLIT + SPLIT_WIDTH * (cross.x + k) + v] = lane_total(split_lanes[SPLIT_WIDTH * k + v]);
+                    cross = (int2)(0, SPLIT_CANDIDATES);
+                }
 #endif
                 const int used = SUM_SPLIT + SPLIT_WIDTH * (cross.y - cross.x);   // the row's sums, held compactly
 #else
@@ -617,13 +613,11 @@ void rasterize_backward(const int width, const int height, const int tiles_x, co
 #elif PAIR_SUMS
                 // (a Gaussian with no split line: its split sums left unwritten, as sum_pairs skips them)
                 if (idx < hi)
-                    for (int k = 0; k < SLOT_USED; ++k) sums[(size_t)(idx - pair0) * SUM_WIDTH + k] = ROW_SUM(acc, k);
+                    for (int k = 0; k < used; ++k) sums[(size_t)(idx - pair0) * SUM_WIDTH + k] = acc[k];
 #else
                 __global float *dst = sums + (size_t)l_gaussian[j] * SUM_WIDTH;
-                for (int k = 0; k < SLOT_USED; ++k) {
-                    const float v = ROW_SUM(acc, k);
-                    if (v != 0.f) atomic_add_float(dst + k, v);
-                }
+                for (int k = 0; k < used; ++k)
+                    if (acc[k] != 0.f) atomic_add_float(dst + k, acc[k]);
 #endif
             }
 #if ITEMS_PER_TILE > 1
