@@ -2,6 +2,7 @@
 headless Chromium shows exactly what our renderer renders for the camera the browser reports, both for a
 shown model and for one published by a training loop."""
 import argparse
+import contextlib
 import base64
 import json
 import math
@@ -136,6 +137,61 @@ def test_a_connection_needs_the_token_and_the_page_s_own_origin(served, capsys):
     assert "refused a connection" in capsys.readouterr().err
     assert connect(viewer, token_path, origin=f"http://127.0.0.1:{port}") == (None, True)
     assert connect(viewer, token_path) == (None, True)
+
+
+def camera_message(**values) -> bytes:
+    """A viser client's camera message (what the browser sends as the view moves), with these values."""
+    import msgspec
+    return msgspec.msgpack.encode({"type": "ViewerCameraMessage", "wxyz": [1.0, 0.0, 0.0, 0.0], "position": [0.0, -3.0, 0.0],
+                                   "fov": 1.0, "near": 0.01, "far": 100.0, "image_height": 96, "image_width": 128,
+                                   "look_at": [0.0, 0.0, 0.0], "up_direction": [0.0, 0.0, 1.0], **values})
+
+
+def test_a_fuzzing_client_leaves_the_viewer_serving(served, rng, capsys):
+    """Clients holding the link send bytes that are no message, camera messages with values of every wrong kind,
+    and absurd frame-size slider updates; the viewer goes on serving: its render thread alive, and a well-behaved
+    client's camera message answered with a rendered frame."""
+    import msgspec
+    from websockets.exceptions import ConnectionClosed
+    from websockets.sync.client import connect as ws_connect
+    viewer, _, _ = served
+    port = viewer.server.get_port()
+    address = f"ws://127.0.0.1:{port}/{viewer.token}"
+    slider = viewer._max_side._impl.uuid
+    bad = [float("nan"), float("inf"), -1e30, 1e30, -5, 0, 10 ** 12, "x", None, [1, 2], True, {}]
+    fields = ["wxyz", "position", "fov", "near", "far", "image_height", "image_width", "look_at", "up_direction"]
+    for case in range(36):
+        kind = case % 3
+        if kind == 0:
+            message = rng.bytes(int(rng.integers(1, 300)))
+        elif kind == 1:
+            message = camera_message(**{fields[int(rng.integers(len(fields)))]: bad[int(rng.integers(len(bad)))]})
+        else:
+            message = msgspec.msgpack.encode({"type": "GuiUpdateMessage", "uuid": slider,
+                                              "updates": {"value": bad[int(rng.integers(len(bad)))]}})
+        with ws_connect(address, subprotocols=[f"viser-v{viser.__version__}"], open_timeout=10) as ws:
+            try:
+                ws.send(camera_message())
+                ws.send(message)
+                for _ in range(3):
+                    ws.recv(timeout=0.2)
+            except (TimeoutError, ConnectionClosed):
+                pass
+    assert viewer._worker.is_alive()
+    before = set(viewer._views)
+    with ws_connect(address, subprotocols=[f"viser-v{viser.__version__}"], open_timeout=10) as ws:
+        ws.send(camera_message())
+        deadline = time.monotonic() + 30
+        while time.monotonic() < deadline:   # its view, once rendered full size and sent, keeps the frame's camera
+            framed = [v for k, v in list(viewer._views.items()) if k not in before and v.camera is not None]
+            if framed:
+                assert (framed[0].camera.width, framed[0].camera.height) == (128, 96)
+                break
+            with contextlib.suppress(TimeoutError):
+                ws.recv(timeout=0.2)
+        else:
+            raise AssertionError(f"no frame for a well-behaved client after the fuzzing: {capsys.readouterr().err[-2000:]}")
+    assert viewer._worker.is_alive()
 
 
 def view_args(*argv: str) -> argparse.Namespace:

@@ -101,7 +101,7 @@ def client_frame(camera, max_side, scale: float) -> Camera | None:
         fov, aspect = float(camera.fov), float(camera.aspect)
         wxyz, position = np.asarray(camera.wxyz, np.float64), np.asarray(camera.position, np.float64)
         side = float(max_side)
-    except (TypeError, ValueError, OverflowError):
+    except Exception:   # viser's own properties raise on some of them too (aspect: a height of 0)
         return None
     if not (all(1 <= c <= MAX_CANVAS_SIDE for c in canvas) and 0 < fov < math.pi and 1e-3 <= aspect <= 1e3
             and wxyz.shape == (4,) and position.shape == (3,) and np.isfinite(wxyz).all()
@@ -233,7 +233,7 @@ class Viewer:
         low, high, step = FRAME_SIDE_SLIDER
         self._max_side = self.server.gui.add_slider("Frame size (px)", min=low, max=high, step=step,
                                                     initial_value=max_side)
-        self._max_side.on_update(lambda _: self._model_changed())
+        self._max_side.on_update(self._frame_size_changed)
         self._add_frustums(images)
         self.server._websock_server.on_client_connect(self._admit)   # before anything is sent: see _admit
         self.server.on_client_connect(self._connected)
@@ -386,6 +386,17 @@ class Viewer:
         self._warn_once("refused a connection without this viewer's link (its token) or from another site's page")
         if websocket is not None:
             await websocket.close(1008, "not this viewer's link")
+
+    async def _frame_size_changed(self, _event) -> None:
+        """A client's frame-size slider value back within the slider's range, whatever it sent (viser casts it to the
+        slider's int: 1e30 became an int that no message can carry, and every connection after it failed), written
+        back before anything awaits so that every tab and late joiner gets the bounded value; then new frames."""
+        value, (low, high, _) = self._max_side.value, FRAME_SIDE_SLIDER
+        finite = isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+        bounded = int(min(max(value, low), high)) if finite else MAX_FRAME_SIDE
+        if bounded != value:
+            self._max_side.value = bounded
+        self._model_changed()
 
     async def _disconnected(self, client: "viser.ClientHandle") -> None:
         self._views.pop(client.client_id, None)
