@@ -529,7 +529,8 @@ void rasterize_backward(const int width, const int height, const int tiles_x, co
                 for (int k = 1; k < SPLIT_CANDIDATES; ++k) tk[k] = sg[GEO_T + k - 1];
                 // Only the candidates whose line crosses the pixels walked take split terms: lo .. hi - 1 (none where the
                 // view gave no line).
-                int2 cross = HAS_SPLIT_LINE(sg) ? crossing_range(line, tk, span, x0, y0, cross_row0, cross_col0)
+                const int split_ok = HAS_SPLIT_LINE(sg);
+                int2 cross = split_ok ? crossing_range(line, tk, span, x0, y0, cross_row0, cross_col0)
                                                 : (int2)(SPLIT_CANDIDATES, SPLIT_CANDIDATES);
 #if SUBGROUP
                 // One walk, with no split lanes: the crossing candidates' terms come from the pixel after it.
@@ -558,7 +559,7 @@ void rasterize_backward(const int width, const int height, const int tiles_x, co
                 // The full row: a candidate with every walked pixel on its left has the pair's totals as its left
                 // sums (the same terms in the same order; in the CPU shape the walk's contracted mul-adds may round
                 // the total's u terms one ulp apart), one with none zeros. (Its rows of partial sums: all crossing.)
-                if (HAS_SPLIT_LINE(sg)) {
+                if (split_ok) {
                     SPLIT_TOTALS(total, acc);
                     for (int k = 0; k < SPLIT_CANDIDATES; ++k)
                         for (int v = 0; v < SPLIT_WIDTH; ++v)
