@@ -129,20 +129,8 @@ inline int subgroup_any(const int predicate) {
         }                                                                                                  \
         if (lane % (SUBGROUP / PAD) == 0 && base < used) part[base] = v[0];                                \
     }
-DEFINE_SUBGROUP_SUMS(subgroup_sums_8, 8)     // a candidate's SPLIT_WIDTH split sums
-DEFINE_SUBGROUP_SUMS(subgroup_sums_16, 16)
-DEFINE_SUBGROUP_SUMS(subgroup_sums_32, 32)
-
-// acc[0 .. used - 1] of at most `bound` sums (a constant at each call) into part; a row wider than SUBGROUP in
-// pieces of SUBGROUP sums: at most 32 values held at once.
-ALWAYS_INLINE void subgroup_row(const float *acc, const int used, const int bound, const int lane,
-                                __local float *part) {
-    if (bound <= 16) {
-        subgroup_sums_16(acc, used, lane, part);
-    } else {
-        for (int o = 0; o < bound; o += SUBGROUP) subgroup_sums_32(acc + o, used - o, lane, part + o);
-    }
-}
+DEFINE_SUBGROUP_SUMS(subgroup_sums_8, 8)     // a crossing candidate's SPLIT_WIDTH split sums
+DEFINE_SUBGROUP_SUMS(subgroup_sums_16, 16)   // the sums the walk adds in place (LANE_SUMS, below)
 
 #else
 #define SUBGROUP_SIZE_ATTRIBUTE
@@ -188,6 +176,9 @@ typedef float floatB;
 #define PIXEL_RECORD (PIXEL_VALUE + SPLIT_WIDTH)
 #else
 #define LANE_SUMS SUM_WIDTH
+#endif
+#if SUBGROUP && (LANE_SUMS > 16 || SPLIT_WIDTH > 8)
+#error "the subgroup reduction takes at most 16 sums in place and 8 per split candidate (subgroup_sums_16, _8)"
 #endif
 
 // One pair: this work-item's pixels within the Gaussian's reach, walked back past the Gaussian; its terms
@@ -588,7 +579,7 @@ void rasterize_backward(const int width, const int height, const int tiles_x, co
                 // The subgroup's sums of the pair; a pair that none of its pixels took part in adds zeros.
                 if (subgroup_any(touched)) {
 #if SPLIT_CANDIDATES
-                    subgroup_row(acc, SUM_SPLIT, SUM_SPLIT, lane, part);
+                    subgroup_sums_16(acc, SUM_SPLIT, lane, part);
                     // Then each crossing candidate's split sums, from each lane's pixel (the terms the twin's walk
                     // adds to zero lanes): 5 values held at a time, not 25 through the walk. The crossing range is the
                     // subgroup's, and a vote makes the candidates reduced the same across a wider hardware subgroup.
@@ -603,7 +594,7 @@ void rasterize_backward(const int width, const int height, const int tiles_x, co
                                         part + SUM_SPLIT + SPLIT_WIDTH * (crossing ? k - cross.x : 0));
                     }
 #else
-                    subgroup_row(acc, SUM_WIDTH, SUM_WIDTH, lane, part);
+                    subgroup_sums_16(acc, SUM_WIDTH, lane, part);
 #endif
                 } else {
                     for (int k = lane; k < used; k += SUBGROUP) part[k] = 0.f;
