@@ -25,6 +25,7 @@ from .constants import SH_MAX_DEGREE
 from .errors import DeviceError, InputError, OutputError
 from .files import replace_folder, staging_folder
 from .finite import NonFiniteError
+from .lpips import DEFAULT_LPIPS, LPIPS_CHOICES
 from .scene.builtin import BUILTIN_SCENE
 from .scene.camera import TEST_SPLITS, view_sizes
 
@@ -60,6 +61,12 @@ def _add_check_finite(p: argparse.ArgumentParser) -> None:
                         "the iteration (or view) and the buffer (slow: each stage waits and is read back)")
 
 
+def _add_lpips(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--lpips", choices=LPIPS_CHOICES, default=None,
+                   help=f"LPIPS network for the test views (default {DEFAULT_LPIPS} where its weights are installed: "
+                        "pip install 'dc4gs-cl[lpips]'; else skipped with a line saying so); none: skip it")
+
+
 def _resolution(value: str) -> int:
     r = int(value)
     if r < 1:
@@ -82,6 +89,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("train",
                        help="train a scene (no arguments: the built-in scene, three to five minutes on 2 cores)")
     _add_train(p)
+    _add_lpips(p)
     _add_check_finite(p)
     _add_device(p)
 
@@ -103,10 +111,11 @@ def build_parser() -> argparse.ArgumentParser:
     _add_bench(p)
     _add_device(p)
 
-    p = sub.add_parser("eval", help="render a trained model's test views and write PSNR / SSIM (results.json)")
+    p = sub.add_parser("eval", help="render a trained model's test views and write PSNR / SSIM / LPIPS (results.json)")
     p.add_argument("--model", type=Path, required=True, help="a training output folder")
     p.add_argument("--iteration", type=int, default=None, help="which saved iteration (default: the last)")
     p.add_argument("--no-renders", action="store_true", help="metrics only, no PNGs under test/")
+    _add_lpips(p)
     _add_device(p)
     return parser
 
@@ -384,7 +393,8 @@ def _train_locked(args, run) -> int:
     """cmd_train in its run folder, which it holds."""
     import time
 
-    from .evaluate import per_view_lines
+    from .evaluate import per_view_lines, summary
+    from .metrics import lpips_metric
     from .run_folder import CORRUPT_CHECKPOINT
     from .runtime import Runtime, describe
     from .train import Stopped, Trainer
@@ -398,7 +408,7 @@ def _train_locked(args, run) -> int:
     scene = run.load_scene(cfg)
     scene.read_all_images()
     rt = Runtime(args.device, profiling=True)   # stage times go to metrics.jsonl; no measurable cost on PoCL
-    trainer = Trainer(cfg, scene, rt, run, check_finite=args.check_finite)
+    trainer = Trainer(cfg, scene, rt, run, check_finite=args.check_finite, lpips=lpips_metric(args.lpips))
     live = None
     if args.viewer:   # before anything is written: a port in use stops the command
         from .render import Renderer
@@ -440,15 +450,15 @@ def _train_locked(args, run) -> int:
         result = trainer.evaluate_test(run.views_dir("test", trainer.iteration))
         for line in run.write_results(trainer.iteration, result):
             print(line, file=sys.stderr)
-        print(f"test views: PSNR {result['mean']['PSNR']:.2f} dB, SSIM {result['mean']['SSIM']:.4f} "
-              f"({result['views']} views; LPIPS skipped: {result['lpips']})")
+        print(f"test views: {summary(result)}, {result['views']} views")
         print("\n".join(per_view_lines(result)))
     print(f"model: {run.model_path(trainer.iteration)}")
     return 0
 
 
 def cmd_eval(args) -> int:
-    from .evaluate import evaluate, per_view_lines
+    from .evaluate import evaluate, per_view_lines, summary
+    from .metrics import lpips_metric
     from .render import DeviceGaussians, Renderer
     from .run_folder import RunFolder
     from .runtime import Runtime
@@ -459,13 +469,14 @@ def cmd_eval(args) -> int:
     scene = run.load_scene(cfg)
     if not scene.test:
         raise InputError(run.config_path, "the run has no test views (test_every = 0)")
+    lpips, lpips_note = lpips_metric(args.lpips)
     rt = Runtime(args.device)
     result = evaluate(rt, Renderer(rt), DeviceGaussians(rt, model), scene, scene.test, model.sh_degree,
-                      None if args.no_renders else run.views_dir("test", iteration))
+                      None if args.no_renders else run.views_dir("test", iteration), lpips, lpips_note)
     for line in run.write_results(iteration, result):
         print(line, file=sys.stderr)
-    print(f"iteration {iteration}: PSNR {result['mean']['PSNR']:.2f} dB, SSIM {result['mean']['SSIM']:.4f} over "
-          f"{result['views']} test views (LPIPS skipped: {result['lpips']}); written to {run.path / 'results.json'}")
+    print(f"iteration {iteration}: {summary(result)} over {result['views']} test views; written to "
+          f"{run.path / 'results.json'}")
     print("\n".join(per_view_lines(result)))
     return 0
 

@@ -1,5 +1,5 @@
-"""Evaluation of test views: renders, per-view and mean PSNR and SSIM (run_folder.RunFolder.write_results
-stores them as the Inria code does)."""
+"""Evaluation of test views: renders, per-view and mean PSNR, SSIM and (where its weights are installed) LPIPS
+(run_folder.RunFolder.write_results stores them as the Inria code does)."""
 from __future__ import annotations
 
 import shutil
@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from .files import replace_folder, staging_folder
-from .metrics import lpips_available, psnr, ssim
+from .metrics import psnr, ssim
 from .render import DeviceGaussians, Renderer
 from .runtime import Runtime
 from .scene.camera import Camera, Scene
@@ -16,10 +16,13 @@ from .scene.images import write_png
 
 
 def evaluate(rt: Runtime, renderer: Renderer, gaussians: DeviceGaussians, scene: Scene, cams: list[Camera],
-             sh_degree: int, render_dir: Path | None = None) -> dict:
-    """PSNR and SSIM per view and their means; with render_dir, also renders/ and gt/ PNGs there
-    (written to a staging folder and moved into place once all views are done)."""
-    per_view = {"PSNR": {}, "SSIM": {}}
+             sh_degree: int, render_dir: Path | None = None, lpips=None, lpips_note: str = "") -> dict:
+    """PSNR, SSIM and, with an lpips.Lpips, LPIPS per view and their means; with render_dir, also renders/ and
+    gt/ PNGs there (written to a staging folder and moved into place once all views are done). lpips_note (from
+    metrics.lpips_metric) goes into the result as "lpips", for the output lines."""
+    if lpips is not None and not all(lpips.takes(cam.height, cam.width) for cam in cams):
+        lpips, lpips_note = None, f"LPIPS skipped: test views too small for its {lpips.net} network"
+    per_view = {"PSNR": {}, "SSIM": {}, **({lpips.key: {}} if lpips is not None else {})}
     staging = staging_folder(render_dir) if render_dir else None
     try:
         for cam in cams:
@@ -28,6 +31,8 @@ def evaluate(rt: Runtime, renderer: Renderer, gaussians: DeviceGaussians, scene:
             name = f"{cam.file_stem}.png"
             per_view["PSNR"][name] = psnr(image, target)
             per_view["SSIM"][name] = ssim(rt, image, target)
+            if lpips is not None:
+                per_view[lpips.key][name] = lpips.distance(image, target)
             if staging:
                 write_png(staging / "renders" / name, image)
                 write_png(staging / "gt" / name, target)
@@ -37,14 +42,26 @@ def evaluate(rt: Runtime, renderer: Renderer, gaussians: DeviceGaussians, scene:
         if staging:
             shutil.rmtree(staging, ignore_errors=True)
     means = {k: float(np.mean(list(v.values()))) if v else float("nan") for k, v in per_view.items()}
-    _, why = lpips_available()
-    return {"mean": means, "per_view": per_view, "views": len(cams), "lpips": why}
+    return {"mean": means, "per_view": per_view, "views": len(cams), "lpips": lpips_note,
+            "lpips_key": lpips.key if lpips is not None else None}
+
+
+def summary(result: dict) -> str:
+    """The means of an evaluate() result in one phrase: "PSNR 31.20 dB, SSIM 0.9512, LPIPS 0.0811 (vgg)" (or the
+    note on why LPIPS is absent)."""
+    mean, key = result["mean"], result.get("lpips_key")
+    text = f"PSNR {mean['PSNR']:.2f} dB, SSIM {mean['SSIM']:.4f}"
+    if key in mean:
+        return text + f", {result['lpips']} {mean[key]:.4f}"
+    return text + (f" ({result['lpips']})" if result.get("lpips") else "")
 
 
 def per_view_lines(result: dict) -> list[str]:
     """One line per test view of an evaluate() result, worst PSNR first (a few bad views, such as extrapolated
     ones full of floaters, move the mean by dBs)."""
     psnrs, ssims = result["per_view"]["PSNR"], result["per_view"]["SSIM"]
+    lpipss = result["per_view"].get(result.get("lpips_key"), {})
     width = max((len(name) for name in psnrs), default=0)
-    return [f"  {name:<{width}}  PSNR {psnrs[name]:6.2f} dB  SSIM {ssims[name]:.4f}"
+    return [f"  {name:<{width}}  PSNR {psnrs[name]:6.2f} dB  SSIM {ssims[name]:.4f}" +
+            (f"  LPIPS {lpipss[name]:.4f}" if name in lpipss else "")
             for name in sorted(psnrs, key=psnrs.get)]

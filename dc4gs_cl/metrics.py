@@ -1,10 +1,13 @@
-"""Image quality metrics for evaluation: PSNR (host), SSIM (device, the training loss's kernels) and a
-note on LPIPS. Images are (H, W, 3) float arrays; both metrics clamp them to [0, 1] first."""
+"""Image quality metrics for evaluation: PSNR (host), SSIM (device, the training loss's kernels) and LPIPS
+(host, lpips.py) where its weights are installed. Images are (H, W, 3) float arrays; every metric clamps them to
+[0, 1] first."""
 from __future__ import annotations
 
 import numpy as np
 
 from .backward.loss import Loss
+from .errors import InputError
+from .lpips import DEFAULT_LPIPS, Lpips, LpipsUnavailable
 from .render.stage import StageContext
 from .runtime import Runtime
 
@@ -29,8 +32,15 @@ def ssim(rt: Runtime, image, target) -> float:
     return loss.read_stats()["ssim"]
 
 
-def lpips_available() -> tuple[None, str]:
-    """LPIPS is not offered: it needs VGG network weights (and a network runtime) that this project
-    neither ships nor downloads. Returns (None, the reason) so callers report it instead of failing."""
-    return None, ("LPIPS not computed: it needs pretrained VGG weights, which dc4gs-cl does not ship or "
-                  "download; compute it with the `lpips` package on the saved test renders")
+def lpips_metric(choice: str | None):
+    """(an lpips.Lpips or None, a note for the output). choice None: VGG where its weights are installed, else
+    skipped with a line saying how to install them; "vgg" / "alex": that network, its weights required (an
+    InputError where they are missing); "none": skipped."""
+    if choice == "none":
+        return None, "LPIPS off (--lpips none)"
+    try:
+        return Lpips(choice or DEFAULT_LPIPS), f"LPIPS ({choice or DEFAULT_LPIPS})"
+    except LpipsUnavailable as e:
+        if choice is None:
+            return None, f"LPIPS skipped: {e}"
+        raise InputError(None, f"--lpips {choice}: {e}") from None

@@ -46,7 +46,8 @@ LOCK = ".lock"   # held by the run writing the folder (RunFolder.locked), the ho
 RESULTS, PER_VIEW = "results.json", "per_view.json"
 METRICS = "metrics.jsonl"
 # The numbers a metrics row may hold (train/log.py writes them; report plots them), and stage_ms: stage -> ms
-METRIC_NUMBERS = ("loss", "train_psnr", "gaussians", "it_per_s", "elapsed_s", "test_psnr", "test_ssim", "test_views")
+METRIC_NUMBERS = ("loss", "train_psnr", "gaussians", "it_per_s", "elapsed_s", "test_psnr", "test_ssim", "test_lpips",
+                  "test_lpips_alex", "test_views")
 RUN_FILES = (CONFIG, "cfg_args", "cameras.json", CHECKPOINT, PREVIOUS_CHECKPOINT, CORRUPT_CHECKPOINT, RESULTS, PER_VIEW,
              METRICS, "results.corrupt.json", "per_view.corrupt.json")
 RUN_DIRS = ("point_cloud", "test", "train")

@@ -1,5 +1,6 @@
 """`dc4gs-cl report`: the metrics of several runs drawn to one HTML page (or a PNG), and its bad input."""
 import base64
+import json
 import re
 
 import numpy as np
@@ -31,6 +32,8 @@ def test_report_overlays_runs_and_shows_test_views(two_runs, tmp_path):
     assert main(["report", *map(str, two_runs), "--out", str(out)]) == 0
     page = out.read_text()
     assert "(3dgs)" in page and "(3dgs+DC4GS)" in page
+    evaluated = [json.loads(line) for line in (two_runs[0] / "metrics.jsonl").read_text().splitlines()]
+    assert ("<th>test LPIPS</th>" in page) == any("test_lpips" in row for row in evaluated)   # where computed
     images = re.findall(r'<img alt="([^"]*)" src="data:image/png;base64,([^"]+)"', page)
     curves = [data for alt, data in images if alt == "curves"]
     assert len(curves) == 1

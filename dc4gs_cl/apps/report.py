@@ -135,13 +135,17 @@ def _view_psnr(run: RunFolder, key: str, name: str) -> str:
 
 
 def summary_html(runs: list[RunMetrics]) -> str:
-    head = "<tr><th>run</th><th>iterations</th><th>Gaussians</th><th>test PSNR</th><th>test SSIM</th><th>training time</th></tr>"
+    lpips = any("test_lpips" in ev for r in runs for ev in r.evaluations)   # VGG's, where a run computed it
+    head = ("<tr><th>run</th><th>iterations</th><th>Gaussians</th><th>test PSNR</th><th>test SSIM</th>" +
+            ("<th>test LPIPS</th>" if lpips else "") + "<th>training time</th></tr>")
     rows = []
     for r in runs:
         last, ev = r.samples[-1] if r.samples else {}, r.evaluations[-1] if r.evaluations else {}
         rows.append(f"<tr><td>{html.escape(r.label)}</td><td>{last.get('iteration', '-'):,}</td>"
                     f"<td>{last.get('gaussians', 0):,}</td><td>{ev.get('test_psnr', float('nan')):.2f} dB</td>"
-                    f"<td>{ev.get('test_ssim', float('nan')):.4f}</td><td>{last.get('elapsed_s', float('nan')):.0f} s</td></tr>")
+                    f"<td>{ev.get('test_ssim', float('nan')):.4f}</td>" +
+                    (f"<td>{ev.get('test_lpips', float('nan')):.4f}</td>" if lpips else "") +
+                    f"<td>{last.get('elapsed_s', float('nan')):.0f} s</td></tr>")
     return f"<table>{head}{''.join(rows)}</table>"
 
 

@@ -5,7 +5,9 @@ The metrics file (run_folder.METRICS) holds one JSON object per line, appended a
 report can be drawn during the run:
     {"iteration": 120, "loss": 0.051, "train_psnr": 24.3, "gaussians": 5210, "it_per_s": 17.9,
      "elapsed_s": 6.7, "stage_ms": {"project": 0.4, ...}}        a sample, every SAMPLE_EVERY iterations
-    {"iteration": 1400, "test_psnr": 27.9, "test_ssim": 0.91, "test_views": 3}     an evaluation
+    {"iteration": 1400, "test_psnr": 27.9, "test_ssim": 0.91, "test_lpips": 0.12, "test_views": 3}
+                                                    an evaluation (test_lpips: VGG's LPIPS, where it was computed;
+                                                    test_lpips_alex: AlexNet's)
 train_psnr is the last training view's; it_per_s is over the samples' interval; elapsed_s counts training
 only (evaluations excluded) and continues across --resume; stage_ms (device time per iteration over the
 interval, by stage) is there when the run profiles (train --profile).
@@ -97,11 +99,12 @@ class TrainingLog:
         row = {"iteration": iteration, "test_psnr": round(result["mean"]["PSNR"], 4),
                "test_ssim": round(result["mean"]["SSIM"], 5),
                "test_views": result["views"]}
+        if result.get("lpips_key") in result["mean"]:   # test_lpips (VGG) or test_lpips_alex
+            row[f"test_{result['lpips_key'].lower()}"] = round(result["mean"][result["lpips_key"]], 5)
         self.run_folder.append_metrics(row)
         if self.mode != "none":
-            mean = result["mean"]   # unrounded, as the final line of `train` prints it
-            line = (f"iteration {iteration:,}: test views PSNR {mean['PSNR']:.2f} dB, SSIM {mean['SSIM']:.4f} "
-                    f"({result['views']} views)")
+            from ..evaluate import summary   # unrounded, as the final line of `train` prints it
+            line = f"iteration {iteration:,}: test views {summary(result)}, {result['views']} views"
             if self.bar is not None:
                 self.bar.write(line, file=self.stream)
             else:

@@ -49,12 +49,14 @@ class Stopped(KeyboardInterrupt):
 
 class Trainer:
     def __init__(self, cfg: TrainConfig, scene: Scene, rt: Runtime, out: str | Path | RunFolder | None = None,
-                 strategy: Strategy | None = None, check_finite: bool = False, frozen: bool = False):
+                 strategy: Strategy | None = None, check_finite: bool = False, frozen: bool = False,
+                 lpips: tuple = (None, "")):
         """out: the run folder, which checkpoints, saved models and run() need (None: none, for a trainer that
         only steps); strategy: the density control (default: the configuration's, its schedule scaled to the
         run); check_finite: every stage checks its outputs and the first NaN or Inf stops the run (finite.py);
         frozen: the strategy gathers its statistics but never densifies nor limits opacities, so that
-        benchmarks step the same model again and again."""
+        benchmarks step the same model again and again; lpips: metrics.lpips_metric's (network, note), for the
+        test-view evaluations (default none)."""
         if not scene.train:
             raise InputError(scene.root, "the scene has no training cameras")
         if rt.caps.loop_limit:   # runtime.LOOP_LIMITED_DRIVERS: its renders are right, its gradients of busy views not
@@ -65,6 +67,7 @@ class Trainer:
         self.cfg, self.scene, self.rt = cfg, scene, rt
         self.run_folder = out if isinstance(out, RunFolder) or out is None else RunFolder(out)
         self.frozen = frozen
+        self.lpips, self.lpips_note = lpips
         self.schedule = Schedule(cfg)
         tuning = Tuning.for_device(rt.caps)
         if cfg.low_memory:   # float-atomic sums instead of per-pair slots
@@ -235,7 +238,8 @@ class Trainer:
         log = self.log
         if log is not None:
             log.pause()
-        result = evaluate(self.rt, self.renderer, self.params, self.scene, self.scene.test, self.sh_degree, render_dir)
+        result = evaluate(self.rt, self.renderer, self.params, self.scene, self.scene.test, self.sh_degree, render_dir,
+                          self.lpips, self.lpips_note)
         if self.rt.profiling:
             self.rt.stage_times()   # the evaluation's renders are not training time
         if log is not None:
