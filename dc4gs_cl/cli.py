@@ -1,4 +1,4 @@
-"""Command line: `dc4gs-cl devices | render | ...`.
+"""Command line: `dc4gs-cl COMMAND ...` (cli.main; `dc4gs-cl` alone trains the built-in scene).
 
 Exit codes: 0 done; 2 bad input (InputError) or a device problem (DeviceError); 1 an output that cannot be
 written (OutputError: disk full, read-only folder; earlier outputs stay intact); 3 a NaN or Inf found by
@@ -20,7 +20,7 @@ import numpy as np
 from .apps import export, report, viewer
 from .apps.viewer import DEFAULT_PORT
 from .config import (DCC_READINGS, DEFAULT_LINE_EVERY, DENSE_CANDIDATES, FIVE_CANDIDATES, FLAGS, POOLINGS,
-                     RECIPE_ITERATIONS, SPLIT_PICKS, STRATEGY_NAMES, DC4GSConfig, TrainConfig, flag_key)
+                     RECIPE_ITERATIONS, SPLIT_PICKS, STRATEGY_NAMES, DC4GSConfig, DensifyConfig, TrainConfig, flag_key)
 from .constants import SH_MAX_DEGREE
 from .errors import DeviceError, InputError, OutputError
 from .files import replace_folder, staging_folder
@@ -46,13 +46,14 @@ def stop_cleanly_on_sigterm() -> None:
     signal.signal(signal.SIGTERM, terminate)
 
 
-BUILTIN_ITERATIONS = 5_000   # the default run on the built-in scene: about five minutes on 2 CPU cores
+BUILTIN_ITERATIONS = 5_000   # the default run on the built-in scene: 5 to 9 minutes on 2 CPU cores
 
 
 def _add_device(p: argparse.ArgumentParser) -> None:
     p.add_argument("--device", default=None,
                    help='OpenCL device: "P:D" (see `dc4gs-cl devices`), "gpu", "cpu" or part of its name; '
-                        "default $DC4GS_DEVICE, else the first GPU, else PoCL's CPU device")
+                        "default $DC4GS_DEVICE, else the first GPU, else Intel's CPU runtime where installed (the "
+                        "intel extra), else PoCL's CPU device")
 
 
 def _add_check_finite(p: argparse.ArgumentParser) -> None:
@@ -74,8 +75,18 @@ def _resolution(value: str) -> int:
     return r
 
 
+DESCRIPTION = ("Train 3D Gaussian Splatting scenes (COLMAP, NeRF / instant-ngp) with DC4GS density control on any "
+               "OpenCL device (AMD, Intel and NVIDIA GPUs; any CPU through PoCL), evaluate, render, view and export "
+               "them.")
+EPILOG = (f"With no command, dc4gs-cl runs `dc4gs-cl train`: the built-in scene (procedural, no data needed), "
+          f"{BUILTIN_ITERATIONS:,} iterations (5 to 9 minutes on 2 CPU cores), into output/builtin-<date-time>. "
+          "`dc4gs-cl COMMAND --help` gives each command's options.")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="dc4gs-cl", description=__doc__.splitlines()[0])
+    from . import __version__
+    parser = argparse.ArgumentParser(prog="dc4gs-cl", description=DESCRIPTION, epilog=EPILOG)
+    parser.add_argument("--version", action="version", version=f"dc4gs-cl {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
 
     p = sub.add_parser("devices", help="list OpenCL platforms and devices, and the one that would be chosen")
@@ -87,7 +98,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_device(p)
 
     p = sub.add_parser("train",
-                       help="train a scene (no arguments: the built-in scene, three to five minutes on 2 cores)")
+                       help="train a scene (no arguments: the built-in scene, 5 to 9 minutes on 2 CPU cores)")
     _add_train(p)
     _add_lpips(p)
     _add_check_finite(p)
@@ -137,7 +148,8 @@ def _add_render(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", type=Path, default=None,
                    help="output folder (PNGs under OUT/<split>/renders/; --split all writes train/ and test/); "
                         "required unless --model")
-    p.add_argument("--split", choices=["test", "train", "all"], default="test")
+    p.add_argument("--split", choices=["test", "train", "all"], default="test",
+                   help="which of the scene's cameras to render (test: the held-out views, the default)")
     p.add_argument("-r", "--resolution", type=_resolution, default=None,
                    help="downscale images by this factor (default: widths above 1600 px scaled to 1600; with --model, "
                         "the run's)")
@@ -163,12 +175,11 @@ def _add_train(p: argparse.ArgumentParser) -> None:
                    help="which images are held out, by name: llff (default) from the first, so the path's first view "
                         "is a test view (an extrapolation); interpolated: as many, spread inside the path, each with "
                         "training views on both sides")
-    p.add_argument("--save-at", type=int, nargs="*", default=None, help="also write the PLY at these iterations")
+    p.add_argument("--save-at", type=int, nargs="*", default=None,
+                   help="also write the PLY at these iterations (default: none; the last iteration's always)")
     p.add_argument("--eval-at", type=int, nargs="*", default=None,
                    help="evaluate the test views after these iterations too, into metrics.jsonl (default: 7,000 "
                         "scaled to the run, as the Inria code; the last iteration always)")
-    p.add_argument("--densify-until", type=int, default=None,
-                   help="end of the densification window (0: no densification)")
     p.add_argument("--checkpoint-every", type=int, default=None,
                    help=f"iterations between checkpoints ({TrainConfig.checkpoint_every})")
     p.add_argument("--seed", type=int, default=None,
@@ -187,6 +198,7 @@ def _add_train(p: argparse.ArgumentParser) -> None:
                    help="a cap, not a target: densification never grows the model past N Gaussians. A step that "
                         "would takes its clone and split candidates by their criterion over its threshold, highest "
                         "first; pruning goes on as usual (default: no cap)")
+    _add_recipe(p)
     _add_dc4gs(p)
     p.add_argument("--low-memory", action="store_true", default=None,
                    help="the backward adds into per-Gaussian sums with float atomics instead of per-pair slots: "
@@ -202,6 +214,35 @@ def _add_train(p: argparse.ArgumentParser) -> None:
                    help="when the output is not a terminal (a log file, a job scheduler), one progress line every N "
                         f"iterations instead of a bar ({DEFAULT_LINE_EVERY})")
     p.add_argument("--profile", action="store_true", help="print per-stage device time per iteration at the end")
+
+
+def _add_recipe(p: argparse.ArgumentParser) -> None:
+    """The 3DGS recipe's settings, named as the Inria code's (its --name_with_underscores spelling works too)."""
+    g = p.add_argument_group("the 3DGS recipe (the Inria code's names; the schedule's iterations are scaled to runs "
+                             f"shorter than {RECIPE_ITERATIONS:,} unless given here)")
+
+    def add(flag: str, kind, text: str) -> None:
+        spellings = (flag, "--" + flag_key(flag))
+        if kind is bool:
+            g.add_argument(*spellings, action="store_true", default=None, help=text)
+        else:
+            g.add_argument(*spellings, type=kind, default=None, metavar="N" if kind is int else "X", help=text)
+    c, d = TrainConfig, DensifyConfig
+    add("--position-lr-init", float, f"position learning rate at the start, times the scene's extent ({c.lr_means:g})")
+    add("--position-lr-final", float, f"... at the end, decayed log-linearly ({c.lr_means_final:g})")
+    add("--feature-lr", float, f"SH DC band's learning rate ({c.lr_sh_dc:g}; the higher bands' 1/20 of it)")
+    add("--feature-rest-lr", float, f"the higher SH bands' learning rate ({c.lr_sh_rest:g}, or --feature-lr / 20)")
+    add("--opacity-lr", float, f"opacity learning rate ({c.lr_opacity:g})")
+    add("--scaling-lr", float, f"log-scale learning rate ({c.lr_scales:g})")
+    add("--rotation-lr", float, f"quaternion learning rate ({c.lr_quats:g})")
+    add("--lambda-dssim", float, f"the SSIM term's weight in the loss, 0 to 1 ({c.lambda_dssim:g})")
+    add("--random-background", bool, "render onto a random colour each iteration (default: the scene's background)")
+    add("--densify-from-iter", int, f"start of the densification window ({d.densify_from:,}, scaled)")
+    add("--densify-until", int, f"end of the densification window ({d.densify_until:,}, scaled; 0: no densification)")
+    add("--densification-interval", int, f"iterations between densification steps ({d.densify_every}; fewer where a "
+                                         "short run's window would hold under 10 steps)")
+    add("--opacity-reset-interval", int, f"iterations between opacity resets ({d.opacity_reset_every:,}, scaled; "
+                                         "0: none)")
 
 
 def _add_dc4gs(p: argparse.ArgumentParser) -> None:
@@ -344,6 +385,8 @@ def train_config(args, run) -> TrainConfig:
     arguments must then agree with it)."""
     if args.dc4gs:
         args.dcc = args.dcs = True
+    if args.feature_lr is not None and args.feature_rest_lr is None:   # the Inria code's ratio
+        args.feature_rest_lr = args.feature_lr / 20
     # the settings the command line gives, named as in FLAGS (each flag defaults to None: "not given")
     given = {setting: value for flag, setting in FLAGS.items() if (value := getattr(args, flag_key(flag))) is not None}
     for key in ("save_at", "eval_at"):

@@ -10,7 +10,7 @@ import json
 import math
 from dataclasses import asdict, dataclass, fields
 
-from .constants import SH_MAX_DEGREE
+from .constants import LAMBDA_DSSIM, SH_MAX_DEGREE
 from .errors import InputError
 from .scene.camera import TEST_SPLITS
 
@@ -37,7 +37,12 @@ FLAGS = {
     "--scene": "scene", "--iterations": "iterations", "--strategy": "strategy", "--resolution": "resolution",
     "--test-every": "test_every", "--test-split": "test_split", "--white-background": "white_background",
     "--alpha-mask": "alpha_mask", "--seed": "seed", "--sh-degree": "sh_degree", "--save-at": "save_at",
-    "--checkpoint-every": "checkpoint_every", "--eval-at": "eval_at", "--densify-until": "densify_until",
+    "--checkpoint-every": "checkpoint_every", "--eval-at": "eval_at",
+    "--position-lr-init": "lr_means", "--position-lr-final": "lr_means_final", "--feature-lr": "lr_sh_dc",
+    "--feature-rest-lr": "lr_sh_rest", "--opacity-lr": "lr_opacity", "--scaling-lr": "lr_scales",
+    "--rotation-lr": "lr_quats", "--lambda-dssim": "lambda_dssim", "--random-background": "random_background",
+    "--densify-from-iter": "densify_from", "--densification-interval": "densify_every",
+    "--opacity-reset-interval": "opacity_reset_every", "--densify-until": "densify_until",
     "--split-threshold": "split_threshold", "--max-gaussians": "max_gaussians", "--low-memory": "low_memory",
     "--dcc": "dc4gs.dcc", "--dcs": "dc4gs.dcs", "--dc-pooling": "dc4gs.pooling", "--split-pick": "dc4gs.split_pick",
     "--split-candidates": "dc4gs.candidates", "--dcc-reading": "dc4gs.dcc_reading", "--dcs-track": "dc4gs.track",
@@ -74,7 +79,7 @@ class DensifyConfig:
     big_world_after: int = 3_000       # after this iteration also prune largest scale > big_world_fraction * extent
     big_world_fraction: float = 0.1
     screen_size_px: float | None = None  # the 3DGS screen-size rule (radius > 20 px); off: never fires in the releases
-    opacity_reset_every: int = 3_000
+    opacity_reset_every: int = 3_000   # 0: never
     opacity_reset_to: float = 0.01
     opacity_clamp_every: int | None = None   # AbsGS: clamp opacities to <= opacity_clamp this often
     opacity_clamp: float = 0.8
@@ -155,11 +160,17 @@ class TrainConfig:
     lr_means: float = 1.6e-4
     lr_means_final: float = 1.6e-6
     lr_sh_dc: float = 2.5e-3
-    lr_sh_rest: float = 2.5e-3 / 20
+    lr_sh_rest: float = 2.5e-3 / 20        # the Inria code's feature_lr / 20 (cli.py keeps the ratio for --feature-lr)
     lr_opacity: float = 0.05
     lr_scales: float = 5e-3
     lr_quats: float = 1e-3
-    densify_until: int | None = None       # override the strategy's (scaled) window end; 0 disables densification
+    lambda_dssim: float = LAMBDA_DSSIM     # L = (1 - lambda_dssim) L1 + lambda_dssim (1 - SSIM)
+    random_background: bool = False        # each iteration renders onto a random colour (the target unchanged)
+    # overrides of the strategy's schedule, which is otherwise scaled to the run (train.schedule)
+    densify_from: int | None = None        # the densification window's start
+    densify_every: int | None = None       # iterations between densification steps
+    opacity_reset_every: int | None = None # 0: no opacity resets
+    densify_until: int | None = None       # the window's end; 0 disables densification
     split_threshold: float | None = None   # override the strategy's split threshold (its criterion's units)
     max_gaussians: int | None = None       # densification never grows the model past this many Gaussians
     low_memory: bool = False               # backward sums with float atomics, no per-pair slots (not bit-reproducible)
@@ -181,16 +192,18 @@ class TrainConfig:
              and not (math.isfinite(self.split_threshold) and self.split_threshold > 0),
              f"{self.split_threshold} must be a positive number"),
             ("checkpoint_every", self.checkpoint_every < 1, f"{self.checkpoint_every} must be at least 1"),
-            ("densify_until", self.densify_until is not None and self.densify_until < 0,
-             f"{self.densify_until} must be >= 0"),
+            *((name, value is not None and value < least, f"{value} must be >= {least}")
+              for name, value, least in (("densify_until", self.densify_until, 0), ("densify_from", self.densify_from, 0),
+                                         ("densify_every", self.densify_every, 1),
+                                         ("opacity_reset_every", self.opacity_reset_every, 0))),
+            ("lambda_dssim", not 0 <= self.lambda_dssim <= 1, f"{self.lambda_dssim} must lie in [0, 1]"),
             ("max_gaussians", self.max_gaussians is not None and self.max_gaussians < 1,
              f"{self.max_gaussians} must be at least 1"),
             ("sh_degree", not 0 <= self.sh_degree <= SH_MAX_DEGREE, f"{self.sh_degree} must be 0..{SH_MAX_DEGREE}"),
             ("seed", not 0 <= self.seed <= MAX_SEED, f"{self.seed} must be 0..2^63-1")])
-        # the learning rates come from config.json (a resumed run's): no flag names them
-        rates = {f.name: getattr(self, f.name) for f in fields(TrainConfig) if f.name.startswith("lr_")}
-        problems += [f"{name} {rate} must be a finite number >= 0" for name, rate in rates.items()
-                     if not (math.isfinite(rate) and rate >= 0)]
+        problems += flagged_problems([(f.name, not (math.isfinite(getattr(self, f.name)) and getattr(self, f.name) >= 0),
+                                       f"{getattr(self, f.name)} must be a finite number >= 0")
+                                      for f in fields(TrainConfig) if f.name.startswith("lr_")])
         if problems:
             raise InputError(None, "; ".join(problems))
 

@@ -35,6 +35,7 @@ SH_C2 = (1.0925484305920792, -1.0925484305920792, 0.31539156525252005,
 SH_C3 = (-0.5900435899266435, 2.890611442640554, -0.4570457994644658, 0.3731763325901154,
          -0.4570457994644658, 1.445305721320277, -0.5900435899266435)
 SH_MAX_DEGREE = 3
+LAMBDA_DSSIM = 0.2             # the training loss L = (1 - LAMBDA_DSSIM) L1 + LAMBDA_DSSIM (1 - SSIM): the default
 
 # A frame's counts on the device, uint words (render/isect.py starts them in StageContext.frame): the visible
 # Gaussians, the depth keys' range, the pairs, the Gaussians whose pairs span the backward's runs

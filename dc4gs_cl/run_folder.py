@@ -232,9 +232,13 @@ class RunFolder:
     def write_settings(self, cfg: TrainConfig, scene) -> None:
         """config.json, and for the Inria tools cfg_args and cameras.json (scene: scene.camera.Scene)."""
         write_json(self.config_path, cfg.to_json())
-        cfg_args = (f"Namespace(sh_degree={cfg.sh_degree}, source_path={str(Path(scene.root).resolve())!r}, "
-                    f"model_path={str(self.path.resolve())!r}, images='images', resolution={cfg.resolution or -1}, "
-                    f"white_background={cfg.white_background}, data_device='cuda', eval={cfg.test_every > 0})")
+        # the Inria code's Namespace, with what is true of this run only: no source_path for the built-in scene
+        # (it has no folder), images only where that folder is the scene's, no data_device (there is no CUDA)
+        root = Path(scene.root)
+        values = {"sh_degree": cfg.sh_degree, **({"source_path": str(root.resolve())} if root.exists() else {}),
+                  "model_path": str(self.path.resolve()), **({"images": "images"} if (root / "images").is_dir() else {}),
+                  "resolution": cfg.resolution or -1, "white_background": cfg.white_background, "eval": cfg.test_every > 0}
+        cfg_args = "Namespace(" + ", ".join(f"{k}={v!r}" for k, v in values.items()) + ")"
         write_atomic(self.path / "cfg_args", lambda tmp: tmp.write_text(cfg_args))
         cams = [{"id": i, "img_name": Path(c.name).stem, "width": c.width, "height": c.height,
                  "position": c.center.tolist(), "rotation": c.R.T.tolist(), "fy": c.fy, "fx": c.fx}

@@ -31,6 +31,10 @@ def test_help_lists_the_commands():
     assert out.returncode == 0
     for command in ("devices", "render", "train", "eval", "view", "export", "report"):
         assert command in out.stdout
+    assert "With no command, dc4gs-cl runs `dc4gs-cl train`" in " ".join(out.stdout.split())   # the bare command
+    from dc4gs_cl import __version__
+    version = run_cli("--version")
+    assert version.returncode == 0 and version.stdout.strip() == f"dc4gs-cl {__version__}"
 
 
 def test_devices_marks_the_chosen_device():
@@ -133,3 +137,19 @@ def test_resume_takes_the_flags_the_run_was_started_with(tmp_path):
     write_json(run.config_path, cfg.to_json())
     args = build_parser().parse_args(["train", "--out", str(tmp_path), "--resume", "--dc4gs", "--iterations", "100"])
     assert train_config(args, run) == cfg
+
+
+def test_cfg_args_holds_what_is_true_of_the_run(tmp_path, rng):
+    """cfg_args (the Inria tools' Namespace) names a scene folder only where there is one, its images folder only
+    where that is the scene's, and no CUDA device."""
+    builtin = RunFolder(tmp_path / "builtin")
+    builtin.write_settings(TrainConfig(scene="builtin"), load_scene("builtin", resolution=8))
+    text = (builtin.path / "cfg_args").read_text()
+    assert text.startswith("Namespace(sh_degree=3, model_path=") and "eval=True" in text
+    assert not any(key in text for key in ("source_path", "images=", "data_device"))
+    root = tmp_path / "colmap"
+    load_tool("fuzz_inputs").colmap_scene(root, rng, "bin")
+    colmap = RunFolder(tmp_path / "run")
+    colmap.write_settings(TrainConfig(scene=str(root), resolution=2, test_every=0), load_scene(str(root), resolution=2))
+    text = (colmap.path / "cfg_args").read_text()
+    assert f"source_path={str(root.resolve())!r}" in text and "images='images'" in text and "resolution=2" in text

@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 
 from dc4gs_cl import metrics
-from dc4gs_cl.backward.loss import LAMBDA_DSSIM, Loss
+from dc4gs_cl.backward.loss import Loss
+from dc4gs_cl.constants import LAMBDA_DSSIM
 from dc4gs_cl.reference import loss as ref
 from dc4gs_cl.render.stage import StageContext
 
@@ -30,15 +31,29 @@ def test_reference_gradient_matches_finite_differences(rng):
     # x - y kept at least 0.02 from 0 so that no step crosses the L1 kink; every float is checked.
     y = rng.uniform(0.1, 0.9, (13, 17, 3))
     x = y + rng.choice([-1.0, 1.0], y.shape) * rng.uniform(0.02, 0.1, y.shape)
-    g = ref.loss_gradient(x, y)
+    lam = rng.uniform(0, 1)   # --lambda-dssim
+    g = ref.loss_gradient(x, y, lam)
     fd, step = np.empty_like(x), 1e-6
     for i in np.ndindex(x.shape):
         xp, xm = x.copy(), x.copy()
         xp[i] += step
         xm[i] -= step
-        fd[i] = (ref.loss_value(xp, y) - ref.loss_value(xm, y)) / (2 * step)
+        fd[i] = (ref.loss_value(xp, y, lam) - ref.loss_value(xm, y, lam)) / (2 * step)
     # float64 central differences: truncation ~ step^2, rounding ~ 1e-16 / step, both far below 1e-6
     assert np.linalg.norm(fd - g) / np.linalg.norm(g) < 1e-6
+
+
+def test_the_ssim_weight_is_a_setting(rt, rng):
+    """--lambda-dssim: the kernels' loss and gradient with another weight than the recipe's, and the ends 0 and 1."""
+    for lam in (rng.uniform(0, 1), 0.0, 1.0):
+        loss = Loss(StageContext(rt, poison=True), lambda_dssim=lam)
+        y = rng.uniform(0, 1, (29, 41, 3))
+        x = np.clip(y + rng.normal(0, 0.2, y.shape), -0.05, 1.05)
+        x, y = x.astype(np.float32), y.astype(np.float32)
+        grad, stats = run_loss(rt, loss, x, y)
+        want = ref.loss_gradient(x, y, np.float32(lam))
+        assert np.isfinite(grad).all() and np.linalg.norm(grad - want) / np.linalg.norm(want) < 1e-5, lam
+        assert stats["loss"] == pytest.approx(ref.loss_value(x, y, np.float32(lam)), rel=1e-6), lam
 
 
 @pytest.mark.parametrize("shape", SHAPES)

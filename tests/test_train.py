@@ -79,7 +79,7 @@ def straight_run(tmp_path_factory):
     return straight
 
 
-INTERRUPTED_RUN = ["--iterations", "240", "--checkpoint-every", "40"]
+INTERRUPTED_RUN = ["--iterations", "240", "--checkpoint-every", "40", "--random-background"]   # its draws resume too
 STOPS = {"sigint": (signal.SIGINT, 130), "sigterm": (signal.SIGTERM, 143), "kill": (signal.SIGKILL, -signal.SIGKILL)}
 
 
@@ -196,6 +196,11 @@ def test_corrupt_and_mismatched_checkpoints(finished_run, tmp_path, capsys):
     (["--dc4gs", "--split-candidates", "10001"], "--split-candidates 10001"),
     (["--seed", "-1"], "--seed -1 must be 0..2^63-1"),                             # was a traceback
     (["--seed", str(2 ** 63)], "--seed 9223372036854775808 must be"),
+    (["--lambda-dssim", "1.5"], "--lambda-dssim 1.5 must lie in [0, 1]"),
+    (["--opacity_lr", "-1"], "--opacity-lr -1.0 must be a finite number >= 0"),
+    (["--position-lr-init", "nan"], "--position-lr-init nan must be a finite number"),
+    (["--densification-interval", "0"], "--densification-interval 0 must be >= 1"),
+    (["--opacity-reset-interval", "-3"], "--opacity-reset-interval -3 must be >= 0"),
 ])
 def test_settings_that_make_no_sense(tmp_path, capsys, args, says):
     out = [] if "--resume" in args else ["--out", str(tmp_path / "o")]
@@ -253,6 +258,45 @@ def test_split_threshold_replaces_the_strategys(rt, tmp_path):
     assert len(done[None]) == len(done[1e6]) > 3
     assert sum(r.split for r in done[None]) > 0 and sum(r.split for r in done[1e6]) == 0
     assert sum(r.cloned for r in done[1e6]) > 0
+
+
+def test_recipe_settings_reach_the_schedule_and_the_loss(rt):
+    """The recipe's flags: the schedule's steps as given (not scaled to the run), no opacity reset with 0, the
+    loss' SSIM weight, the higher SH bands' rate 1/20 of --feature-lr as in the Inria code unless given."""
+    cfg = TrainConfig(scene="builtin", iterations=3000, resolution=4, densify_from=40, densify_every=30,
+                      opacity_reset_every=0, densify_until=900, lambda_dssim=0.4)
+    strategy = Schedule(cfg).strategy()
+    c = strategy.config
+    assert (c.densify_from, c.densify_every, c.opacity_reset_every, c.densify_until) == (40, 30, 0, 900)
+    assert not any(strategy.reset_opacity_now(it, False) for it in range(1, 3001))
+    default = Schedule(replace(cfg, densify_from=None, densify_every=None, opacity_reset_every=None)).strategy().config
+    assert (default.densify_from, default.densify_every, default.opacity_reset_every) == (50, 100, 300)   # scaled
+    assert Trainer(cfg, load_scene("builtin", resolution=4), rt).loss.lambda_dssim == 0.4
+    from dc4gs_cl.cli import build_parser, train_config
+    for flags, rest in ((["--feature_lr", "0.004"], 0.004 / 20), (["--feature-lr", "0.004", "--feature-rest-lr", "1e-4"], 1e-4)):
+        args = build_parser().parse_args(["train", *flags])
+        assert train_config(args, None).lr_sh_rest == rest and train_config(args, None).lr_sh_dc == 0.004
+
+
+def test_random_background_draws_a_colour_each_iteration_from_the_seed(rt):
+    """--random-background renders each iteration onto a colour drawn from the run's generator: the same seed,
+    the same colours and the same model; without it, the scene's background every time."""
+    scene = load_scene("builtin", resolution=4)
+    runs = {}
+    for name, random_background in (("a", True), ("b", True), ("off", False)):
+        trainer = Trainer(TrainConfig(scene="builtin", iterations=30, resolution=4,
+                                      random_background=random_background), scene, rt)
+        render, runs[name] = trainer.renderer.render, []
+        trainer.renderer.render = lambda p, c, sh, bg, *a, render=render, into=runs[name]: \
+            into.append(np.array(bg)) or render(p, c, sh, bg, *a)
+        for _ in range(30):
+            trainer.step()
+        runs[name] = (np.array(runs[name]), trainer.model.download().params)
+    colours = runs["a"][0]   # a view that overflowed its room runs again: with the colour drawn for it before
+    assert len(np.unique(colours, axis=0)) == 30 and 0 <= colours.min() <= colours.max() <= 1
+    np.testing.assert_array_equal(colours, runs["b"][0])
+    assert all(np.array_equal(runs["a"][1][k], runs["b"][1][k]) for k in runs["a"][1])
+    assert (runs["off"][0] == scene.background).all()
 
 
 def test_a_trainer_without_a_run_folder_steps_and_says_what_needs_one(rt):
@@ -401,7 +445,7 @@ def test_a_void_frame_changes_nothing_on_the_device(rt, low_memory):
 
 def test_the_most_split_candidates_train_and_learning_rates_are_bounded(rt):
     """--split-candidates at its bound (config.MAX_CANDIDATES) trains; a config.json with a learning rate that is
-    negative or not finite (no flag names them) is refused naming it."""
+    negative or not finite is refused naming its flag."""
     from dc4gs_cl.config import MAX_CANDIDATES
     from dc4gs_cl.errors import InputError
     scene = load_scene("builtin", resolution=8)
@@ -416,5 +460,5 @@ def test_the_most_split_candidates_train_and_learning_rates_are_bounded(rt):
     costs = trainer.strategy.window.download()["split_costs"]
     assert costs.shape[1] == MAX_CANDIDATES and np.count_nonzero(costs) > 1000 and np.isfinite(costs).all()
     for rate in (-1.0, float("inf")):
-        with pytest.raises(InputError, match=f"lr_opacity {rate} must be a finite number >= 0"):
+        with pytest.raises(InputError, match=f"--opacity-lr {rate} must be a finite number >= 0"):
             replace(cfg, lr_opacity=rate)

@@ -212,6 +212,23 @@ def test_view_names_a_missing_source_and_a_taken_port(tmp_path):
             cmd_view(view_args(str(tmp_path / "nothing.ply"), "--port", str(port)))
 
 
+def test_sigterm_stops_a_serving_viewer_with_one_line(tmp_path, rng):
+    """`dc4gs-cl view` stopped by SIGTERM (a service manager, `timeout`): exit 143 with one line, not pycolmap's
+    native stack dump."""
+    import signal
+    from dc4gs_cl.ply import write_ply
+    write_ply(tmp_path / "m.ply", random_model(rng, 50, sh_degree=0))
+    proc = subprocess.Popen([sys.executable, "-m", "dc4gs_cl", "view", str(tmp_path / "m.ply"), "--port", "0"],
+                            stderr=subprocess.PIPE, text=True)
+    lines = []
+    while not any(line.startswith("viewer: http") for line in lines) and proc.poll() is None:
+        lines.append(proc.stderr.readline())
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 128 + signal.SIGTERM, "".join(lines) + err
+    assert err.strip().splitlines() == ["dc4gs-cl view: terminated"], err
+
+
 def test_without_viser_the_viewer_says_how_to_install_it(monkeypatch, tmp_path):
     monkeypatch.setitem(sys.modules, "viser", None)   # makes `import viser` fail
     with pytest.raises(InputError, match=r'pip install "dc4gs-cl\[viewer\]"'):

@@ -7,10 +7,10 @@ import math
 import numpy as np
 import pyopencl as cl
 
+from ..constants import LAMBDA_DSSIM
 from ..render.stage import Stage, StageContext, halvings
 from ..render.workspace import PAIR_SCRATCH
 
-LAMBDA_DSSIM = 0.2      # L = (1 - LAMBDA_DSSIM) L1 + LAMBDA_DSSIM (1 - SSIM)
 SSIM_C1 = 0.01 ** 2
 SSIM_C2 = 0.03 ** 2
 SSIM_WINDOW = 11        # Gaussian window side (pixels, odd)
@@ -20,14 +20,14 @@ MASK_WG = 64            # work-group of mask_pixels (one item per pixel)
 STAT_KEYS = ("loss", "l1", "dssim", "mse")   # layout of the device stats buffer (sums over calls)
 
 
-def loss_defines() -> dict:
+def loss_defines(lambda_dssim: float) -> dict:
     """The SSIM window (its radius, and its normalised 1D Gaussian weights as a C initializer list) and
-    constants as -D values."""
+    constants as -D values; L = (1 - lambda_dssim) L1 + lambda_dssim (1 - SSIM)."""
     r = SSIM_WINDOW // 2
     g = [math.exp(-(k - r) ** 2 / (2 * SSIM_SIGMA ** 2)) for k in range(SSIM_WINDOW)]
     weights = ",".join(f"{v / sum(g)!r}f" for v in g)
     return {"SSIM_RADIUS": r, "SSIM_WEIGHTS": weights, "SSIM_C1": SSIM_C1, "SSIM_C2": SSIM_C2,
-            "LAMBDA_DSSIM": LAMBDA_DSSIM}
+            "LAMBDA_DSSIM": float(lambda_dssim)}
 
 
 class Loss(Stage):
@@ -40,11 +40,14 @@ class Loss(Stage):
     """
     FILE, KERNELS = "loss.cl", ("loss_ssim", "loss_grad", "loss_reduce", "mask_pixels")
 
-    def __init__(self, ctx: StageContext, seg: int | None = None, wg: int | None = None):
-        """seg, wg: the work shape (default: the device kind's), narrowed to the device's limits: wg to its
+    def __init__(self, ctx: StageContext, seg: int | None = None, wg: int | None = None,
+                 lambda_dssim: float = LAMBDA_DSSIM):
+        """lambda_dssim: the SSIM term's weight (in the stats' loss and the gradient). seg, wg: the work shape
+        (default: the device kind's), narrowed to the device's limits: wg to its
         work-group size, then seg (then wg) halved until loss_ssim's local arrays fit (the CPU shape's 46,680
         bytes do not fit a 32 KiB device)."""
         super().__init__(ctx)
+        self.lambda_dssim = lambda_dssim
         caps = self.rt.caps
         seg, wg = seg or (2304 if caps.is_cpu else 1), wg or (1 if caps.is_cpu else 256)
         wg = next(w for w in halvings(wg) if w <= max(1, caps.max_work_group_size))
@@ -57,7 +60,7 @@ class Loss(Stage):
         self.calls = 0
 
     def defines(self) -> dict:   # SEG and WG: the shape, a variant (fitting_kernels)
-        return loss_defines()
+        return loss_defines(self.lambda_dssim)
 
     def __call__(self, image: cl.Buffer, target: cl.Buffer, width: int, height: int,
                  grad_out: cl.Buffer | None, stage: str = "loss", keep: cl.Buffer | None = None,
@@ -84,9 +87,9 @@ class Loss(Stage):
         d = [scratch[f"d{q}"] for q in range(3)]
         partial = scratch["partial"]
         args = (np.int32(n3w), np.int32(h))
-        rt.launch(stage, self.k_ssim, shape, local, *args, np.float32(-LAMBDA_DSSIM / scale), image, target, *d, partial)
+        rt.launch(stage, self.k_ssim, shape, local, *args, np.float32(-self.lambda_dssim / scale), image, target, *d, partial)
         if grad_out is not None:
-            rt.launch(stage, self.k_grad, shape, local, *args, np.float32((1 - LAMBDA_DSSIM) / scale), image, target,
+            rt.launch(stage, self.k_grad, shape, local, *args, np.float32((1 - self.lambda_dssim) / scale), image, target,
                       *d, grad_out)
         rt.launch(stage, self.k_reduce, self.wg, self.wg, self.ctx.frame, np.int32(groups_x * h),
                   np.float32(1 / scale), partial, self.stats)

@@ -145,7 +145,7 @@ class Strategy:
 
     def reset_opacity_now(self, it: int, white_background: bool) -> bool:
         c = self.config
-        return it < c.densify_until and (it % c.opacity_reset_every == 0
+        return it < c.densify_until and (c.opacity_reset_every > 0 and it % c.opacity_reset_every == 0
                                          or (white_background and it == c.densify_from))
 
     def clamp_opacity_now(self, it: int) -> bool:

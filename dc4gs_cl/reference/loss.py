@@ -7,7 +7,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..backward.loss import LAMBDA_DSSIM, SSIM_C1, SSIM_C2, SSIM_SIGMA, SSIM_WINDOW
+from ..backward.loss import SSIM_C1, SSIM_C2, SSIM_SIGMA, SSIM_WINDOW
+from ..constants import LAMBDA_DSSIM
 
 
 def gaussian_window(size: int = SSIM_WINDOW, sigma: float = SSIM_SIGMA) -> np.ndarray:

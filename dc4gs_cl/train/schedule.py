@@ -13,6 +13,10 @@ SH_DEGREE_EVERY = 1_000  # one more SH degree every this many (scaled) iteration
 EVALUATE_AT = (7_000,)   # test views evaluated at these (scaled) iterations and at the end, as the Inria code
 
 
+# TrainConfig's settings that replace the strategy's (DensifyConfig's field of the same name) as given, unscaled
+SCHEDULE_OVERRIDES = ("densify_from", "densify_every", "opacity_reset_every", "densify_until", "split_threshold")
+
+
 class Schedule:
     def __init__(self, cfg: TrainConfig):
         self.cfg = cfg
@@ -35,11 +39,8 @@ class Schedule:
                     opacity_reset_every=self.scaled(base.opacity_reset_every),
                     opacity_clamp_every=None if base.opacity_clamp_every is None else self.scaled(base.opacity_clamp_every),
                     max_gaussians=self.cfg.max_gaussians)
-        if self.cfg.densify_until is not None:
-            c = replace(c, densify_until=self.cfg.densify_until)
-        if self.cfg.split_threshold is not None:
-            c = replace(c, split_threshold=self.cfg.split_threshold)
-        return cls(c, self.cfg.dc4gs)
+        given = {name: value for name in SCHEDULE_OVERRIDES if (value := getattr(self.cfg, name)) is not None}
+        return cls(replace(c, **given), self.cfg.dc4gs)
 
     def evaluations(self) -> list[int]:
         """The iterations after which the test views are evaluated: --eval-at, else EVALUATE_AT scaled; the

@@ -74,7 +74,7 @@ class Trainer:
             tuning = replace(tuning, pair_sums=False)
         self.renderer = Renderer(rt, tuning, check_finite=check_finite)
         self.context = self.renderer.context
-        self.loss = Loss(self.context)
+        self.loss = Loss(self.context, lambda_dssim=cfg.lambda_dssim)
         self.rasterize_backward = RasterizeBackward(self.context)
         self.project_backward = ProjectBackward(self.context)
         self.rng = np.random.default_rng(cfg.seed)
@@ -142,7 +142,10 @@ class Trainer:
             keep_buf = ws.get("train.keep", keep.size)
             rt.write_async(keep_buf, keep)   # bool: one byte, 0 or 1, as the kernels' uchar
         rt.write_async(target_buf, target)   # the scene keeps its images as decoded: nothing to wait for
-        background = self.scene.background
+        # --random-background: the render's background a random colour each iteration (the Inria code's, gsplat's
+        # random_bkgd): transparent regions cost loss on every view, whatever the target's background
+        background = (self.rng.random(3).astype(np.float32) if self.cfg.random_background
+                      else self.scene.background)
 
         # --check-finite reads each stage's outputs as it goes: the view sized exactly, so that none is left void
         capacity = None if self.context.check.enabled else self.pair_capacity
