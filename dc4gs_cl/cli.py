@@ -2,12 +2,14 @@
 
 Exit codes: 0 done; 2 bad input (InputError) or a device problem (DeviceError); 1 an output that cannot be
 written (OutputError: disk full, read-only folder; earlier outputs stay intact); 3 a NaN or Inf found by
---check-finite; 130 interrupted (Ctrl-C), 143 terminated (SIGTERM), both after a checkpoint when training.
+--check-finite; 130 interrupted (Ctrl-C), 143 terminated (SIGTERM), both after a checkpoint when training;
+141 the reader of the output went away (a closed pipe), silently.
 Each of these ends in one line on stderr; anything else is a bug and keeps its traceback.
 """
 from __future__ import annotations
 
 import argparse
+import os
 import shutil
 import signal
 import sys
@@ -28,6 +30,7 @@ from .finite import NonFiniteError
 from .lpips import DEFAULT_LPIPS, LPIPS_CHOICES
 from .scene.builtin import BUILTIN_SCENE
 from .scene.camera import TEST_SPLITS, view_sizes
+from .scene.paths import PATH_KINDS
 
 SCENE_COMMANDS = ("train", "eval", "render", "view")   # they read scenes, through pycolmap where COLMAP
 
@@ -46,6 +49,7 @@ def stop_cleanly_on_sigterm() -> None:
     signal.signal(signal.SIGTERM, terminate)
 
 
+DEFAULT_PATH_FRAMES, DEFAULT_FPS = 120, 30   # render --path: 4 seconds of video
 BUILTIN_ITERATIONS = 5_000   # the default run on the built-in scene: 5 to 9 minutes on 2 CPU cores
 
 
@@ -60,6 +64,18 @@ def _add_check_finite(p: argparse.ArgumentParser) -> None:
     p.add_argument("--check-finite", action="store_true",
                    help="debugging: check every stage's outputs and stop at the first NaN or Inf, naming the stage, "
                         "the iteration (or view) and the buffer (slow: each stage waits and is read back)")
+
+
+ANTIALIASED_HELP = ("antialiased rasterization (gsplat's rasterize_mode \"antialiased\", Mip-Splatting's 2D filter): "
+                    "each opacity scaled by sqrt(det(Sigma) / det(Sigma + 0.3 I)), so that the 0.3 px^2 dilation "
+                    "keeps a Gaussian's integral; renders at other resolutions than trained alias less")
+
+
+def _add_antialiased_override(p: argparse.ArgumentParser) -> None:
+    """render and view: the mode a run trained in, unless this says otherwise (a PLY does not record it)."""
+    p.add_argument("--antialiased", action=argparse.BooleanOptionalAction, default=None,
+                   help=ANTIALIASED_HELP + ". Default: as the run trained; off for a PLY")
+
 
 
 def _add_lpips(p: argparse.ArgumentParser) -> None:
@@ -107,6 +123,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("view", help="look at a trained run or a PLY in the browser, rendered by dc4gs-cl's own "
                                     "renderer, with the training cameras (the viewer extra)")
     viewer.add_arguments(p)
+    _add_antialiased_override(p)
     _add_device(p)
 
     p = sub.add_parser("export", help="write a trained model or a 3DGS PLY for other viewers: .splat, .spz, "
@@ -133,8 +150,9 @@ def build_parser() -> argparse.ArgumentParser:
 
 def _add_render(p: argparse.ArgumentParser) -> None:
     source = p.add_mutually_exclusive_group()
-    source.add_argument("--ply", type=Path, default=None,
-                        help="a standard 3DGS PLY (SH degree 0..3); with neither --ply nor --model, the Gaussians "
+    source.add_argument("--ply", type=Path, default=None, metavar="FILE",
+                        help="a model file: a standard 3DGS PLY (SH degree 0..3) or any format `export` writes (.splat, "
+                             ".spz, .compressed.ply); with neither --ply nor --model, the Gaussians "
                              "training would start from (the scene's SfM points), which shows whether a scene's "
                              "cameras are read right")
     source.add_argument("--model", type=Path, default=None,
@@ -155,6 +173,15 @@ def _add_render(p: argparse.ArgumentParser) -> None:
                         "the run's)")
     p.add_argument("--white-background", action="store_true", help="render onto white (Blender scenes)")
     p.add_argument("--profile", action="store_true", help="print per-stage device times (median over views)")
+    p.add_argument("--path", choices=PATH_KINDS, default=None,
+                   help="instead of the split's views, a camera path through the training cameras: interpolated "
+                        "(through them in name order) or orbit (around the point they look at); frames to "
+                        "OUT/path-KIND/ (with --model and no --out: MODEL/path-KIND/ours_N/) and, where ffmpeg is "
+                        "on PATH, a video beside them (.mp4)")
+    p.add_argument("--frames", type=int, default=DEFAULT_PATH_FRAMES,
+                   help=f"with --path: frames along it ({DEFAULT_PATH_FRAMES})")
+    p.add_argument("--fps", type=int, default=DEFAULT_FPS, help=f"with --path: the video's frame rate ({DEFAULT_FPS})")
+    _add_antialiased_override(p)
 
 
 def _add_train(p: argparse.ArgumentParser) -> None:
@@ -198,6 +225,7 @@ def _add_train(p: argparse.ArgumentParser) -> None:
                    help="a cap, not a target: densification never grows the model past N Gaussians. A step that "
                         "would takes its clone and split candidates by their criterion over its threshold, highest "
                         "first; pruning goes on as usual (default: no cap)")
+    p.add_argument("--antialiased", action="store_true", default=None, help=ANTIALIASED_HELP + " (default off)")
     _add_recipe(p)
     _add_dc4gs(p)
     p.add_argument("--low-memory", action="store_true", default=None,
@@ -312,8 +340,8 @@ def cmd_devices(args) -> int:
 
 def cmd_render(args) -> int:
     from .model import initial_model
-    from .ply import read_ply
-    from .render import DeviceGaussians, Renderer
+    from .apps.export import read_model_file
+    from .render import DeviceGaussians, Renderer, RenderOptions
     from .run_folder import RunFolder
     from .runtime import Runtime, describe
     from .scene import load_scene
@@ -324,7 +352,7 @@ def cmd_render(args) -> int:
         raise InputError(None, "render needs --out (or --model, a training output folder)")
     if args.iteration is not None and run is None:
         raise InputError(None, "--iteration needs --model")
-    out = args.out
+    out, cfg = args.out, None
     if run is not None:
         cfg = run.read_config()
         scene_name = args.scene or cfg.scene
@@ -335,7 +363,9 @@ def cmd_render(args) -> int:
         scene_name = args.scene or BUILTIN_SCENE
         scene = load_scene(scene_name, resolution=args.resolution, cache_dir=out / "undistorted",
                            white_background=args.white_background)
-        model = read_ply(args.ply) if args.ply else initial_model(scene.points, scene.colors, np.random.default_rng(0))
+        model = read_model_file(args.ply) if args.ply else initial_model(scene.points, scene.colors, np.random.default_rng(0))
+    if args.path is not None:
+        return _render_path(args, run, cfg, scene, model, iteration if run is not None else None)
     names = ["train", "test"] if args.split == "all" else [args.split]
     splits = {name: cams for name in names if (cams := getattr(scene, name))}
     if not splits:
@@ -344,7 +374,7 @@ def cmd_render(args) -> int:
     rt = Runtime(args.device, profiling=args.profile)
     print(f"device: {describe(rt.device)}; {len(model):,} Gaussians (SH degree {model.sh_degree}); "
           f"{len(cams)} {args.split} views", file=sys.stderr)
-    renderer = Renderer(rt, check_finite=args.check_finite)
+    renderer = Renderer(rt, options=RenderOptions.of_model(args.antialiased, cfg), check_finite=args.check_finite)
     gaussians = DeviceGaussians(rt, model)
     timings = []
     into_run = run is not None and out is None   # renders beside their ground truth, as Inria's render.py
@@ -366,6 +396,29 @@ def cmd_render(args) -> int:
         print(f"wrote {len(split_cams)} images to {final_dir}", file=sys.stderr)
     if args.profile:
         print_stage_table(timings, cams[0].width, cams[0].height)
+    return 0
+
+
+def _render_path(args, run, cfg, scene, model, iteration) -> int:
+    """render --path: the frames of a camera path through the training cameras, and a video of them."""
+    from .apps.video import render_path
+    from .render import DeviceGaussians, Renderer, RenderOptions
+    from .runtime import Runtime, describe
+    from .scene.paths import camera_path
+
+    if args.fps < 1:
+        raise InputError(None, f"--fps {args.fps} must be at least 1")
+    cams = camera_path(scene.train, args.path, args.frames)
+    if args.out is not None:
+        frames_dir = args.out / f"path-{args.path}"
+    else:
+        frames_dir = run.path / f"path-{args.path}" / f"ours_{iteration}"
+    rt = Runtime(args.device)
+    print(f"device: {describe(rt.device)}; {len(model):,} Gaussians (SH degree {model.sh_degree}); {args.path} path, "
+          f"{len(cams)} frames of {cams[0].width}x{cams[0].height}", file=sys.stderr)
+    renderer = Renderer(rt, options=RenderOptions.of_model(args.antialiased, cfg), check_finite=args.check_finite)
+    render_path(rt, renderer, DeviceGaussians(rt, model), cams, scene.background, frames_dir,
+                frames_dir.with_suffix(".mp4"), args.fps)
     return 0
 
 
@@ -455,7 +508,7 @@ def _train_locked(args, run) -> int:
     live = None
     if args.viewer:   # before anything is written: a port in use stops the command
         from .render import Renderer
-        live = viewer.Viewer(rt, Renderer(rt), scene.train, port=args.port, background=scene.background,
+        live = viewer.Viewer(rt, Renderer(rt, options=trainer.renderer.context.options), scene.train, port=args.port, background=scene.background,
                              images=scene.image, points=scene.points)
     run.remove_temporaries()   # what an interrupted write of an earlier run left
     if args.resume:
@@ -502,7 +555,7 @@ def _train_locked(args, run) -> int:
 def cmd_eval(args) -> int:
     from .evaluate import evaluate, per_view_lines, summary
     from .metrics import lpips_metric
-    from .render import DeviceGaussians, Renderer
+    from .render import DeviceGaussians, Renderer, RenderOptions
     from .run_folder import RunFolder
     from .runtime import Runtime
 
@@ -514,7 +567,8 @@ def cmd_eval(args) -> int:
         raise InputError(run.config_path, "the run has no test views (test_every = 0)")
     lpips, lpips_note = lpips_metric(args.lpips)
     rt = Runtime(args.device)
-    result = evaluate(rt, Renderer(rt), DeviceGaussians(rt, model), scene, scene.test, model.sh_degree,
+    result = evaluate(rt, Renderer(rt, options=RenderOptions.of_model(None, cfg)), DeviceGaussians(rt, model),
+                      scene, scene.test, model.sh_degree,
                       None if args.no_renders else run.views_dir("test", iteration), lpips, lpips_note)
     for line in run.write_results(iteration, result):
         print(line, file=sys.stderr)
@@ -553,6 +607,9 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print(f"dc4gs-cl {args.command}: interrupted", file=sys.stderr)
         return 130
+    except BrokenPipeError:   # the reader of our output left (`dc4gs-cl eval ... | head`): stop as a pipe stage does
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())   # Python's flush at exit would fail again
+        return 128 + signal.SIGPIPE
     finally:
         if handles_signals:
             signal.signal(signal.SIGTERM, previous if previous is not None else signal.SIG_DFL)

@@ -43,6 +43,7 @@ FLAGS = {
     "--rotation-lr": "lr_quats", "--lambda-dssim": "lambda_dssim", "--random-background": "random_background",
     "--densify-from-iter": "densify_from", "--densification-interval": "densify_every",
     "--opacity-reset-interval": "opacity_reset_every", "--densify-until": "densify_until",
+    "--antialiased": "antialiased",
     "--split-threshold": "split_threshold", "--max-gaussians": "max_gaussians", "--low-memory": "low_memory",
     "--dcc": "dc4gs.dcc", "--dcs": "dc4gs.dcs", "--dc-pooling": "dc4gs.pooling", "--split-pick": "dc4gs.split_pick",
     "--split-candidates": "dc4gs.candidates", "--dcc-reading": "dc4gs.dcc_reading", "--dcs-track": "dc4gs.track",
@@ -171,6 +172,7 @@ class TrainConfig:
     densify_every: int | None = None       # iterations between densification steps
     opacity_reset_every: int | None = None # 0: no opacity resets
     densify_until: int | None = None       # the window's end; 0 disables densification
+    antialiased: bool = False              # opacities times their 2D filter's compensation (gsplat's antialiased)
     split_threshold: float | None = None   # override the strategy's split threshold (its criterion's units)
     max_gaussians: int | None = None       # densification never grows the model past this many Gaussians
     low_memory: bool = False               # backward sums with float atomics, no per-pair slots (not bit-reproducible)

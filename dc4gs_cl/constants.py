@@ -11,6 +11,8 @@ import math
 TILE_SIZE = 16                 # pixels per tile side
 NEAR_PLANE = 0.2               # cull a Gaussian whose view-space depth is <= this
 EWA_DILATION = 0.3             # px^2 added to the 2D covariance's diagonal (low-pass filter)
+ANTIALIAS_GRAD_EPS = 1e-6      # antialiased mode: d compensation / d its square = 0.5 / (compensation + this), as
+                               # gsplat's, finite for a Gaussian thin enough that its compensation is 0
 FOV_CLAMP = 1.3                # x/z, y/z clamped to this times the half-field-of-view tangent
 RADIUS_SIGMAS = 3.0            # screen radius = ceil(RADIUS_SIGMAS * sqrt(largest eigenvalue))
 MIN_EIGEN_GAP = 0.1            # lambda_max = mid + sqrt(max(MIN_EIGEN_GAP, mid^2 - det))
@@ -70,6 +72,7 @@ def kernel_defines() -> dict[str, int | float | str]:
     """The constants every kernel sees, as -D name=value pairs (the runtime writes floats as C float literals)."""
     d: dict[str, int | float | str] = {
         "TILE_SIZE": TILE_SIZE, "NEAR_PLANE": NEAR_PLANE, "EWA_DILATION": EWA_DILATION, "FOV_CLAMP": FOV_CLAMP,
+        "ANTIALIAS_GRAD_EPS": ANTIALIAS_GRAD_EPS,
         "RADIUS_SIGMAS": RADIUS_SIGMAS, "MIN_EIGEN_GAP": MIN_EIGEN_GAP, "ALPHA_MAX": ALPHA_MAX,
         "ALPHA_MIN": ALPHA_MIN, "TRANSMITTANCE_MIN": TRANSMITTANCE_MIN,
         "ALPHA_EXTENT_MARGIN": ALPHA_EXTENT_MARGIN, "MIN_SPLIT_LINE_PX": MIN_SPLIT_LINE_PX,

@@ -11,6 +11,7 @@ from dc4gs_cl.reference.isect import intersect_reference
 from dc4gs_cl.reference.rasterize import (_tile_blend, rasterize_backward_reference, rasterize_reference,
                                           undecided_pixels)
 from dc4gs_cl.render import DeviceGaussians, Renderer
+from dc4gs_cl.render.options import RenderOptions
 from dc4gs_cl.render.workspace import POISON
 from dc4gs_cl.statistics import GRADIENTS, SumsLayout
 
@@ -225,25 +226,33 @@ def projection_case(rng, n=40):
     return model, cam
 
 
-def test_project_backward_reference_matches_finite_differences(rng):
+@pytest.mark.parametrize("antialiased", [False, True], ids=["classic", "antialiased"])
+def test_project_backward_reference_matches_finite_differences(rng, antialiased):
     from dc4gs_cl.reference.project import project_backward_reference, project_reference
     model, cam = projection_case(rng)
+    model.log_scales[5:10] = np.log(0.01)   # sub-pixel Gaussians: the antialiased compensation far below 1
     tiles_x, tiles_y = K.tile_grid(cam.width, cam.height)
     params = {k: getattr(model, k).astype(np.float64) for k in ("means", "log_scales", "quats", "opacity_logits", "sh")}
-    base = project_reference(**params, cam=cam, sh_degree=3, tiles_x=tiles_x, tiles_y=tiles_y)
+    base = project_reference(**params, cam=cam, sh_degree=3, tiles_x=tiles_x, tiles_y=tiles_y, antialiased=antialiased)
     visible = base["radius"] > 0
     x_over_z = (params["means"] @ cam.R.T + cam.t)
     clamped = np.abs(x_over_z[:, 0] / x_over_z[:, 2]) > K.FOV_CLAMP * 0.5 * cam.width / cam.fx
     assert visible.sum() > 30 and (visible & clamped).sum() >= 1
+    if antialiased:
+        from dc4gs_cl.reference.project import antialias_compensation
+        det = lambda p: p["conic"][:, 0] * p["conic"][:, 2] - p["conic"][:, 1] ** 2   # noqa: E731 (1 / det(cov))
+        cov = np.stack([base["conic"][:, 2], -base["conic"][:, 1], base["conic"][:, 0]], 1) / det(base)[:, None]
+        comp = antialias_compensation(*cov.T)[0][visible]
+        assert comp.min() < 0.3 and comp.max() > 0.9, comp
     w = {k: rng.normal(size=base[k].shape) for k in ("mean2d", "conic", "opacity", "rgb")}
 
     def loss(p):
-        out = project_reference(**p, cam=cam, sh_degree=3, tiles_x=tiles_x, tiles_y=tiles_y)
+        out = project_reference(**p, cam=cam, sh_degree=3, tiles_x=tiles_x, tiles_y=tiles_y, antialiased=antialiased)
         assert np.array_equal(out["radius"] > 0, visible)
         return sum(float(np.sum((out[k] * w[k])[visible])) for k in w)
 
     grads = project_backward_reference(**params, cam=cam, sh_degree=3, v_mean2d=w["mean2d"], v_conic=w["conic"],
-                                       v_opacity=w["opacity"], v_rgb=w["rgb"], visible=visible)
+                                       v_opacity=w["opacity"], v_rgb=w["rgb"], visible=visible, antialiased=antialiased)
     h = 1e-6
     for key, value in params.items():
         fd = np.zeros_like(value)
@@ -257,13 +266,15 @@ def test_project_backward_reference_matches_finite_differences(rng):
         assert err < 1e-6, (key, err)
 
 
-def test_project_backward_kernel_matches_reference(rt, rng):
+@pytest.mark.parametrize("antialiased", [False, True], ids=["classic", "antialiased"])
+def test_project_backward_kernel_matches_reference(rt, rng, antialiased):
     from dc4gs_cl.reference.project import project_backward_reference
     model, cam = projection_case(rng, n=3000)
     model.quats[:20] = 0.0                                   # zero-norm quaternions get no gradient
     model.means[-50:] = cam.center - cam.R[2] * rng.uniform(0.5, 2, (50, 1))   # behind the camera
+    model.log_scales[20:300] = np.log(rng.uniform(0.002, 0.02, (280, 1)))   # sub-pixel: compensations far below 1
     g = DeviceGaussians(rt, model)
-    renderer = Renderer(rt, poison=True)
+    renderer = Renderer(rt, options=RenderOptions(antialiased=antialiased), poison=True)
     res = renderer.render(g, cam, 3)
     n = len(model)
     layout = GRADIENTS
@@ -277,7 +288,7 @@ def test_project_backward_kernel_matches_reference(rt, rng):
         parts = layout.views(sums_host.astype(np.float64))
         ref = project_backward_reference(model.means, model.log_scales, model.quats, model.opacity_logits, model.sh,
                                          cam, sh_degree, parts["mean2d"], parts["conic"], parts["opacity"],
-                                         parts["rgb"], visible)
+                                         parts["rgb"], visible, antialiased)
         assert visible.sum() > 1000 and (~visible).sum() > 0
         for key in widths:
             r = ref[key].reshape(n, -1)
@@ -290,7 +301,8 @@ def test_project_backward_kernel_matches_reference(rt, rng):
             np.testing.assert_array_equal(got["sh"].reshape(n, -1, 3)[:, 1:], 0.0)
 
 
-def test_whole_image_gradients_match_the_float64_chain(rt, rng):
+@pytest.mark.parametrize("antialiased", [False, True], ids=["classic", "antialiased"])
+def test_whole_image_gradients_match_the_float64_chain(rt, rng, antialiased):
     """Device forward + both backward stages against the float64 references chained from the raw
     parameters (the reference pairs every tile of the 3-sigma box, so the alpha cut is covered too)."""
     from dc4gs_cl.reference.project import project_backward_reference, project_reference
@@ -298,12 +310,12 @@ def test_whole_image_gradients_match_the_float64_chain(rt, rng):
     cam = random_camera(rng, 120, 90)
     bg = rng.uniform(0, 1, 3)
     g = DeviceGaussians(rt, model)
-    renderer = Renderer(rt, poison=True)
+    renderer = Renderer(rt, options=RenderOptions(antialiased=antialiased), poison=True)
     res = renderer.render(g, cam, 3, bg)
     tiles_x, tiles_y = res.tiles_x, res.tiles_y
     params = dict(means=model.means, log_scales=model.log_scales, quats=model.quats,
                   opacity_logits=model.opacity_logits, sh=model.sh)
-    p = project_reference(**params, cam=cam, sh_degree=3, tiles_x=tiles_x, tiles_y=tiles_y)
+    p = project_reference(**params, cam=cam, sh_degree=3, tiles_x=tiles_x, tiles_y=tiles_y, antialiased=antialiased)
     _, gop, ranges = intersect_reference(p["mean2d"], p["radius"], p["alpha_extent"], p["tiles_touched"], p["depth"],
                                          tiles_x, tiles_y, alpha_cut=False)
     # No loss gradient on the pixels whose blend float32 may decide otherwise (about 4% of draws failed on
@@ -324,7 +336,8 @@ def test_whole_image_gradients_match_the_float64_chain(rt, rng):
     r = rasterize_backward_reference(p["mean2d"], p["conic"], p["opacity"], p["rgb"], gop, ranges, cam.width,
                                      cam.height, tiles_x, bg, dL_dimage)
     ref = project_backward_reference(**params, cam=cam, sh_degree=3, v_mean2d=r["mean2d"], v_conic=r["conic"],
-                                     v_opacity=r["opacity"], v_rgb=r["rgb"], visible=p["radius"] > 0)
+                                     v_opacity=r["opacity"], v_rgb=r["rgb"], visible=p["radius"] > 0,
+                                     antialiased=antialiased)
     for key, w in widths.items():
         got = rt.to_host(grads[key], (n, w))
         want = ref[key].reshape(n, -1)

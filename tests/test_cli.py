@@ -37,6 +37,18 @@ def test_help_lists_the_commands():
     assert version.returncode == 0 and version.stdout.strip() == f"dc4gs-cl {__version__}"
 
 
+def test_a_reader_that_leaves_early_ends_the_command_quietly():
+    """`dc4gs-cl eval ... | head`: the closed pipe ends the command with 141, as a pipe stage, no traceback."""
+    code = ("import sys\nfrom dc4gs_cl import cli\n"
+            "cli.COMMANDS['devices'] = lambda args: [print('x' * 1000) for _ in range(10 ** 4)] and 0\n"
+            "sys.exit(cli.main(['devices']))")
+    proc = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    proc.stdout.read(10)
+    proc.stdout.close()
+    err = proc.stderr.read().decode()
+    assert proc.wait(timeout=60) == 141 and err == "", err
+
+
 def test_devices_marks_the_chosen_device():
     out = run_cli("devices")
     assert out.returncode == 0, out.stderr
@@ -61,6 +73,25 @@ def test_render_builtin_scene_from_a_ply(tmp_path, rng, capsys):
     assert sorted(p.name for p in out.iterdir()) == ["test", "train"]
     assert len(list((out / "train" / "renders").glob("*.png"))) == 28
     assert read_image(sorted((out / "test" / "renders").glob("*.png"))[0]).shape == (36, 48, 3)   # replaced whole
+
+
+def test_a_run_trained_antialiased_renders_antialiased(tmp_path, rng):
+    """--antialiased is the model's mode: config.json records it, render and eval use it, render
+    --no-antialiased (or a PLY without --antialiased) does not; the renders differ only by the opacities."""
+    run = tmp_path / "run"
+    assert main(["train", "--out", str(run), "--iterations", "30", "-r", "4", "--no-progress", "--lpips", "none",
+                 "--antialiased"]) == 0
+    assert RunFolder(run).read_config().antialiased
+    renders = {}
+    for name, flags in (("run", []), ("off", ["--no-antialiased"])):
+        assert main(["render", "--model", str(run), "--out", str(tmp_path / name), *flags]) == 0
+        renders[name] = read_image(sorted((tmp_path / name / "test" / "renders").glob("*.png"))[0])
+    ply = next(run.glob("point_cloud/iteration_30/*.ply"))
+    for name, flags in (("ply", []), ("ply-aa", ["--antialiased"])):
+        assert main(["render", "--ply", str(ply), "--out", str(tmp_path / name), "-r", "4", *flags]) == 0
+        renders[name] = read_image(sorted((tmp_path / name / "test" / "renders").glob("*.png"))[0])
+    assert np.array_equal(renders["run"], renders["ply-aa"]) and np.array_equal(renders["off"], renders["ply"])
+    assert np.abs(renders["run"] - renders["off"]).max() > 0.02
 
 
 def nan_ply(tmp_path, rng):

@@ -323,3 +323,43 @@ def test_failed_write_keeps_the_previous_file(tmp_path, rng, monkeypatch):
     with pytest.raises(OutputError, match="No space left"):
         export_model(model_for(rng, 0), out)
     assert out.read_bytes() == before and [p.name for p in tmp_path.iterdir()] == ["model.spz"]
+
+
+# render and view read every format -------------------------------------------------------------------------
+@pytest.mark.parametrize("fmt", list(FORMATS))
+def test_render_reads_every_export_format(tmp_path, rng, fmt):
+    """`render --ply FILE` (and `view FILE`, through the same read_model_file) takes each format export writes:
+    the renders of a compact file are those of its model read back; a compressed PLY is told by its elements
+    whatever its name."""
+    from dc4gs_cl.apps.export import read_model_file
+    from dc4gs_cl.cli import main
+    from dc4gs_cl.scene.images import read_image
+    m = random_model(rng, 800, 1, spread=1.5)
+    path = written(tmp_path, m, fmt)
+    if fmt == "compressed-ply":
+        path = path.rename(tmp_path / "plain-looking.ply")
+    back = READERS[fmt](path)
+    model = read_model_file(path)
+    assert all(np.array_equal(getattr(model, k), getattr(back, k)) for k in ("means", "log_scales", "quats", "sh"))
+    write_ply(tmp_path / "back.ply", back)
+    for name, source in (("file", path), ("back", tmp_path / "back.ply")):
+        assert main(["render", "--ply", str(source), "--out", str(tmp_path / name), "-r", "4"]) == 0
+    for png in (tmp_path / "back" / "test" / "renders").glob("*.png"):
+        assert np.array_equal(read_image(png), read_image(tmp_path / "file" / "test" / "renders" / png.name))
+
+
+@pytest.mark.parametrize("name,data,says", [
+    ("bad.spz", b"\x1f\x8b" + b"\x00" * 30, "not a .spz file"),
+    ("bad.splat", b"\x00" * 33, "not a .splat file"),
+    ("nan.splat", np.array([(np.nan, 1.0, 1.0)], np.float32).tobytes() + b"\x00" * 20, "NaN or Inf"),
+    ("bad.compressed.ply", b"ply\nformat ascii 1.0\nend_header\n", "not a compressed PLY"),
+    ("model.bin", b"nothing", "not a PLY file"),
+])
+def test_render_of_a_bad_model_file_is_one_line(tmp_path, capsys, name, data, says):
+    from dc4gs_cl.cli import main
+    path = tmp_path / name
+    path.write_bytes(data)
+    assert main(["render", "--ply", str(path), "--out", str(tmp_path / "out"), "-r", "8"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and str(path) in err[0] and says in err[0], err
+    assert not (tmp_path / "out").exists()

@@ -5,6 +5,7 @@ from dc4gs_cl.reference import project_reference
 from dc4gs_cl.reference.project import rect_area, tile_rect_reference
 from dc4gs_cl.constants import tile_grid
 from dc4gs_cl.render import DeviceGaussians
+from dc4gs_cl.render.options import RenderOptions
 from dc4gs_cl.render.project import Project
 from dc4gs_cl.render.stage import StageContext
 from helpers import random_camera, random_model
@@ -14,25 +15,28 @@ def rel_l2(a, b):
     return np.linalg.norm(np.asarray(a, np.float64) - b) / max(np.linalg.norm(b), 1e-30)
 
 
-def run_projection(rt, model, cam, sh_degree):
+def run_projection(rt, model, cam, sh_degree, antialiased=False):
     tiles_x, tiles_y = tile_grid(cam.width, cam.height)
     g = DeviceGaussians(rt, model)
-    p = Project(StageContext(rt, poison=True))(g, cam, sh_degree, tiles_x, tiles_y)
+    ctx = StageContext(rt, options=RenderOptions(antialiased=antialiased), poison=True)
+    p = Project(ctx)(g, cam, sh_degree, tiles_x, tiles_y)
     n = len(model)
     got = {"mean2d": rt.to_host(p.mean2d, (n, 2)), "conic_opacity": rt.to_host(p.conic_opacity, (n, 4)),
            "rgb": rt.to_host(p.rgb, (n, 3)), "depth": rt.to_host(p.depth, n),
            "radius": rt.to_host(p.radius, n, np.int32), "tiles_touched": rt.to_host(p.tiles_touched, n, np.uint32),
            "alpha_extent": rt.to_host(p.alpha_extent, (n, 2))}
     ref = project_reference(model.means, model.log_scales, model.quats, model.opacity_logits, model.sh, cam,
-                            sh_degree, tiles_x, tiles_y)
+                            sh_degree, tiles_x, tiles_y, antialiased)
     return got, ref
 
 
-@pytest.mark.parametrize("sh_degree", [0, 1, 2, 3])
-def test_projection_matches_float64_reference(rt, rng, sh_degree):
+@pytest.mark.parametrize("sh_degree,antialiased", [(0, False), (1, False), (2, False), (3, False), (3, True)])
+def test_projection_matches_float64_reference(rt, rng, sh_degree, antialiased):
     model = random_model(rng, 5000, sh_degree=3, spread=2.0)
     cam = random_camera(rng, int(rng.integers(90, 200)), int(rng.integers(60, 150)), distance=3.5)
-    got, ref = run_projection(rt, model, cam, sh_degree)
+    if antialiased:
+        model.log_scales[:500] = np.log(rng.uniform(0.002, 0.02, (500, 1)))   # sub-pixel ones too
+    got, ref = run_projection(rt, model, cam, sh_degree, antialiased)
     tiles_x, tiles_y = tile_grid(cam.width, cam.height)
     np.testing.assert_allclose(got["depth"], ref["depth"], rtol=1e-5, atol=1e-5)
     # Radius is a ceil() of a float: it may differ by one where the float32 value sits on an integer.
@@ -55,9 +59,13 @@ def test_projection_matches_float64_reference(rt, rng, sh_degree):
         assert rel_l2(got[key][both], r[both]) < 1e-5, key
     assert rel_l2(got["conic_opacity"][both, :3], ref["conic"][both]) < 1e-4
     assert rel_l2(got["conic_opacity"][both, 3], ref["opacity"][both]) < 1e-6
+    if antialiased:   # the compensation spans its range: sub-pixel Gaussians far below 1, large ones near it
+        ratio = ref["opacity"][both] * (1 + np.exp(-model.opacity_logits[both].astype(np.float64)))
+        assert ratio.min() < 0.2 and ratio.max() > 0.95, (ratio.min(), ratio.max())
 
 
-def test_projection_of_degenerate_gaussians_is_finite_or_culled(rt, rng):
+@pytest.mark.parametrize("antialiased", [False, True], ids=["classic", "antialiased"])
+def test_projection_of_degenerate_gaussians_is_finite_or_culled(rt, rng, antialiased):
     model = random_model(rng, 400, spread=1.0)
     cam = random_camera(rng, 120, 90)
     n = len(model)
@@ -68,7 +76,7 @@ def test_projection_of_degenerate_gaussians_is_finite_or_culled(rt, rng):
     model.opacity_logits[idx[120:160]] = rng.choice([-30.0, 30.0], 40)
     model.means[idx[160:200]] = cam.center + rng.normal(0, 1e-3, (40, 3))   # on or behind the near plane
     model.means[idx[200:240]] = model.means[idx[200]]                # coincident
-    got, ref = run_projection(rt, model, cam, 3)
+    got, ref = run_projection(rt, model, cam, 3, antialiased)
     vis = got["radius"] > 0
     for key in ("mean2d", "conic_opacity", "rgb"):
         assert np.isfinite(got[key][vis]).all(), key
@@ -76,3 +84,4 @@ def test_projection_of_degenerate_gaussians_is_finite_or_culled(rt, rng):
     # Zero-norm quaternions project as the identity rotation, as the reference does.
     z = idx[:40][vis[idx[:40]] & (ref["radius"][idx[:40]] > 0)]
     assert len(z) and rel_l2(got["conic_opacity"][z, :3], ref["conic"][z]) < 1e-4
+    assert (got["conic_opacity"][vis, 3] >= 0).all() and (got["conic_opacity"][vis, 3] <= 1).all()

@@ -256,11 +256,12 @@ class Backward:
 # it: together every kernel, and every variant training builds: the statistics of 3DGS, of AbsGS with
 # DC4GS' split sums and of Pixel-GS with DCS pooled over the window and tracked, the masked loss and
 # backward, both sums modes (the slots in one run and in runs of a tile's worth of pairs), Adam's fused step and the
-# plain gradients.
+# plain gradients; the antialiased projection and its backward with the exact switches off.
 FORWARDS = (
     ({}, (Backward(True, False, "absgs+dc4gs", runs=True), Backward(True, True, "pixelgs+dcs"),
           Backward(False, True, "absgs+dc4gs"), Backward(True, False, None))),
-    ({"fast_exp": False, "alpha_cut": False, "early_stop": False}, (Backward(False, False, "3dgs"),)),
+    ({"fast_exp": False, "alpha_cut": False, "early_stop": False, "antialiased": True},
+     (Backward(False, False, "3dgs"),)),
 )
 
 

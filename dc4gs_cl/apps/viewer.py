@@ -467,8 +467,9 @@ class Viewer:
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """The `view` command's arguments (cli.py adds --device)."""
-    p.add_argument("source", type=Path, help="a training output folder (its model and training cameras) or a 3DGS "
-                                             "PLY file")
+    p.add_argument("source", type=Path, help="a training output folder (its model and training cameras) or a model "
+                                             "file: a 3DGS PLY or any format `export` writes (.splat, .spz, "
+                                             ".compressed.ply)")
     p.add_argument("--scene", default=None,
                    help="the scene whose training cameras to show (default: a run folder's own; none for a PLY)")
     p.add_argument("--iteration", type=int, default=None,
@@ -484,15 +485,16 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def cmd_view(args) -> int:
     _viser()
     check_address(args.host, args.port)   # before loading: a large model takes a while
-    from ..ply import read_ply
-    from ..render import DeviceGaussians, Renderer
+    from .export import read_model_file
+    from ..render import DeviceGaussians, Renderer, RenderOptions
     from ..run_folder import RunFolder
     from ..runtime import Runtime, describe
     from ..scene import load_scene
 
     source = Path(args.source)
     if not source.exists():
-        raise InputError(source, "not found: expected a training output folder or a .ply file")
+        raise InputError(source, "not found: expected a training output folder or a model file")
+    cfg = None
     if source.is_dir():
         run = RunFolder(source)
         cfg = run.read_config()
@@ -501,11 +503,12 @@ def cmd_view(args) -> int:
     else:
         if args.iteration is not None:
             raise InputError(None, "--iteration needs a training output folder")
-        iteration, model = None, read_ply(source)
+        iteration, model = None, read_model_file(source)
         scene = load_scene(args.scene, white_background=args.white_background) if args.scene else None
     background = scene.background if scene else np.full(3, 1.0 if args.white_background else 0.0, np.float32)
     rt = Runtime(args.device)
-    with Viewer(rt, Renderer(rt), scene.train if scene else [], port=args.port, host=args.host,
+    renderer = Renderer(rt, options=RenderOptions.of_model(args.antialiased, cfg))
+    with Viewer(rt, renderer, scene.train if scene else [], port=args.port, host=args.host,
                 background=background, images=scene.image if scene else None, points=model.means) as viewer:
         viewer.show(DeviceGaussians(rt, model), model.sh_degree, iteration)
         print(f"device: {describe(rt.device)}; {len(model):,} Gaussians (SH degree {model.sh_degree})"

@@ -20,7 +20,7 @@ class ProjectBackward(Stage):
     FILE, KERNELS = "project_backward.cl", ("project_backward",)
 
     def defines(self) -> dict:
-        return param_group_defines()
+        return {**param_group_defines(), "ANTIALIASED": int(self.ctx.options.antialiased)}
 
     def gradients(self, g: DeviceGaussians, cam: Camera, sh_degree: int, res: RenderResult, sums: cl.Buffer,
                   layout: SumsLayout, grads: dict[str, cl.Buffer]) -> None:

@@ -8,7 +8,7 @@
 //   in  sh             [N*SH_COEFFS*3]  SH coefficients, coefficient-major, RGB innermost
 //   out mean2d         [N*2]  projected centre, px (pixel centres at +0.5)
 //   out conic_opacity  [N*4]  (a, b, c) of the inverse 2D covariance (1/px^2; power = -0.5(a dx^2 + c dy^2) - b dx dy),
-//                             and the opacity after the sigmoid
+//                             and the opacity after the sigmoid (ANTIALIASED: times antialias_compensation)
 //   out rgb            [N*3]  colour from SH along camera -> mean, clamped to [0, COLOR_MAX]
 //   out depth          [N]    view-space z (world units)
 //   out radius         [N]    int, px, ceil(3 sigma_max); 0 = culled, or its 3-sigma box misses the image:
@@ -17,9 +17,12 @@
 //                             (opacity * exp(-q/2) < ALPHA_MIN for the Mahalanobis q), plus ALPHA_EXTENT_MARGIN px
 //   out tiles_touched  [N]    uint, tiles of pair_rect() (tiles.h): 0 when radius == 0, or (ALPHA_CUT) opacity < ALPHA_MIN
 // -D SH_COEFFS: coefficients stored per channel (1, 4, 9 or 16); the active degree is an argument.
+// -D ANTIALIASED: 1 scales each opacity by antialias_compensation (project.h), the antialiased mode.
 
 #include "project.h"
 #include "tiles.h"
+
+REQUIRE_DEFINED(ANTIALIASED);
 
 __kernel void project(const int n, const Camera cam, const int sh_degree, const int tiles_x, const int tiles_y,
                       __global const float *means, __global const float *log_scales,
@@ -58,6 +61,10 @@ __kernel void project(const int n, const Camera cam, const int sh_degree, const 
     if (rect_area(tile_rect(m2, (float2)(r_px, r_px), tiles_x, tiles_y)) == 0) return;
 
     float op = 1.f / (1.f + exp_poly(-opacity_logits[i]));
+#if ANTIALIASED
+    float square;
+    op *= antialias_compensation(a, c, inv_det, &square);
+#endif
     // alpha >= ALPHA_MIN needs the Mahalanobis distance q <= 2 ln(op / ALPHA_MIN); the box of that
     // ellipse has half-sizes sqrt(q a) and sqrt(q c) (a, c: the 2D covariance's diagonal).
     float q = op >= ALPHA_MIN ? 2.f * log_nocall(op / ALPHA_MIN) : 0.f;

@@ -75,6 +75,15 @@ ALWAYS_INLINE float3 covariance_2d(const float *T, const float *M, float *TM) {
                     TM[3] * TM[3] + TM[4] * TM[4] + TM[5] * TM[5] + EWA_DILATION);
 }
 
+// The antialiased mode's opacity factor, sqrt(det(Sigma) / det(Sigma + EWA_DILATION I)) (Mip-Splatting's 2D
+// filter, gsplat's rasterize_mode "antialiased"): a dilated Gaussian keeps its integral instead of growing it.
+// Its square from the dilated covariance's a, c and determinant: det(Sigma) = det - EWA_DILATION (a + c) +
+// EWA_DILATION^2. Also returns the square (s), which the backward needs; 0 where Sigma is degenerate.
+inline float antialias_compensation(float a, float c, float inv_det, float *s) {
+    *s = 1.f - EWA_DILATION * (a + c - EWA_DILATION) * inv_det;
+    return sqrt_nocall(MAXF(*s, 0.f));
+}
+
 // The real SH basis of degree <= 3 at unit direction d (16 values; unused ones left alone).
 ALWAYS_INLINE void sh_basis(int degree, float3 d, float *b) {
     float x = d.x, y = d.y, z = d.z;

@@ -8,7 +8,8 @@
 //   in  radius [N]  int, from the forward: 0 = not visible in this view (all its gradients are 0)
 //   in  sums   [N*SUM_WIDTH]  from rasterize_backward.cl (the SUM record): dL/dmean2d (px) at SUM_MEAN2D,
 //              dL/dconic (a, b, c as stored) at SUM_CONIC, dL/dopacity (after the sigmoid) at
-//              SUM_OPACITY, dL/drgb at SUM_RGB
+//              SUM_OPACITY (ANTIALIASED: of the opacity times its compensation, as project.cl wrote it), dL/drgb at
+//              SUM_RGB
 //   FUSED_ADAM=0:  out d_means [N*3], d_log_scales [N*3], d_quats [N*4], d_opacity_logits [N], d_sh [N*SH_COEFFS*3]
 //   FUSED_ADAM=1:  in step (AdamStep); in/out m_<group>, v_<group>: Adam's moments, shaped like the parameters
 // The chain: conic -> 2D covariance -> (EWA Jacobian, 3D covariance) -> camera-space position, rotation,
@@ -19,6 +20,7 @@
 #include "adam.h"
 
 REQUIRE_DEFINED(FUSED_ADAM);
+REQUIRE_DEFINED(ANTIALIASED);
 
 #if FUSED_ADAM
 #define PARAM __global float
@@ -72,6 +74,19 @@ ALWAYS_INLINE void visible_gradients(int i, const Camera cam, int sh_degree, PAR
     float da = -(v_conic.x * k0 * k0 + v_conic.y * k0 * k1 + v_conic.z * k1 * k1);
     float db = -(2.f * v_conic.x * k0 * k1 + v_conic.y * (k0 * k2 + k1 * k1) + 2.f * v_conic.z * k1 * k2);
     float dc = -(v_conic.x * k1 * k1 + v_conic.y * k1 * k2 + v_conic.z * k2 * k2);
+    float o = 1.f / (1.f + exp_poly(-opacity_logits[i]));
+#if ANTIALIASED
+    // the opacity o x comp, comp = sqrt(s): ds/d(a, b, c) = (1 - s) (k0, 2 k1, k2) - EWA_DILATION / det (1, 0, 1)
+    float s_comp;
+    float comp = antialias_compensation(a, c, inv_det, &s_comp);
+    float v_s = g[SUM_OPACITY] * o * 0.5f / (comp + ANTIALIAS_GRAD_EPS);
+    da += v_s * ((1.f - s_comp) * k0 - EWA_DILATION * inv_det);
+    db += v_s * 2.f * (1.f - s_comp) * k1;
+    dc += v_s * ((1.f - s_comp) * k2 - EWA_DILATION * inv_det);
+    *g_opacity = g[SUM_OPACITY] * comp * o * (1.f - o);
+#else
+    *g_opacity = g[SUM_OPACITY] * o * (1.f - o);
+#endif
     float G00 = da, G01 = 0.5f * db, G11 = dc;
 
     // dL/dSigma = T^T G T (symmetric 3x3); dL/dT = 2 G T Sigma = 2 G (TM) M^T.
@@ -150,9 +165,6 @@ ALWAYS_INLINE void visible_gradients(int i, const Camera cam, int sh_degree, PAR
     float3 d_dir = (float3)(0.f);
     for (int k = 0; k < k_active; ++k) d_dir += DOT3(LOAD3(coef, k), vr) * (float3)(gx[k], gy[k], gz[k]);
     *g_means = dmu + (d_dir - dir * DOT3(dir, d_dir)) * inv_len;
-
-    float o = 1.f / (1.f + exp_poly(-opacity_logits[i]));
-    *g_opacity = g[SUM_OPACITY] * o * (1.f - o);
 }
 
 

@@ -46,10 +46,19 @@ def rect_area(rect: np.ndarray) -> np.ndarray:
     return np.maximum(rect[:, 2] - rect[:, 0], 0) * np.maximum(rect[:, 3] - rect[:, 1], 0)
 
 
+def antialias_compensation(a, b, c):
+    """The antialiased mode's opacity factor sqrt(det(Sigma) / det(Sigma + EWA_DILATION I)) from the dilated 2D
+    covariance (a, b, c), and its square s (before the clamp at 0)."""
+    eps = K.EWA_DILATION
+    s = ((a - eps) * (c - eps) - b * b) / (a * c - b * b)
+    return np.sqrt(np.maximum(s, 0.0)), s
+
+
 def project_reference(means, log_scales, quats, opacity_logits, sh, cam: Camera, sh_degree: int,
-                      tiles_x: int, tiles_y: int) -> dict[str, np.ndarray]:
+                      tiles_x: int, tiles_y: int, antialiased: bool = False) -> dict[str, np.ndarray]:
     """Per-Gaussian projection in float64; entries other than radius and tiles_touched are meaningful
-    only where radius > 0. alpha_extent: half-sizes (px) of the box outside which alpha < ALPHA_MIN."""
+    only where radius > 0. alpha_extent: half-sizes (px) of the box outside which alpha < ALPHA_MIN.
+    antialiased: opacities times antialias_compensation."""
     means = np.asarray(means, np.float64)
     R, t = np.asarray(cam.R, np.float64), np.asarray(cam.t, np.float64)
     pc = means @ R.T + t
@@ -77,6 +86,9 @@ def project_reference(means, log_scales, quats, opacity_logits, sh, cam: Camera,
     mean2d = np.stack([cam.fx * x / zs + cam.cx, cam.fy * y / zs + cam.cy], 1)
     visible = ok & (radius > 0) & (rect_area(tile_rect_reference(mean2d, radius[:, None], tiles_x, tiles_y)) > 0)
     opacity = 1.0 / (1.0 + np.exp(-np.asarray(opacity_logits, np.float64)))
+    if antialiased:   # culled Gaussians' (a, b, c) replaced by a unit covariance: their values are never read
+        comp, _ = antialias_compensation(np.where(ok, a, 1.0), np.where(ok, b, 0.0), np.where(ok, c, 1.0))
+        opacity = opacity * np.where(ok, comp, 1.0)
     q = np.where(opacity >= K.ALPHA_MIN, 2 * np.log(np.maximum(opacity, K.ALPHA_MIN) / K.ALPHA_MIN), 0.0)
     alpha_extent = np.sqrt(q[:, None] * np.stack([a, c], 1).clip(0)) + K.ALPHA_EXTENT_MARGIN
     tiles = np.where(visible & (opacity >= K.ALPHA_MIN),
@@ -120,9 +132,11 @@ def sh_basis_gradient(degree: int, d: np.ndarray) -> np.ndarray:
 
 
 def project_backward_reference(means, log_scales, quats, opacity_logits, sh, cam: Camera, sh_degree: int,
-                               v_mean2d, v_conic, v_opacity, v_rgb, visible) -> dict[str, np.ndarray]:
+                               v_mean2d, v_conic, v_opacity, v_rgb, visible, antialiased: bool = False
+                               ) -> dict[str, np.ndarray]:
     """Gradients of the parameters from the gradients of the projection's outputs (mean2d px, conic (a, b, c)
-    as stored, opacity after the sigmoid, rgb), in float64; zero where not visible. Through the EWA
+    as stored, opacity after the sigmoid (antialiased: times its compensation), rgb), in float64; zero where not
+    visible. Through the EWA
     Jacobian (no gradient through a clamped x/z or y/z), the covariance, the rotation and scales, the SH
     colour (none where the colour clamps at 0 or COLOR_MAX) and its view direction."""
     means, sh = np.asarray(means, np.float64), np.asarray(sh, np.float64)
@@ -156,6 +170,16 @@ def project_backward_reference(means, log_scales, quats, opacity_logits, sh, cam
     da = (-vA * c * c + vB * b * c - vC * b * b) / det2
     db = (2 * vA * b * c - vB * (a * c + b * b) + 2 * vC * a * b) / det2
     dc = (-vA * b * b + vB * a * b - vC * a * a) / det2
+    o = 1 / (1 + np.exp(-np.asarray(opacity_logits, np.float64)))
+    v_opacity = np.asarray(v_opacity, np.float64)
+    if antialiased:   # the opacity o x comp(a, b, c): the compensation's gradient to the covariance
+        comp, square = antialias_compensation(a, b, c)
+        det = a * c - b * b
+        v_square = v_opacity * o * 0.5 / (comp + K.ANTIALIAS_GRAD_EPS)   # d comp / d square, gsplat's guard
+        da = da + v_square * ((1 - square) * c / det - K.EWA_DILATION / det)
+        db = db + v_square * 2 * (1 - square) * (-b) / det
+        dc = dc + v_square * ((1 - square) * a / det - K.EWA_DILATION / det)
+        v_opacity = v_opacity * comp
     Gm = np.stack([np.stack([da, 0.5 * db], -1), np.stack([0.5 * db, dc], -1)], 1)
     d_sigma = T.transpose(0, 2, 1) @ Gm @ T
     dJ = (2 * Gm @ T @ sigma) @ R.T
@@ -201,7 +225,6 @@ def project_backward_reference(means, log_scales, quats, opacity_logits, sh, cam
     d_dir = np.einsum("nkc,nc,nki->ni", sh[:, :k], vr, sh_basis_gradient(sh_degree, d))
     d_means += (d_dir - d * np.sum(d * d_dir, 1, keepdims=True)) / vnorm[:, None]
 
-    o = 1 / (1 + np.exp(-np.asarray(opacity_logits, np.float64)))
     out = {"means": d_means, "log_scales": d_log_scales, "quats": d_quats,
-           "opacity_logits": np.asarray(v_opacity, np.float64) * o * (1 - o), "sh": d_sh}
+           "opacity_logits": v_opacity * o * (1 - o), "sh": d_sh}
     return {key: np.where(np.reshape(visible, (-1,) + (1,) * (val.ndim - 1)), val, 0.0) for key, val in out.items()}

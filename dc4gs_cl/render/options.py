@@ -1,5 +1,6 @@
 """Algorithm switches of the forward pipeline. The defaults are exact (or, for the exp, as accurate as
-the driver's); the benchmark turns each off, or the approximation on, to measure it."""
+the driver's); the benchmark turns each off, or the approximation on, to measure it. And the rasterization
+mode, which is the model's: a model trained antialiased renders antialiased."""
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -14,7 +15,15 @@ class RenderOptions:
     early_stop: bool = True            # a tile stops once all its pixels are saturated (exact)
     depth_sort_bits: int | None = None  # approximation: sort only the top bits of the depth keys
     relaxed_math: bool = False         # approximation: build the forward kernels with -cl-fast-relaxed-math
+    antialiased: bool = False          # opacities times sqrt(det Sigma / det(Sigma + dilation)) (project.h)
+
+    @staticmethod
+    def of_model(antialiased: bool | None, cfg=None) -> "RenderOptions":
+        """The options a trained model renders with: antialiased as given (render / view --(no-)antialiased),
+        else as its run trained (cfg: the run's TrainConfig; None for a PLY, which does not record it: off)."""
+        return RenderOptions(antialiased=bool(antialiased if antialiased is not None else cfg is not None
+                                              and cfg.antialiased))
 
     def defines(self) -> dict[str, int]:
         return {"FAST_EXP": int(self.fast_exp), "ALPHA_CUT": int(self.alpha_cut), "EARLY_STOP": int(self.early_stop),
-                RELAXED_MATH: int(self.relaxed_math)}
+                RELAXED_MATH: int(self.relaxed_math), "ANTIALIASED": int(self.antialiased)}

@@ -29,7 +29,7 @@ from ..densify import Actions, Strategy
 from ..errors import DeviceError, InputError
 from ..model import GaussianSet, initial_model
 from ..optim.trainable import TrainableGaussians
-from ..render import DeviceGaussians, Renderer, Tuning
+from ..render import DeviceGaussians, Renderer, RenderOptions, Tuning
 from ..run_folder import Checkpoint, RunFolder, TrainingState
 from ..runtime import BUFFER_HEADROOM, Runtime, describe
 from ..scene.camera import Camera, Scene
@@ -72,7 +72,7 @@ class Trainer:
         tuning = Tuning.for_device(rt.caps)
         if cfg.low_memory:   # float-atomic sums instead of per-pair slots
             tuning = replace(tuning, pair_sums=False)
-        self.renderer = Renderer(rt, tuning, check_finite=check_finite)
+        self.renderer = Renderer(rt, tuning, RenderOptions(antialiased=cfg.antialiased), check_finite=check_finite)
         self.context = self.renderer.context
         self.loss = Loss(self.context, lambda_dssim=cfg.lambda_dssim)
         self.rasterize_backward = RasterizeBackward(self.context)

@@ -1,6 +1,7 @@
 """Exports of a model for other viewers (`dc4gs-cl export`), and readers of the compact formats that decode
-as each format's reference reader does (for tests, and to measure what the quantisation costs). Each
-compact format's layout is in its module's docstring:
+as each format's reference reader does (`render` and `view` read every format through read_model_file; the
+tests and tools/bench_export measure what the quantisation costs). Each compact format's layout is in its
+module's docstring:
 
     ply             the Inria layout (ply.write_ply): float32, lossless
     splat           splat.py: antimatter15/splat, 32 bytes per Gaussian, no SH beyond DC
@@ -19,9 +20,11 @@ import argparse
 import os
 from pathlib import Path
 
+import numpy as np
+
 from ...errors import InputError
 from ...model import GaussianModel
-from ...ply import check_ranges, read_ply, write_ply
+from ...ply import check_ranges, read_header, read_ply, write_ply
 from ...run_folder import RunFolder
 from .compressed_ply import read_compressed_ply, write_compressed_ply
 from .splat import read_splat, write_splat
@@ -44,6 +47,34 @@ def export_format(path: str | os.PathLike, fmt: str | None = None) -> str:
             return fmt
     raise InputError(path, "unknown export format: name the file "
                            f"{', '.join(suffix for suffix, _ in FORMATS.values())} or give the format")
+
+
+def read_model_file(path: str | os.PathLike) -> GaussianModel:
+    """A model from a file of any format `export` writes, told by its name (.splat, .spz, .compressed.ply; any
+    other name is a PLY: the Inria layout, or a compressed PLY where it holds a chunk element). InputError (one
+    line naming the file) for a file of none of them, an empty model, NaN or Inf, or values beyond what the
+    kernels keep finite."""
+    name = Path(path).name.lower()
+    fmt = next((f for f in ("splat", "spz", "compressed-ply") if name.endswith(FORMATS[f][0])), "ply")
+    if fmt == "ply" and _has_chunks(path):
+        fmt = "compressed-ply"
+    model = READERS[fmt](path)
+    if len(model) == 0:
+        raise InputError(path, "no Gaussians")
+    bad = sum(int((~np.isfinite(a)).sum()) for a in (model.means, model.log_scales, model.quats, model.sh))
+    if bad:   # .splat's raw floats, a scale read as 0 (log -inf)
+        raise InputError(path, f"{bad} NaN or Inf values")
+    check_ranges(path, model)
+    return model
+
+
+def _has_chunks(path) -> bool:
+    try:
+        with open(path, "rb") as f:
+            _, elements = read_header(path, f)
+    except OSError as e:
+        raise InputError(path, f"cannot read: {e.strerror or e}") from None
+    return any(e["name"] == "chunk" for e in elements)
 
 
 def export_model(model: GaussianModel, path: str | os.PathLike, fmt: str | None = None) -> None:
