@@ -16,7 +16,7 @@ from helpers import load_tool
 
 fuzz_inputs = load_tool("fuzz_inputs")
 
-CASES_PER_FORMAT = 60   # CI budget: 17 formats x 60 = 1,020 cases (about 10 s on 2 cores)
+CASES_PER_FORMAT = 60   # CI budget: 20 formats x 60 = 1,200 cases (about 12 s on 2 cores)
 
 
 @pytest.fixture

@@ -4,8 +4,9 @@ each case ends one of the allowed ways.
     python tools/fuzz_inputs.py [--cases N] [--seed S] [--format NAME ...] [--cli]
 
 Formats: images (PNG 8 and 16 bit, JPEG, EXR, with and without alpha, read through a scene), the 3DGS PLY,
-COLMAP binary and text (cameras, images, points3D), transforms.json (Blender and instant-ngp), checkpoints
-and a run's config.json. Every input lives under a folder whose name holds spaces and non-ASCII letters,
+COLMAP binary and text (cameras, images, points3D), the formats `export` writes (.splat, .spz, compressed
+PLY, as `render` and `view` read them), transforms.json (Blender and instant-ngp), checkpoints and a run's
+config.json. Every input lives under a folder whose name holds spaces and non-ASCII letters,
 and image names hold non-ASCII letters (and spaces where the format allows them).
 
 Outcomes of a case:
@@ -37,6 +38,9 @@ from typing import Callable
 
 import numpy as np
 
+from dc4gs_cl.apps.export import FORMATS as EXPORT_FORMATS
+from dc4gs_cl.apps.export import export_model, read_model_file
+from dc4gs_cl.apps.export.splat import SPLAT_RECORD
 from dc4gs_cl.config import TrainConfig
 from dc4gs_cl.errors import InputError
 from dc4gs_cl.files import write_json
@@ -160,8 +164,18 @@ def ply_input(root: Path, rng) -> Path:
     return path
 
 
-def read_ply_values(path: Path):
-    m = read_ply(path)
+def export_input(fmt: str):
+    """A random model exported in `fmt` (apps/export), as `render --ply` and `view` read it."""
+    def build(root: Path, rng) -> Path:
+        path = root / f"modèle un{EXPORT_FORMATS[fmt][0]}"
+        root.mkdir(parents=True, exist_ok=True)
+        export_model(random_model(rng, 300, sh_degree=1), path)   # compressed PLY: two chunks
+        return path
+    return build
+
+
+def read_ply_values(path: Path, read=read_ply):
+    m = read(path)
     return {"means": m.means, "scales": m.log_scales, "quats": m.quats, "opacity": m.opacity_logits,
             "sh": m.sh, "degree": m.sh_degree}
 
@@ -192,6 +206,15 @@ def config_input(root: Path, rng) -> Path:
 
 def truncate(data: bytes, rng, path) -> bytes:
     return data[: int(rng.integers(0, len(data)))]
+
+
+def truncate_off_records(width: int):
+    """Truncation inside a record: a format without a count (.splat) cut at a record boundary is a smaller valid
+    file, which no reader can tell from the real thing."""
+    def mutate(data: bytes, rng, path) -> bytes:
+        cut = int(rng.integers(0, len(data)))
+        return data[:cut + 1 if cut % width == 0 else cut]
+    return mutate
 
 
 def flip(data: bytes, rng, path) -> bytes:
@@ -413,6 +436,11 @@ def _formats() -> list[Format]:
         Format("ply", ply_input, read_ply_values,
                {**BASIC, "huge count": ply_huge_count, "non-finite": binary_non_finite(4, ply_body)},
                cli=lambda path, out: ["render", "--ply", str(path), "--scene", "builtin", "-r", "8", "--out", str(out)]),
+        *(Format(f"export {fmt}", export_input(fmt), lambda path: read_ply_values(path, read_model_file),
+                 {**BASIC, **({"truncate": truncate_off_records(SPLAT_RECORD.itemsize),
+                               "non-finite": binary_non_finite(4, lambda data: 0)} if fmt == "splat" else {})},
+                 cli=lambda path, out: ["render", "--ply", str(path), "--scene", "builtin", "-r", "8", "--out", str(out)])
+          for fmt in ("splat", "spz", "compressed-ply")),
         Format("transforms.json (instant-ngp)", lambda root, rng: nerf_scene(root, rng), read_from_scene, SCENE_JSON,
                cli=train_cli),
         Format("transforms_train.json (Blender)", lambda root, rng: nerf_scene(root, rng, style="blender"),

@@ -48,7 +48,8 @@ def read_splat(path: str | os.PathLike) -> GaussianModel:
         raise InputError(path, f"not a .splat file: {len(data)} bytes is no positive multiple of {SPLAT_RECORD.itemsize}")
     rec = np.frombuffer(data, SPLAT_RECORD)
     rgba = rec["rgba"] / 255.0
-    with np.errstate(divide="ignore"):   # a scale that underflowed to 0 reads as log scale -inf
+    with np.errstate(divide="ignore", invalid="ignore"):   # a scale of 0 reads as log scale -inf, a negative as NaN
+                                                            # (read_model_file refuses both)
         log_scales = np.log(rec["scale"])
     return read_model(rec["position"], log_scales, rec["rotation"] / SPLAT_ROTATION_SCALE - 1, rgba[:, 3],
                       rgb_to_sh_dc(rgba[:, None, :3]))
