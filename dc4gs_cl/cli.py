@@ -21,8 +21,9 @@ import numpy as np
 
 from .apps import export, report, viewer
 from .apps.viewer import DEFAULT_PORT
-from .config import (DCC_READINGS, DEFAULT_LINE_EVERY, DENSE_CANDIDATES, FIVE_CANDIDATES, FLAGS, POOLINGS,
-                     RECIPE_ITERATIONS, SPLIT_PICKS, STRATEGY_NAMES, DC4GSConfig, DensifyConfig, TrainConfig, flag_key)
+from .config import (DCC_READINGS, DEFAULT_LINE_EVERY, DENSE_CANDIDATES, FIVE_CANDIDATES, FLAGS, MCMC_DEFAULT_CAP,
+                     POOLINGS, RECIPE_ITERATIONS, SPLIT_PICKS, STRATEGY_NAMES, DC4GSConfig, DensifyConfig, TrainConfig,
+                     flag_key)
 from .constants import SH_MAX_DEGREE
 from .errors import DeviceError, InputError, OutputError
 from .files import replace_folder, staging_folder
@@ -190,7 +191,9 @@ def _add_train(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", type=Path, default=None,
                    help="output folder (default output/<scene>-<date-time>): point_cloud/iteration_N/point_cloud.ply, "
                         "cameras.json, config.json, checkpoint.npz, results.json, test/ renders")
-    p.add_argument("--strategy", choices=sorted(STRATEGY_NAMES), default=None, help="densification criterion (3dgs)")
+    p.add_argument("--strategy", choices=sorted(STRATEGY_NAMES), default=None,
+                   help="densification: the 3dgs, absgs or pixelgs criterion (each with DC4GS or without), or mcmc "
+                        "(relocation and growth up to --max-gaussians, position noise; see the MCMC options) (3dgs)")
     p.add_argument("--iterations", type=int, default=None,
                    help=f"training iterations (default {RECIPE_ITERATIONS:,}; {BUILTIN_ITERATIONS:,} for the built-in "
                         f"scene). Runs shorter than {RECIPE_ITERATIONS:,} scale the 3DGS schedule to their length")
@@ -227,6 +230,7 @@ def _add_train(p: argparse.ArgumentParser) -> None:
                         "first; pruning goes on as usual (default: no cap)")
     p.add_argument("--antialiased", action="store_true", default=None, help=ANTIALIASED_HELP + " (default off)")
     _add_recipe(p)
+    _add_mcmc(p)
     _add_dc4gs(p)
     p.add_argument("--low-memory", action="store_true", default=None,
                    help="the backward adds into per-Gaussian sums with float atomics instead of per-pair slots: "
@@ -271,6 +275,17 @@ def _add_recipe(p: argparse.ArgumentParser) -> None:
                                          "short run's window would hold under 10 steps)")
     add("--opacity-reset-interval", int, f"iterations between opacity resets ({d.opacity_reset_every:,}, scaled; "
                                          "0: none)")
+
+
+def _add_mcmc(p: argparse.ArgumentParser) -> None:
+    g = p.add_argument_group(f"MCMC (--strategy mcmc; its cap is --max-gaussians, default {MCMC_DEFAULT_CAP:,})")
+    c = TrainConfig
+    g.add_argument("--mcmc-noise-lr", type=float, default=None, metavar="X",
+                   help=f"the position noise's rate, times the position learning rate ({c.mcmc_noise_lr:g})")
+    g.add_argument("--opacity-reg", type=float, default=None, metavar="X",
+                   help=f"the loss term X mean(opacity) ({c.opacity_reg:g})")
+    g.add_argument("--scale-reg", type=float, default=None, metavar="X",
+                   help=f"the loss term X mean(scale) ({c.scale_reg:g})")
 
 
 def _add_dc4gs(p: argparse.ArgumentParser) -> None:

@@ -19,7 +19,9 @@ OUTPUT_SETTINGS = ("save_at", "checkpoint_every", "eval_at")   # settings that d
 DEFAULT_LINE_EVERY = 100     # --log-every: iterations between progress lines when the output is not a terminal
 # The strategies' names, spelled here so that settings are checked without importing the strategies (device
 # code); densify.STRATEGIES holds a class for each, in this order (tests/test_structure.py checks)
-STRATEGY_NAMES = ("3dgs", "absgs", "pixelgs")
+STRATEGY_NAMES = ("3dgs", "absgs", "pixelgs", "mcmc")
+DC4GS_BASES = ("3dgs", "absgs", "pixelgs")   # the strategies DC4GS applies to (MCMC neither clones nor splits)
+MCMC_DEFAULT_CAP = 1_000_000                 # MCMC's --max-gaussians when none is given: gsplat's cap_max
 POOLINGS = ("view", "window")       # per view (the paper) or over the window (the authors' release)
 SPLIT_PICKS = ("poly", "argmin", "dense", "middle")   # middle: DCS' split at x = 0.5, no costs (an ablation)
 DCC_READINGS = ("abs", "base")
@@ -43,7 +45,8 @@ FLAGS = {
     "--rotation-lr": "lr_quats", "--lambda-dssim": "lambda_dssim", "--random-background": "random_background",
     "--densify-from-iter": "densify_from", "--densification-interval": "densify_every",
     "--opacity-reset-interval": "opacity_reset_every", "--densify-until": "densify_until",
-    "--antialiased": "antialiased",
+    "--antialiased": "antialiased", "--mcmc-noise-lr": "mcmc_noise_lr", "--opacity-reg": "opacity_reg",
+    "--scale-reg": "scale_reg",
     "--split-threshold": "split_threshold", "--max-gaussians": "max_gaussians", "--low-memory": "low_memory",
     "--dcc": "dc4gs.dcc", "--dcs": "dc4gs.dcs", "--dc-pooling": "dc4gs.pooling", "--split-pick": "dc4gs.split_pick",
     "--split-candidates": "dc4gs.candidates", "--dcc-reading": "dc4gs.dcc_reading", "--dcs-track": "dc4gs.track",
@@ -173,6 +176,11 @@ class TrainConfig:
     opacity_reset_every: int | None = None # 0: no opacity resets
     densify_until: int | None = None       # the window's end; 0 disables densification
     antialiased: bool = False              # opacities times their 2D filter's compensation (gsplat's antialiased)
+    # MCMC (--strategy mcmc only): the position noise's rate (times the position learning rate) and the loss'
+    # regularisers opacity_reg mean(opacity) + scale_reg mean(scale), gsplat's defaults
+    mcmc_noise_lr: float = 5e5
+    opacity_reg: float = 0.01
+    scale_reg: float = 0.01
     split_threshold: float | None = None   # override the strategy's split threshold (its criterion's units)
     max_gaussians: int | None = None       # densification never grows the model past this many Gaussians
     low_memory: bool = False               # backward sums with float atomics, no per-pair slots (not bit-reproducible)
@@ -199,6 +207,14 @@ class TrainConfig:
                                          ("densify_every", self.densify_every, 1),
                                          ("opacity_reset_every", self.opacity_reset_every, 0))),
             ("lambda_dssim", not 0 <= self.lambda_dssim <= 1, f"{self.lambda_dssim} must lie in [0, 1]"),
+            *((name, not (math.isfinite(value) and value >= 0), f"{value} must be a finite number >= 0")
+              for name, value in (("mcmc_noise_lr", self.mcmc_noise_lr), ("opacity_reg", self.opacity_reg),
+                                  ("scale_reg", self.scale_reg))),
+            *((name, self.strategy != "mcmc" and getattr(self, name) != getattr(TrainConfig, name),
+               "applies to --strategy mcmc only") for name in ("mcmc_noise_lr", "opacity_reg", "scale_reg")),
+            ("strategy", self.strategy not in DC4GS_BASES and self.dc4gs.enabled,
+             f"{self.strategy}: DC4GS applies to {', '.join(DC4GS_BASES)} (MCMC relocates, it neither clones nor "
+             "splits)"),
             ("max_gaussians", self.max_gaussians is not None and self.max_gaussians < 1,
              f"{self.max_gaussians} must be at least 1"),
             ("sh_degree", not 0 <= self.sh_degree <= SH_MAX_DEGREE, f"{self.sh_degree} must be 0..{SH_MAX_DEGREE}"),

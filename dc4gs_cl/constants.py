@@ -37,6 +37,7 @@ SH_C2 = (1.0925484305920792, -1.0925484305920792, 0.31539156525252005,
 SH_C3 = (-0.5900435899266435, 2.890611442640554, -0.4570457994644658, 0.3731763325901154,
          -0.4570457994644658, 1.445305721320277, -0.5900435899266435)
 SH_MAX_DEGREE = 3
+MCMC_NOISE_K, MCMC_NOISE_X0 = 100.0, 0.995   # MCMC's noise gate 1 / (1 + exp(-k ((1 - opacity) - x0))): gsplat's
 LAMBDA_DSSIM = 0.2             # the training loss L = (1 - LAMBDA_DSSIM) L1 + LAMBDA_DSSIM (1 - SSIM): the default
 
 # A frame's counts on the device, uint words (render/isect.py starts them in StageContext.frame): the visible
@@ -76,7 +77,7 @@ def kernel_defines() -> dict[str, int | float | str]:
         "RADIUS_SIGMAS": RADIUS_SIGMAS, "MIN_EIGEN_GAP": MIN_EIGEN_GAP, "ALPHA_MAX": ALPHA_MAX,
         "ALPHA_MIN": ALPHA_MIN, "TRANSMITTANCE_MIN": TRANSMITTANCE_MIN,
         "ALPHA_EXTENT_MARGIN": ALPHA_EXTENT_MARGIN, "MIN_SPLIT_LINE_PX": MIN_SPLIT_LINE_PX,
-        "COLOR_MAX": COLOR_MAX,
+        "COLOR_MAX": COLOR_MAX, "MAX_ABS_MEAN": MAX_ABS_MEAN,
         "QUAT_NORM2_MIN": QUAT_NORM_MIN ** 2, "SH_C0": SH_C0, "SH_C1": SH_C1,
     }
     d.update({f"SH_C2_{i}": c for i, c in enumerate(SH_C2)})

@@ -131,11 +131,13 @@ class GaussianSet:
 
 
 # initialisation --------------------------------------------------------------------------------
-def from_points(points: np.ndarray, colors: np.ndarray, sh_degree: int = SH_MAX_DEGREE) -> GaussianModel:
+def from_points(points: np.ndarray, colors: np.ndarray, sh_degree: int = SH_MAX_DEGREE,
+                opacity: float = INIT_OPACITY, scale_factor: float = 1.0) -> GaussianModel:
     """Gaussians initialised from a point cloud, as 3DGS does: one per point, colour (RGB in [0, 1])
     in the SH DC band and the other bands zero, isotropic scale sqrt(mean squared distance to the
-    KNN_NEIGHBOURS nearest points, floored at KNN_MIN_MEAN_SQ_DIST), identity rotation, opacity
-    INIT_OPACITY. Raises ValueError on an empty cloud (loaders report that to the user first)."""
+    KNN_NEIGHBOURS nearest points, floored at KNN_MIN_MEAN_SQ_DIST) times scale_factor, identity rotation,
+    opacity `opacity`. Raises ValueError on an empty cloud (loaders report that to the user
+    first)."""
     points = np.asarray(points, dtype=np.float64)
     colors = np.asarray(colors, dtype=np.float64)
     n = len(points)
@@ -150,9 +152,9 @@ def from_points(points: np.ndarray, colors: np.ndarray, sh_degree: int = SH_MAX_
     quats[:, 0] = 1.0
     return GaussianModel(
         means=points,
-        log_scales=np.repeat(0.5 * np.log(mean_sq)[:, None], 3, axis=1),
+        log_scales=np.repeat(0.5 * np.log(mean_sq)[:, None] + np.log(scale_factor), 3, axis=1),
         quats=quats,
-        opacity_logits=np.full(n, logit(INIT_OPACITY)),
+        opacity_logits=np.full(n, logit(opacity)),
         sh=sh,
     )
 
@@ -179,11 +181,12 @@ RANDOM_INIT_POINTS = 100_000   # scenes without SfM points start from this many 
 
 
 def initial_model(points: np.ndarray | None, colors: np.ndarray | None, rng: np.random.Generator,
-                  sh_degree: int = SH_MAX_DEGREE) -> GaussianModel:
-    """The Gaussians training starts from: the SfM points, or random points when a scene has none."""
+                  sh_degree: int = SH_MAX_DEGREE, **init) -> GaussianModel:
+    """The Gaussians training starts from: the SfM points, or random points when a scene has none (init:
+    from_points' opacity and scale_factor)."""
     if points is None:
         points, colors = random_points(RANDOM_INIT_POINTS, rng)
-    return from_points(points, colors, sh_degree)
+    return from_points(points, colors, sh_degree, **init)
 
 
 def knn_mean_sq_dist(points: np.ndarray, k: int = KNN_NEIGHBOURS) -> np.ndarray:

@@ -226,8 +226,9 @@ def projection_case(rng, n=40):
     return model, cam
 
 
-@pytest.mark.parametrize("antialiased", [False, True], ids=["classic", "antialiased"])
-def test_project_backward_reference_matches_finite_differences(rng, antialiased):
+@pytest.mark.parametrize("antialiased,regularized", [(False, False), (True, False), (False, True)],
+                         ids=["classic", "antialiased", "mcmc-regularized"])
+def test_project_backward_reference_matches_finite_differences(rng, antialiased, regularized):
     from dc4gs_cl.reference.project import project_backward_reference, project_reference
     model, cam = projection_case(rng)
     model.log_scales[5:10] = np.log(0.01)   # sub-pixel Gaussians: the antialiased compensation far below 1
@@ -245,14 +246,26 @@ def test_project_backward_reference_matches_finite_differences(rng, antialiased)
         comp = antialias_compensation(*cov.T)[0][visible]
         assert comp.min() < 0.3 and comp.max() > 0.9, comp
     w = {k: rng.normal(size=base[k].shape) for k in ("mean2d", "conic", "opacity", "rgb")}
+    # MCMC's regularisers reg_opacity sum(opacity) + reg_scale sum(scale), on every Gaussian (here also culled ones)
+    regularizers = tuple(rng.uniform(0.1, 1.0, 2)) if regularized else None
+    if regularized:
+        params["means"][:3] = cam.center - 2 * cam.R[2]           # behind the camera: the regularisers' alone
+        visible = project_reference(**params, cam=cam, sh_degree=3, tiles_x=tiles_x, tiles_y=tiles_y)["radius"] > 0
 
     def loss(p):
         out = project_reference(**p, cam=cam, sh_degree=3, tiles_x=tiles_x, tiles_y=tiles_y, antialiased=antialiased)
         assert np.array_equal(out["radius"] > 0, visible)
-        return sum(float(np.sum((out[k] * w[k])[visible])) for k in w)
+        value = sum(float(np.sum((out[k] * w[k])[visible])) for k in w)
+        if regularizers is not None:
+            value += regularizers[0] * np.sum(1 / (1 + np.exp(-p["opacity_logits"]))) + \
+                regularizers[1] * np.sum(np.exp(p["log_scales"]))
+        return value
 
     grads = project_backward_reference(**params, cam=cam, sh_degree=3, v_mean2d=w["mean2d"], v_conic=w["conic"],
-                                       v_opacity=w["opacity"], v_rgb=w["rgb"], visible=visible, antialiased=antialiased)
+                                       v_opacity=w["opacity"], v_rgb=w["rgb"], visible=visible, antialiased=antialiased,
+                                       regularizers=regularizers)
+    if regularized:
+        assert not visible[:3].any() and (grads["opacity_logits"][:3] != 0).all()
     h = 1e-6
     for key, value in params.items():
         fd = np.zeros_like(value)
@@ -266,8 +279,9 @@ def test_project_backward_reference_matches_finite_differences(rng, antialiased)
         assert err < 1e-6, (key, err)
 
 
-@pytest.mark.parametrize("antialiased", [False, True], ids=["classic", "antialiased"])
-def test_project_backward_kernel_matches_reference(rt, rng, antialiased):
+@pytest.mark.parametrize("antialiased,regularized", [(False, False), (True, False), (False, True)],
+                         ids=["classic", "antialiased", "mcmc-regularized"])
+def test_project_backward_kernel_matches_reference(rt, rng, antialiased, regularized):
     from dc4gs_cl.reference.project import project_backward_reference
     model, cam = projection_case(rng, n=3000)
     model.quats[:20] = 0.0                                   # zero-norm quaternions get no gradient
@@ -280,20 +294,26 @@ def test_project_backward_kernel_matches_reference(rt, rng, antialiased):
     layout = GRADIENTS
     sums_host = rng.normal(size=(n, layout.width)).astype(np.float32)
     widths = group_widths(g.sh_coeffs)
+    regularizers = (0.01 / n, 0.01 / (3 * n)) if regularized else None
     for sh_degree in (0, 3):
         grads = {k: rt.to_device(np.full(n * w, POISON, np.uint32)) for k, w in widths.items()}
-        ProjectBackward(renderer.context).gradients(g, cam, sh_degree, res, rt.to_device(sums_host), layout, grads)
+        ProjectBackward(renderer.context).gradients(g, cam, sh_degree, res, rt.to_device(sums_host), layout, grads,
+                                                    regularizers)
         got = {k: rt.to_host(grads[k], (n, w)) for k, w in widths.items()}
         visible = rt.to_host(res.proj.radius, n, np.int32) > 0
         parts = layout.views(sums_host.astype(np.float64))
         ref = project_backward_reference(model.means, model.log_scales, model.quats, model.opacity_logits, model.sh,
                                          cam, sh_degree, parts["mean2d"], parts["conic"], parts["opacity"],
-                                         parts["rgb"], visible, antialiased)
+                                         parts["rgb"], visible, antialiased, regularizers)
         assert visible.sum() > 1000 and (~visible).sum() > 0
         for key in widths:
             r = ref[key].reshape(n, -1)
             assert np.isfinite(got[key]).all(), key
-            np.testing.assert_array_equal(got[key][~visible], 0.0)
+            if regularized and key in ("opacity_logits", "log_scales"):   # every Gaussian: the regularisers'
+                assert (got[key][~visible] != 0).all()
+                np.testing.assert_allclose(got[key][~visible], r[~visible], rtol=1e-5)
+            else:
+                np.testing.assert_array_equal(got[key][~visible], 0.0)
             err = np.linalg.norm(got[key] - r) / np.linalg.norm(r)
             assert err < 2e-4, (key, sh_degree, err)
         np.testing.assert_array_equal(got["quats"][:20], 0.0)

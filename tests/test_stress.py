@@ -178,7 +178,8 @@ def make_extreme(rng, params: dict, cams, extent: float) -> list[str]:
     return done
 
 
-STRATEGIES = {"3dgs": ("3dgs", False), "absgs+dc4gs": ("absgs", True), "pixelgs+dc4gs": ("pixelgs", True)}
+STRATEGIES = {"3dgs": ("3dgs", False), "absgs+dc4gs": ("absgs", True), "pixelgs+dc4gs": ("pixelgs", True),
+              "mcmc": ("mcmc", False)}
 
 
 def fuzz_training(rt, rng, strategy: str, dc4gs: bool, cases: int, out) -> None:

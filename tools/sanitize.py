@@ -43,7 +43,7 @@ import pyopencl as cl
 from dc4gs_cl.backward import ProjectBackward, RasterizeBackward
 from dc4gs_cl.backward.loss import Loss
 from dc4gs_cl.config import TrainConfig
-from dc4gs_cl.densify import AbsGS, DC4GSConfig, PixelGS, Strategy
+from dc4gs_cl.densify import MCMC, AbsGS, DC4GSConfig, PixelGS, Strategy
 from dc4gs_cl.errors import DeviceError
 from dc4gs_cl.model import group_widths
 from dc4gs_cl.optim.trainable import TrainableGaussians
@@ -256,18 +256,20 @@ class Backward:
 # it: together every kernel, and every variant training builds: the statistics of 3DGS, of AbsGS with
 # DC4GS' split sums and of Pixel-GS with DCS pooled over the window and tracked, the masked loss and
 # backward, both sums modes (the slots in one run and in runs of a tile's worth of pairs), Adam's fused step and the
-# plain gradients; the antialiased projection and its backward with the exact switches off.
+# plain gradients; the antialiased projection and its backward with the exact switches off, and MCMC's
+# regularised step and position noise.
 FORWARDS = (
     ({}, (Backward(True, False, "absgs+dc4gs", runs=True), Backward(True, True, "pixelgs+dcs"),
           Backward(False, True, "absgs+dc4gs"), Backward(True, False, None))),
     ({"fast_exp": False, "alpha_cut": False, "early_stop": False, "antialiased": True},
-     (Backward(False, False, "3dgs"),)),
+     (Backward(False, False, "3dgs"), Backward(False, False, "mcmc"))),
 )
 
 
-STRATEGIES = {"3dgs": lambda: Strategy(),
-              "absgs+dc4gs": lambda: AbsGS(dc4gs=DC4GSConfig(dcc=True, dcs=True)),
-              "pixelgs+dcs": lambda: PixelGS(dc4gs=DC4GSConfig(dcs=True, pooling="window", track=0.5))}
+SANITIZED_STRATEGIES = {"3dgs": lambda: Strategy(),
+                        "absgs+dc4gs": lambda: AbsGS(dc4gs=DC4GSConfig(dcc=True, dcs=True)),
+                        "pixelgs+dcs": lambda: PixelGS(dc4gs=DC4GSConfig(dcs=True, pooling="window", track=0.5)),
+                        "mcmc": lambda: MCMC()}
 
 
 def workload(shape: str) -> dict:
@@ -299,7 +301,7 @@ def workload(shape: str) -> dict:
             keep_buf = rt.to_device(keep.astype(np.uint8)) if b.masked else None
             target_buf = rt.to_device(target * keep[..., None] if b.masked else target)
             dL_dimage = rt.buffer(target.nbytes)
-            strategy = STRATEGIES[b.strategy or "3dgs"]()
+            strategy = SANITIZED_STRATEGIES[b.strategy or "3dgs"]()
             strategy.attach(ctx, 1.0, gaussians.n)
             iteration = 1 if b.strategy else strategy.config.densify_until   # no strategy: the window has closed
             try:
@@ -310,8 +312,11 @@ def workload(shape: str) -> dict:
                                                               gathering.geometry, keep_buf, gathering.window)
                 project_backward = ProjectBackward(ctx)
                 if b.strategy:
+                    regularizers = (0.01 / gaussians.n, 0.01 / (3 * gaussians.n)) if b.strategy == "mcmc" else None
                     project_backward.step(gaussians.params, cam, model.sh_degree, res, sums, layout,
-                                          gaussians.adam.step_value(lrs), gaussians.adam.m, gaussians.adam.v)
+                                          gaussians.adam.step_value(lrs), gaussians.adam.m, gaussians.adam.v,
+                                          regularizers)
+                    strategy.after_step(iteration, gaussians.params, lrs, SEED, 5e5)
                 else:
                     widths = group_widths(gaussians.params.sh_coeffs)
                     grads = {k: rt.buffer(4 * w * gaussians.n) for k, w in widths.items()}
@@ -337,7 +342,7 @@ def overflowed_view(rt: Runtime, shape: str, model, cam, target, background, lrs
         dL_dimage = rt.buffer(target.nbytes)
         Loss(ctx, *LOSS_SHAPES[shape])(
             res.raster.image, rt.to_device(target), WIDTH, HEIGHT, dL_dimage)
-        strategy = STRATEGIES["absgs+dc4gs"]()
+        strategy = SANITIZED_STRATEGIES["absgs+dc4gs"]()
         strategy.attach(ctx, 1.0, gaussians.n)
         gathering = strategy.gather(1, gaussians.params, cam, res)
         sums, layout = RasterizeBackward(ctx).folding(res, dL_dimage, background, gathering.layout,

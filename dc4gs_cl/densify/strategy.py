@@ -51,14 +51,16 @@ class DensifyReport:
 @dataclass(frozen=True)
 class Actions:
     """What an iteration does after its backward. 3DGS takes no optimiser step on a densification iteration
-    (the Inria code densifies before its step, and new tensors have no gradient), and no opacity step where
-    the opacities are limited (the reset replaces them)."""
+    (the Inria code densifies before its step, and new tensors have no gradient), unless step_with_densify (MCMC,
+    as gsplat: the step, then the refinement), and no opacity step where the opacities are limited (the reset
+    replaces them)."""
     densify: bool = False
     opacity_ceiling: float | None = None   # opacities above this drop to it (reset and / or clamp)
+    step_with_densify: bool = False
 
     @property
     def optimiser_step(self) -> bool:
-        return not self.densify
+        return not self.densify or self.step_with_densify
 
     @property
     def opacity_steps(self) -> bool:
@@ -78,6 +80,7 @@ class Strategy:
     """3DGS: clone small and split large Gaussians whose mean per-view |sum of NDC gradients| reaches the
     threshold; random split into two."""
     name = "3dgs"
+    initial: dict = {}   # how the initial Gaussians differ from model.from_points' defaults (its keyword arguments)
     clone_criterion: Criterion = GRAD_PER_VIEW
     base_split_criterion: Criterion = GRAD_PER_VIEW   # the split criterion without DCC
 
@@ -185,6 +188,9 @@ class Strategy:
             geometry = self.split_geometry(params, cam, res, self.split_candidates,
                                            self.config.percent_dense * self.extent, fold)
         return Gathering(self.statistics.sums, geometry, fold)
+
+    def after_step(self, it: int, params: DeviceGaussians, lrs: dict, seed: int, noise_lr: float) -> None:
+        """Queued after iteration it's optimiser step (lrs: its learning rates): nothing here (MCMC's noise)."""
 
     def apply(self, actions: Actions, it: int, model, rng: np.random.Generator) -> DensifyReport | None:
         """Densify (on the device model: host.trainable.TrainableGaussians) and limit the opacities as the

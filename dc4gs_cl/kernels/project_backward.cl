@@ -12,6 +12,8 @@
 //              SUM_RGB
 //   FUSED_ADAM=0:  out d_means [N*3], d_log_scales [N*3], d_quats [N*4], d_opacity_logits [N], d_sh [N*SH_COEFFS*3]
 //   FUSED_ADAM=1:  in step (AdamStep); in/out m_<group>, v_<group>: Adam's moments, shaped like the parameters
+//   REGULARIZED=1: reg_opacity, reg_scale: MCMC's loss terms opacity_reg mean(opacity) + scale_reg mean(scale) as
+//                  opacity_reg / N and scale_reg / 3N; their gradients reach every Gaussian, seen in the view or not
 // The chain: conic -> 2D covariance -> (EWA Jacobian, 3D covariance) -> camera-space position, rotation,
 // scales; projected mean -> position; colour -> SH coefficients and the view direction -> position.
 // No gradient flows through a clamped x/z or y/z, nor through a colour channel clamped at 0 or COLOR_MAX.
@@ -21,6 +23,7 @@
 
 REQUIRE_DEFINED(FUSED_ADAM);
 REQUIRE_DEFINED(ANTIALIASED);
+REQUIRE_DEFINED(REGULARIZED);
 
 #if FUSED_ADAM
 #define PARAM __global float
@@ -172,6 +175,9 @@ __kernel UNPACKED_WORK_ITEMS
 void project_backward(__global const uint *frame, const int n, const Camera cam, const int sh_degree,
                       PARAM *means, PARAM *log_scales, PARAM *quats, PARAM *opacity_logits, PARAM *sh,
                       __global const int *radius, __global const float *sums,
+#if REGULARIZED
+                      const float reg_opacity, const float reg_scale,
+#endif
 #if FUSED_ADAM
                       const AdamStep step,
                       __global float *m_means, __global float *v_means,
@@ -194,6 +200,11 @@ void project_backward(__global const uint *frame, const int n, const Camera cam,
     if (visible)   // reads Gaussian i's parameters, before any of them is stepped below
         visible_gradients(i, cam, sh_degree, means, log_scales, quats, opacity_logits, sh, sums, &g_means,
                           &g_scales, &g_quat, &g_opacity, &v_colour, basis);
+#if REGULARIZED   // d/dlogit of reg_opacity sigmoid(logit); d/dlog s of reg_scale s (before the parameters step)
+    float o = 1.f / (1.f + exp_poly(-opacity_logits[i]));
+    g_opacity += reg_opacity * o * (1.f - o);
+    g_scales += reg_scale * load_scales(log_scales, i);
+#endif
     EMIT(PARAM_MEANS, RATE(PARAM_MEANS), means, 3 * i, 3, (float4)(g_means, 0.f));
     EMIT(PARAM_LOG_SCALES, RATE(PARAM_LOG_SCALES), log_scales, 3 * i, 3, (float4)(g_scales, 0.f));
     EMIT(PARAM_QUATS, RATE(PARAM_QUATS), quats, 4 * i, 4, g_quat);

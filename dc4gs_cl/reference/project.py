@@ -132,11 +132,12 @@ def sh_basis_gradient(degree: int, d: np.ndarray) -> np.ndarray:
 
 
 def project_backward_reference(means, log_scales, quats, opacity_logits, sh, cam: Camera, sh_degree: int,
-                               v_mean2d, v_conic, v_opacity, v_rgb, visible, antialiased: bool = False
-                               ) -> dict[str, np.ndarray]:
+                               v_mean2d, v_conic, v_opacity, v_rgb, visible, antialiased: bool = False,
+                               regularizers: tuple[float, float] | None = None) -> dict[str, np.ndarray]:
     """Gradients of the parameters from the gradients of the projection's outputs (mean2d px, conic (a, b, c)
     as stored, opacity after the sigmoid (antialiased: times its compensation), rgb), in float64; zero where not
-    visible. Through the EWA
+    visible but for the regularisers' (reg_opacity, reg_scale): d/d(logit, log scale) of reg_opacity sum(opacity)
+    + reg_scale sum(scale), on every Gaussian. Through the EWA
     Jacobian (no gradient through a clamped x/z or y/z), the covariance, the rotation and scales, the SH
     colour (none where the colour clamps at 0 or COLOR_MAX) and its view direction."""
     means, sh = np.asarray(means, np.float64), np.asarray(sh, np.float64)
@@ -227,4 +228,8 @@ def project_backward_reference(means, log_scales, quats, opacity_logits, sh, cam
 
     out = {"means": d_means, "log_scales": d_log_scales, "quats": d_quats,
            "opacity_logits": v_opacity * o * (1 - o), "sh": d_sh}
-    return {key: np.where(np.reshape(visible, (-1,) + (1,) * (val.ndim - 1)), val, 0.0) for key, val in out.items()}
+    out = {key: np.where(np.reshape(visible, (-1,) + (1,) * (val.ndim - 1)), val, 0.0) for key, val in out.items()}
+    if regularizers is not None:
+        out["opacity_logits"] = out["opacity_logits"] + regularizers[0] * o * (1 - o)
+        out["log_scales"] = out["log_scales"] + regularizers[1] * s
+    return out

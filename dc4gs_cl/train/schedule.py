@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from dataclasses import replace
 
-from ..config import RECIPE_ITERATIONS, TrainConfig
+from ..config import MCMC_DEFAULT_CAP, RECIPE_ITERATIONS, TrainConfig
 from ..densify import STRATEGIES, Strategy
 from ..optim.adam import exponential_lr
 
@@ -38,7 +38,8 @@ class Schedule:
                     big_world_after=self.scaled(base.big_world_after),
                     opacity_reset_every=self.scaled(base.opacity_reset_every),
                     opacity_clamp_every=None if base.opacity_clamp_every is None else self.scaled(base.opacity_clamp_every),
-                    max_gaussians=self.cfg.max_gaussians)
+                    max_gaussians=self.cfg.max_gaussians if self.cfg.max_gaussians is not None or cls.name != "mcmc"
+                    else MCMC_DEFAULT_CAP)
         given = {name: value for name in SCHEDULE_OVERRIDES if (value := getattr(self.cfg, name)) is not None}
         return cls(replace(c, **given), self.cfg.dc4gs)
 

@@ -82,12 +82,12 @@ class Trainer:
         self.camera_stack: list[int] = []
         self.pair_capacity = 0   # the pairs a view's buffers hold; grows when a view has more (step)
         self.carry_rows = 0      # the backward's carry rows, for Gaussians whose pairs span its runs (likewise)
-        initial = initial_model(scene.points, scene.colors, self.rng, cfg.sh_degree)
+        self.strategy = strategy or self.schedule.strategy()
+        initial = initial_model(scene.points, scene.colors, self.rng, cfg.sh_degree, **self.strategy.initial)
         if cfg.max_gaussians is not None and len(initial) > cfg.max_gaussians:
             raise InputError(None, f"--max-gaussians {cfg.max_gaussians:,} is below the {len(initial):,} Gaussians the "
                                    "scene starts from (one per SfM point)")
         self.model = TrainableGaussians(rt, initial)
-        self.strategy = strategy or self.schedule.strategy()
         self.strategy.attach(self.context, scene.extent, self.model.n, cfg.white_background)
         self.log: TrainingLog | None = None   # while run() runs, and after it for the final evaluation
 
@@ -162,8 +162,17 @@ class Trainer:
         if actions.optimiser_step:
             lrs = self.schedule.learning_rates(it, self.scene.extent, actions.opacity_steps)
             self.project_backward.step(self.params, cam, self.sh_degree, res, sums, layout,
-                                       self.model.adam.step_value(lrs), self.model.adam.m, self.model.adam.v)
+                                       self.model.adam.step_value(lrs), self.model.adam.m, self.model.adam.v,
+                                       self.regularizers())
+            s.after_step(it, self.params, lrs, self.cfg.seed, self.cfg.mcmc_noise_lr)
         return actions
+
+    def regularizers(self) -> tuple[float, float] | None:
+        """MCMC's loss terms opacity_reg mean(opacity) + scale_reg mean(scale), as the gradient factors the
+        projection's backward takes (per Gaussian and per scale value); None for the other strategies."""
+        if self.strategy.name != "mcmc":
+            return None
+        return self.cfg.opacity_reg / self.model.n, self.cfg.scale_reg / (3 * self.model.n)
 
     def _host_state(self) -> tuple:
         """What queueing an iteration changes on the host (step() rewinds it to run a view again)."""

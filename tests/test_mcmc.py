@@ -1,0 +1,157 @@
+"""MCMC densification: the counter-based normals against Random123's published answers and their distribution,
+the position noise kernel against its float64 reference."""
+import numpy as np
+import pytest
+
+from dc4gs_cl.constants import MCMC_NOISE_K, MCMC_NOISE_X0
+from dc4gs_cl.optim.position_noise import PositionNoise, seed_words
+from dc4gs_cl.reference.mcmc import mcmc_noise_reference, philox4x32_10, philox_normals
+from dc4gs_cl.render import DeviceGaussians
+from dc4gs_cl.render.stage import StageContext
+from dc4gs_cl.testing import random_model
+
+# Random123's known-answer vectors for Philox4x32-10 (its kat_vectors file): counter, key -> words
+PHILOX_KAT = [((0, 0, 0, 0), (0, 0), (0x6627E8D5, 0xE169C58D, 0xBC57AC4C, 0x9B00DBD8)),
+              ((0xFFFFFFFF,) * 4, (0xFFFFFFFF,) * 2, (0x408F276D, 0x41C83B0E, 0xA20BC7C6, 0x6D5451FD)),
+              ((0x243F6A88, 0x85A308D3, 0x13198A2E, 0x03707344), (0xA4093822, 0x299F31D0),
+               (0xD16CFE09, 0x94FDCCEB, 0x5001E420, 0x24126EA1))]
+
+
+@pytest.mark.parametrize("counter,key,words", PHILOX_KAT)
+def test_philox_gives_random123s_answers(counter, key, words):
+    assert tuple(int(w) for w in philox4x32_10(np.array([counter], np.uint32), key)[0]) == words
+
+
+def test_philox_normals_are_standard_normal():
+    z = philox_normals(np.stack([np.arange(50_000), np.full(50_000, 7), np.zeros(50_000), np.zeros(50_000)],
+                                axis=1).astype(np.uint32), seed_words(12345)).ravel()
+    assert np.isfinite(z).all()
+    assert abs(z.mean()) < 0.01 and abs(z.std() - 1) < 0.01
+    assert abs(np.mean(np.abs(z) < 1) - 0.6827) < 0.005   # the mass within one sigma
+
+
+def test_noise_kernel_matches_reference(rt, rng):
+    model = random_model(rng, 3000, sh_degree=0, spread=2.0)
+    model.opacity_logits[:1000] = rng.uniform(-9, -4, 1000)    # nearly transparent: the gate open
+    model.quats[:10] = 0.0                                      # zero quaternions: the identity rotation
+    g = DeviceGaussians(rt, model)
+    ctx = StageContext(rt, poison=True)
+    seed, iteration, scaler = int(rng.integers(0, 2 ** 63)), int(rng.integers(0, 2 ** 31)), 5e5 * 1.6e-4
+    PositionNoise(ctx)(g, iteration, seed, scaler)
+    got = g.download_group("means")
+    want = mcmc_noise_reference(model.means, model.log_scales, model.quats, model.opacity_logits, iteration,
+                                seed_words(seed), scaler, MCMC_NOISE_K, MCMC_NOISE_X0)
+    moved = np.linalg.norm(want - model.means, axis=1)
+    assert (moved[:1000] > 0).all() and np.median(moved[:1000]) > 1e3 * np.median(moved[1000:])
+    assert np.isfinite(got).all()
+    err = np.linalg.norm((got - model.means) - (want - model.means)) / np.linalg.norm(want - model.means)
+    assert err < 1e-4, err
+    np.testing.assert_allclose(got, want, rtol=1e-5, atol=1e-6)
+
+
+def test_relocation_keeps_a_gaussians_profile_along_a_line(rng):
+    """Equation (9): N Gaussians of the new opacity and scale, composited, integrate along a line through their
+    centre to what the one they replace did (o sigma sqrt(2 pi)), and are as opaque at the centre."""
+    from dc4gs_cl.densify.mcmc import relocated_opacity_scale
+    o = rng.uniform(0.01, 0.99, 40)
+    shares = rng.integers(1, 60, 40)                 # beyond MAX_SHARES: as MAX_SHARES
+    sigma = rng.uniform(0.1, 3.0, (40, 3))
+    new_o, new_sigma = relocated_opacity_scale(o, sigma, shares)
+    n = np.minimum(shares, 51)
+    np.testing.assert_allclose(1 - (1 - new_o) ** n, o, rtol=1e-12)
+    x = np.linspace(-60, 60, 240_001)
+    dx = x[1] - x[0]
+    for i in range(40):
+        profile = 1 - (1 - new_o[i] * np.exp(-x ** 2 / (2 * new_sigma[i, 0] ** 2))) ** n[i]
+        assert profile.sum() * dx == pytest.approx(o[i] * sigma[i, 0] * np.sqrt(2 * np.pi), rel=1e-6), (o[i], n[i])
+    np.testing.assert_allclose(new_sigma / sigma, (new_sigma / sigma)[:, :1] * np.ones(3))   # every axis alike
+    one_o, one_sigma = relocated_opacity_scale(o, sigma, np.ones(40, int))
+    np.testing.assert_allclose(one_o, o, rtol=1e-12) and np.testing.assert_allclose(one_sigma, sigma, rtol=1e-12)
+
+
+def test_a_refinement_step_relocates_the_dead_and_grows_to_the_cap(rng):
+    from dc4gs_cl.densify import DensifyConfig
+    from dc4gs_cl.densify.mcmc import MCMC, relocated_opacity_scale
+    from dc4gs_cl.model import GaussianSet
+    model = random_model(rng, 1000, sh_degree=1, spread=1.0)
+    model.opacity_logits[:100] = -8.0                       # dead: opacity below 0.005
+    model.opacity_logits[100:] = rng.uniform(-3.0, 3.0, 900)   # the rest alive
+    params = {k: np.asarray(getattr(model, k), np.float32).reshape(1000, -1)
+              for k in ("means", "log_scales", "quats", "opacity_logits", "sh")}
+
+    def fresh() -> GaussianSet:
+        moments = lambda: {k: rng.normal(size=v.shape).astype(np.float32) for k, v in params.items()}   # noqa: E731
+        return GaussianSet({k: v.copy() for k, v in params.items()}, moments(), moments())
+
+    def mcmc(cap: int) -> MCMC:
+        return MCMC(DensifyConfig(densify_from=0, densify_until=100, densify_every=10, prune_opacity=0.005,
+                                  max_gaussians=cap))
+    # at the cap already: relocation alone
+    gs = fresh()
+    report = mcmc(1000).densify(gs, {}, 10, np.random.default_rng(3))
+    assert report.pruned == 100 and report.cloned == 0 and gs.n == 1000
+    assert (gs.opacities() > 0.005 - 1e-9).all()
+    sources = np.array([np.flatnonzero((params["means"][100:] == gs.params["means"][i]).all(axis=1))[0] + 100
+                        for i in range(100)])
+    for k in params:   # a dead slot holds a copy of the live Gaussian drawn for it
+        np.testing.assert_array_equal(gs.params[k][:100], gs.params[k][sources])
+    shares = np.bincount(sources, minlength=1000)[sources] + 1
+    o, sigma = relocated_opacity_scale(1 / (1 + np.exp(-params["opacity_logits"][sources, 0].astype(np.float64))),
+                                       np.exp(params["log_scales"][sources].astype(np.float64)), shares)
+    np.testing.assert_allclose(gs.opacities()[sources], o, rtol=1e-6)
+    np.testing.assert_allclose(gs.scales()[sources], sigma, rtol=1e-6)
+    touched = np.union1d(np.arange(100), sources)
+    untouched = np.setdiff1d(np.arange(1000), touched)
+    for moments in (gs.m, gs.v):   # the copies and their sources restart Adam; the rest keep their (random) moments
+        assert all((moments[k][touched] == 0).all() and (moments[k][untouched] != 0).all() for k in moments)
+    # growth by 5%, up to the cap: 1,050 wanted, 1,030 allowed
+    gs = fresh()
+    report = mcmc(1030).densify(gs, {}, 10, np.random.default_rng(3))
+    assert report.pruned == 100 and report.cloned == 30 and gs.n == 1030
+    for k in ("m", "v"):
+        assert all((getattr(gs, k)[name][1000:] == 0).all() for name in params)
+    gs2 = fresh()
+    mcmc(1030).densify(gs2, {}, 10, np.random.default_rng(3))
+    assert all(np.array_equal(gs.params[k], gs2.params[k]) for k in params)   # the run's generator decides
+
+
+def test_mcmc_trains_grows_and_resumes_to_the_same_model(rt, tmp_path):
+    """--strategy mcmc on the built-in scene: it learns, grows by 5% a step up to the cap, keeps no dead Gaussian
+    past a step, and a run resumed from a checkpoint ends bit for bit where the straight run does (the noise is
+    keyed by seed and iteration, the draws come from the checkpointed generator)."""
+    from dc4gs_cl.config import TrainConfig
+    from dc4gs_cl.scene import load_scene
+    from dc4gs_cl.train import Trainer
+    scene = load_scene("builtin", resolution=4)
+    cfg = TrainConfig(scene="builtin", iterations=150, resolution=4, strategy="mcmc", max_gaussians=6000)
+
+    def run(out, upto, resume=False):
+        trainer = Trainer(cfg, scene, rt, out)
+        if resume:
+            trainer.resume()
+        while trainer.iteration < upto:
+            trainer.step()
+        return trainer
+    straight = run(tmp_path / "straight", 150)
+    start = len(scene.points)
+    first = run(tmp_path / "stopped", 70)
+    first.save_checkpoint()
+    resumed = run(tmp_path / "stopped", 150, resume=True)
+    a, b = straight.model.download(), resumed.model.download()
+    assert all(np.array_equal(a.params[k], b.params[k]) and np.array_equal(a.m[k], b.m[k]) for k in a.params)
+    assert a.n == 6000 and start < 6000                     # grown to the cap
+    assert (a.opacities() > 0.005).mean() > 0.99
+    assert straight.loss.read_stats()["loss"] < 0.2
+
+
+@pytest.mark.parametrize("args,says", [
+    (["--opacity-reg", "0.1"], "--opacity-reg applies to --strategy mcmc only"),
+    (["--strategy", "mcmc", "--dc4gs"], "--strategy mcmc: DC4GS applies to 3dgs, absgs, pixelgs"),
+    (["--strategy", "mcmc", "--scale-reg", "-1"], "--scale-reg -1.0 must be a finite number >= 0"),
+])
+def test_mcmc_settings_that_make_no_sense(tmp_path, capsys, args, says):
+    from dc4gs_cl.cli import main
+    assert main(["train", "--out", str(tmp_path / "o"), "-r", "8", "--no-progress", *args]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and says in err[0], err
+    assert not (tmp_path / "o").exists()
