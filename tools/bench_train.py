@@ -7,7 +7,7 @@ markdown table row per (scene, strategy).
 A strategy is a base (3dgs, absgs, pixelgs) with optional DC4GS parts and settings: "absgs+dc4gs" (DCC and
 DCS), "absgs+dcc", "absgs+dcs", and ":" options, e.g. "absgs+dc4gs:window:argmin" (pooling, split pick,
 "abs" / "base" for the DCC reading, "track=F" for --dcs-track, "every=K" for --dcs-every, "shrink" for
---dcs-other-scale 0.625). --dc4gs runs the DC4GS results table: each base with and without DC4GS and the AbsGS
+--dcs-other-scale 0.625); "mcmc:cap=N" is MCMC with --max-gaussians N. --dc4gs runs the DC4GS results table: each base with and without DC4GS and the AbsGS
 ablation (base, +DCC, +DCS, +both), then prints each DC4GS row against its base.
 
 A scene's runs train interleaved: each in turn trains --turn iterations (default 100) until all are done, so
@@ -105,7 +105,8 @@ OPTIONS = {"view": ("pooling", "view"), "window": ("pooling", "window"), "poly":
            "argmin": ("split_pick", "argmin"), "dense": ("split_pick", "dense"), "middle": ("split_pick", "middle"),
            "shrink": ("other_scale", 1 / SPLIT_SCALE_DIVISOR),
            "abs": ("dcc_reading", "abs"), "base": ("dcc_reading", "base")}
-VALUED = {"track": ("track", float), "every": ("cost_every", int)}   # "track=0.5": DC4GSConfig field, its type
+# "track=0.5": the DC4GSConfig field (or, for cap, the TrainConfig one: MCMC's --max-gaussians) and its type
+VALUED = {"track": ("track", float), "every": ("cost_every", int), "cap": ("max_gaussians", int)}
 
 
 def variant(spec: str) -> dict:
@@ -132,6 +133,8 @@ def variant(spec: str) -> dict:
 def config(scene: Scene, strategy: str, iterations: int, resolution: int, **settings) -> TrainConfig:
     """The run's settings: the strategy spec's, then `settings` (TrainConfig fields, e.g. split_threshold)."""
     dc4gs = variant(strategy)
+    if "max_gaussians" in dc4gs:
+        settings = {"max_gaussians": dc4gs.pop("max_gaussians"), **settings}
     return TrainConfig(scene=str(scene.root), iterations=iterations, resolution=resolution,
                        strategy=dc4gs.pop("strategy"), dc4gs=DC4GSConfig(**dc4gs), **settings)
 

@@ -3,14 +3,17 @@ curve the base's split threshold swept. One point per method cannot tell better 
 (any higher threshold gives fewer Gaussians at lower PSNR); a curve can.
 
     python tools/frontier.py [--scenes builtin temple_sparse_ring ...] [--bases absgs 3dgs]
-                             [--methods base dc4gs dcc dcs] [--scales 0.5 1 1.5 2 4] [--iterations 3000]
-                             [--test-split llff|interpolated] [-r K] [--out DIR] [--device D] [--report-only]
+                             [--methods base dc4gs dcc dcs mcmc] [--scales 0.5 1 1.5 2 4] [--seeds 0 1 2]
+                             [--iterations 3000] [--test-split llff|interpolated] [-r K] [--out DIR] [--device D]
+                             [--report-only]
 
 A method is the base alone or with DC4GS (dc4gs: DCC and DCS), DCC alone or DCS alone (and, asked for,
 dcs-middle: DCS' deterministic split at the middle, no costs, which tells its placement from its split, and
 dc4gs-middle: DCC with that split, DC4GS without split costs, and dc4gs-shrink: DC4GS whose children's other
 two axes shrink as 3DGS' children do, --dcs-other-scale 0.625); a scale multiplies the
-base's split threshold (--split-threshold; the clone threshold stays). Every (scene, base, method, scale) is one
+base's split threshold (--split-threshold; the clone threshold stays). mcmc is MCMC densification beside the base,
+its cap (--max-gaussians) swept instead: at each scale, the final Gaussian count of the base's run of that scale and
+seed, so that its curve spans the base's range. Every (scene, base, method, scale, seed) is one
 training run measured as tools/bench_train.py measures it (test PSNR and SSIM per view, final and peak Gaussians,
 wall and device time), its folder kept under DIR. Each result is added to DIR/frontier.json when its run ends and a
 rerun skips the runs that file holds, so a sweep that is interrupted, or spread over sessions, goes on where it
@@ -20,7 +23,9 @@ at a scale back to back, so slow phases of a shared machine spread over all meth
 
 Reading it: a method helps where its curve lies above its base's, more PSNR at the same number of Gaussians. For
 each point of a method, "vs base at equal Gaussians" is its PSNR minus the base's interpolated at its Gaussian count
-(linear in log Gaussians between the base's runs that bracket it; none outside the base's range).
+(linear in log Gaussians between the base's runs that bracket it; none outside the base's range). With several
+--seeds a point is the mean over them (PSNR and Gaussians), drawn with the PSNR's spread (min to max) as a bar:
+single test views move by more than a dB between seeds.
 """
 from __future__ import annotations
 
@@ -44,17 +49,23 @@ from dc4gs_cl.runtime import Runtime, describe  # noqa: E402
 from dc4gs_cl.scene.builtin import BUILTIN_SCENE  # noqa: E402
 from dc4gs_cl.scene.camera import TEST_SPLITS  # noqa: E402
 
-# method -> bench_train strategy suffix; the last three are not run by default (see the docstring)
+# method -> bench_train strategy suffix (mcmc: the strategy itself, its cap swept); the last four are not run by
+# default (see the docstring)
 METHODS = {"base": "", "dc4gs": "+dc4gs", "dcc": "+dcc", "dcs": "+dcs", "dcs-middle": "+dcs:middle",
-           "dc4gs-middle": "+dc4gs:middle", "dc4gs-shrink": "+dc4gs:shrink"}
+           "dc4gs-middle": "+dc4gs:middle", "dc4gs-shrink": "+dc4gs:shrink", "mcmc": None}
 DEFAULT_METHODS = ("base", "dc4gs", "dcc", "dcs")
 SCALES = (0.5, 1.0, 1.5, 2.0, 4.0)
 COLOURS = {"base": "black", "dc4gs": "tab:red", "dcc": "tab:blue", "dcs": "tab:green", "dcs-middle": "tab:olive",
-           "dc4gs-middle": "tab:purple", "dc4gs-shrink": "tab:orange"}
+           "dc4gs-middle": "tab:purple", "dc4gs-shrink": "tab:orange", "mcmc": "tab:cyan"}
 
 
-def run_key(scene: str, base: str, method: str, scale: float, iterations: int, test_split: str) -> str:
-    return f"{scene}|{base}|{method}|{scale:g}|{iterations}|{test_split}"
+def run_key(scene: str, base: str, method: str, scale: float, iterations: int, test_split: str, seed: int = 0) -> str:
+    return f"{scene}|{base}|{method}|{scale:g}|{iterations}|{test_split}" + (f"|seed{seed}" if seed else "")
+
+
+def strategy_of(base: str, method: str, cap: int | None = None) -> str:
+    """bench_train's strategy spec of a method beside a base."""
+    return f"mcmc:cap={cap}" if method == "mcmc" else base + METHODS[method]
 
 
 def at_equal_gaussians(point: dict, base_points: list[dict]) -> float | None:
@@ -69,46 +80,59 @@ def at_equal_gaussians(point: dict, base_points: list[dict]) -> float | None:
 
 
 def curves(runs: list[dict]) -> dict[tuple, dict[str, list[dict]]]:
-    """(scene, base, iterations, test_split) -> method -> its runs by scale."""
+    """(scene, base, iterations, test_split) -> method -> its runs by scale, then seed."""
     out: dict[tuple, dict[str, list[dict]]] = {}
     for r in runs:
         key = (r["scene"], r["base"], r["iterations"], r["test_split"])
         out.setdefault(key, {}).setdefault(r["method"], []).append(r)
     for methods in out.values():
         for pts in methods.values():
-            pts.sort(key=lambda r: r["scale"])
+            pts.sort(key=lambda r: (r["scale"], r.get("seed", 0)))
     return out
+
+
+def mean_points(runs: list[dict]) -> list[dict]:
+    """A method's runs averaged over their seeds, scale by scale: mean PSNR, Gaussians (geometric) and wall time,
+    the PSNR's min and max, the seeds."""
+    by_scale: dict[float, list[dict]] = {}
+    for r in runs:
+        by_scale.setdefault(r["scale"], []).append(r)
+    return [{"scale": scale, "seeds": len(rs), "psnr": float(np.mean([r["psnr"] for r in rs])),
+             "psnr_min": min(r["psnr"] for r in rs), "psnr_max": max(r["psnr"] for r in rs),
+             "gaussians_final": float(np.exp(np.mean([math.log(r["gaussians_final"]) for r in rs]))),
+             "wall_s": float(np.mean([r["wall_s"] for r in rs]))} for scale, rs in sorted(by_scale.items())]
 
 
 def markdown(report: dict) -> str:
     lines = [f"# DC4GS frontiers ({report['device']})", "",
              "PSNR on the test views against final Gaussians, the base's split threshold scaled; \"vs base\" is the "
-             "PSNR minus the base curve's at the same Gaussian count (log-linear between its runs; - outside them).",
-             ""]
+             "PSNR minus the base curve's at the same Gaussian count (log-linear between its runs; - outside them); "
+             "with several seeds the summary compares their means.", ""]
     summary = ["## Summary: mean PSNR vs base at equal Gaussians", "",
                "| scene | size | base | iterations | test split | method | points in base's range | mean vs base | "
                "range |", "|---|---|---|---:|---|---|---:|---:|---|"]
     tables = []
     for (scene, base, iterations, split), methods in curves(report["runs"]).items():
-        base_pts = methods.get("base", [])
+        base_pts = mean_points(methods.get("base", []))
         size = next(iter(methods.values()))[0]["size"]
         tables += [f"## {scene} ({size}), {base}, {iterations:,} iterations, {split} test views", "",
-                   "| method | scale | split threshold | Gaussians | PSNR | SSIM | vs base at equal G | wall s | "
-                   "per view PSNR (worst first) |", "|---|---:|---:|---:|---:|---:|---:|---:|---|"]
+                   "| method | scale | seed | split threshold (mcmc: cap) | Gaussians | PSNR | SSIM | vs base at equal G | "
+                   "wall s | per view PSNR (worst first) |", "|---|---:|---:|---:|---:|---:|---:|---:|---:|---|"]
         for method in METHODS:
             for r in methods.get(method, []):
                 d = at_equal_gaussians(r, base_pts) if method != "base" else None
                 views = sorted(r["per_view_psnr"].items(), key=lambda kv: kv[1])
+                limit = f"cap {r['cap']:,}" if method == "mcmc" else f"{r['split_threshold']:.2e}"
                 tables.append(
-                    f"| {method} | {r['scale']:g} | {r['split_threshold']:.2e} | {r['gaussians_final']:,} | "
+                    f"| {method} | {r['scale']:g} | {r.get('seed', 0)} | {limit} | {r['gaussians_final']:,} | "
                     f"{r['psnr']:.2f} | {r['ssim']:.4f} | {'-' if d is None else f'{d:+.2f}'} | "
                     f"{r['wall_s']:.0f} | {', '.join(f'{Path(n).stem} {p:.2f}' for n, p in views)} |")
             if method != "base" and methods.get(method):
-                ds = [d for r in methods[method] if (d := at_equal_gaussians(r, base_pts)) is not None]
+                ds = [d for p in mean_points(methods[method]) if (d := at_equal_gaussians(p, base_pts)) is not None]
                 mean = f"{np.mean(ds):+.2f} dB" if ds else "-"
                 spread = f"{min(ds):+.2f} to {max(ds):+.2f}" if ds else "-"
                 summary.append(f"| {scene} | {size} | {base} | {iterations:,} | {split} | {method} | "
-                               f"{len(ds)} of {len(methods[method])} | {mean} | {spread} |")
+                               f"{len(ds)} of {len(mean_points(methods[method]))} | {mean} | {spread} |")
         tables.append("")
     return "\n".join(lines + summary + [""] + tables)
 
@@ -124,12 +148,15 @@ def plot(report: dict, out: Path) -> list[Path]:
     written = []
     for (scene, base, iterations, split), methods in curves(report["runs"]).items():
         fig, (by_count, by_time) = plt.subplots(1, 2, figsize=(11, 4.2))
-        for method, pts in methods.items():
-            label = base if method == "base" else f"{base}+{method}"
-            for ax, x in ((by_count, [r["gaussians_final"] for r in pts]), (by_time, [r["wall_s"] for r in pts])):
-                ax.plot(x, [r["psnr"] for r in pts], "o-", color=COLOURS[method], label=label)
-                for xi, r in zip(x, pts):
-                    ax.annotate(f"{r['scale']:g}x", (xi, r["psnr"]), textcoords="offset points", xytext=(3, 3),
+        for method, runs in methods.items():
+            label = base if method == "base" else "mcmc" if method == "mcmc" else f"{base}+{method}"
+            pts = mean_points(runs)
+            spread = [[p["psnr"] - p["psnr_min"] for p in pts], [p["psnr_max"] - p["psnr"] for p in pts]]
+            for ax, x in ((by_count, [p["gaussians_final"] for p in pts]), (by_time, [p["wall_s"] for p in pts])):
+                ax.errorbar(x, [p["psnr"] for p in pts], yerr=spread, fmt="o-", capsize=2, color=COLOURS[method],
+                            label=label if pts[0]["seeds"] == 1 else f"{label} (mean of {pts[0]['seeds']} seeds)")
+                for xi, p in zip(x, pts):
+                    ax.annotate(f"{p['scale']:g}x", (xi, p["psnr"]), textcoords="offset points", xytext=(3, 3),
                                 fontsize=7, color=COLOURS[method])
         by_count.set_xscale("log")
         by_count.set_xlabel("final Gaussians")
@@ -138,7 +165,7 @@ def plot(report: dict, out: Path) -> list[Path]:
         by_count.legend(fontsize=8)
         size = next(iter(methods.values()))[0]["size"]
         fig.suptitle(f"{scene} {size}, {base}, {iterations:,} iterations, {split} test views: "
-                     f"split threshold x scale (labels)", fontsize=10)
+                     f"split threshold x scale (labels; mcmc: capped at the base's count there)", fontsize=10)
         fig.tight_layout()
         path = out / f"{scene}-{base}-{iterations}{'' if split == 'llff' else '-' + split}.png"
         fig.savefig(path, dpi=110)
@@ -174,6 +201,7 @@ def main(argv=None) -> int:
     ap.add_argument("--methods", nargs="+", default=list(DEFAULT_METHODS), choices=list(METHODS))
     ap.add_argument("--scales", nargs="+", type=float, default=list(SCALES),
                     help="multiples of the base's split threshold (default: %(default)s)")
+    ap.add_argument("--seeds", nargs="+", type=int, default=[0], help="a run per seed at each point (default 0)")
     ap.add_argument("--iterations", type=int, default=3000)
     ap.add_argument("--test-split", choices=TEST_SPLITS, default="llff")
     ap.add_argument("-r", "--resolution", type=int, default=None,
@@ -184,6 +212,9 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     if any(not (s > 0 and math.isfinite(s)) for s in args.scales):
         ap.error("--scales must be positive")
+    methods = args.methods
+    if "mcmc" in methods and ("base" not in methods or methods.index("mcmc") < methods.index("base")):
+        ap.error("mcmc's caps are the base's Gaussian counts: give --methods base before mcmc")
     args.out.mkdir(parents=True, exist_ok=True)
     path = args.out / "frontier.json"
     report = json.loads(path.read_text()) if path.is_file() else {"device": None, "runs": []}
@@ -205,8 +236,8 @@ def main(argv=None) -> int:
     with tempfile.TemporaryDirectory(prefix="frontier-") as tmp:
         for name in scenes:
             for base in args.bases:
-                todo = [(scale, method) for scale in args.scales for method in args.methods
-                        if run_key(name, base, method, scale, args.iterations, args.test_split) not in done]
+                todo = [(scale, method, seed) for scale in args.scales for seed in args.seeds for method in args.methods
+                        if run_key(name, base, method, scale, args.iterations, args.test_split, seed) not in done]
                 if not todo:
                     continue
                 try:
@@ -215,20 +246,26 @@ def main(argv=None) -> int:
                     print(f"{name}: skipped, the scene does not load: {e}", file=sys.stderr)
                     break
                 cam = scene.train[0]
-                strategies = [base + METHODS[m] for m in args.methods]
+                strategies = [strategy_of(base, m, 10 ** 9) for m in args.methods]
                 bench_train.warm_up(rt, scene, strategies, r, Path(tmp) / "warm-up")
                 threshold = STRATEGIES[base].default_config().split_threshold
-                for scale, method in todo:
-                    key = run_key(name, base, method, scale, args.iterations, args.test_split)
+                for scale, method, seed in todo:
+                    key = run_key(name, base, method, scale, args.iterations, args.test_split, seed)
                     if key in done:          # a sweep running beside this one has recorded it meanwhile
                         continue
-                    cfg = bench_train.config(scene, base + METHODS[method], args.iterations, r,
-                                             split_threshold=threshold * scale, test_split=args.test_split)
+                    cap = None
+                    if method == "mcmc":     # the base's final count at this scale and seed (just run, or recorded)
+                        base_key = run_key(name, base, "base", scale, args.iterations, args.test_split, seed)
+                        cap = next(r["gaussians_final"] for r in report["runs"] if r["key"] == base_key)
+                    settings = {} if method == "mcmc" else {"split_threshold": threshold * scale}
+                    cfg = bench_train.config(scene, strategy_of(base, method, cap), args.iterations, r, seed=seed,
+                                             test_split=args.test_split, **settings)
                     folder = args.out / "runs" / key.replace("|", "-")
                     run = bench_train.train_one(rt, scene, cfg, folder)
                     entry = {
-                        "key": key, "scene": name, "base": base, "method": method, "scale": scale,
-                        "split_threshold": threshold * scale, "iterations": args.iterations,
+                        "key": key, "scene": name, "base": base, "method": method, "scale": scale, "seed": seed,
+                        "split_threshold": None if cap else threshold * scale, "cap": cap,
+                        "iterations": args.iterations,
                         "test_split": args.test_split, "resolution": r, "size": f"{cam.width}x{cam.height}",
                         "psnr": run["psnr"], "ssim": run["ssim"], "per_view_psnr": run["per_view_psnr"],
                         "gaussians_final": run["gaussians_final"], "gaussians_peak": run["gaussians_peak"],
