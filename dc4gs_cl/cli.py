@@ -75,7 +75,8 @@ ANTIALIASED_HELP = ("antialiased rasterization (gsplat's rasterize_mode \"antial
 def _add_antialiased_override(p: argparse.ArgumentParser) -> None:
     """render and view: the mode a run trained in, unless this says otherwise (a PLY does not record it)."""
     p.add_argument("--antialiased", action=argparse.BooleanOptionalAction, default=None,
-                   help=ANTIALIASED_HELP + ". Default: as the run trained; off for a PLY")
+                   help=ANTIALIASED_HELP + ". Default: as the run trained, or as a .spz file's header says; off for "
+                        "the other model files (they do not record it)")
 
 
 
@@ -389,7 +390,8 @@ def cmd_render(args) -> int:
     rt = Runtime(args.device, profiling=args.profile)
     print(f"device: {describe(rt.device)}; {len(model):,} Gaussians (SH degree {model.sh_degree}); "
           f"{len(cams)} {args.split} views", file=sys.stderr)
-    renderer = Renderer(rt, options=RenderOptions.of_model(args.antialiased, cfg), check_finite=args.check_finite)
+    renderer = Renderer(rt, options=RenderOptions.of_model(args.antialiased, cfg, _recorded_mode(args)),
+                        check_finite=args.check_finite)
     gaussians = DeviceGaussians(rt, model)
     timings = []
     into_run = run is not None and out is None   # renders beside their ground truth, as Inria's render.py
@@ -414,6 +416,12 @@ def cmd_render(args) -> int:
     return 0
 
 
+def _recorded_mode(args) -> bool | None:
+    """The rasterization mode render's model file records (.spz), if it is one."""
+    from .apps.export import recorded_antialiased
+    return recorded_antialiased(args.ply) if args.ply is not None else None
+
+
 def _render_path(args, run, cfg, scene, model, iteration) -> int:
     """render --path: the frames of a camera path through the training cameras, and a video of them."""
     from .apps.video import render_path
@@ -431,7 +439,8 @@ def _render_path(args, run, cfg, scene, model, iteration) -> int:
     rt = Runtime(args.device)
     print(f"device: {describe(rt.device)}; {len(model):,} Gaussians (SH degree {model.sh_degree}); {args.path} path, "
           f"{len(cams)} frames of {cams[0].width}x{cams[0].height}", file=sys.stderr)
-    renderer = Renderer(rt, options=RenderOptions.of_model(args.antialiased, cfg), check_finite=args.check_finite)
+    renderer = Renderer(rt, options=RenderOptions.of_model(args.antialiased, cfg, _recorded_mode(args)),
+                        check_finite=args.check_finite)
     render_path(rt, renderer, DeviceGaussians(rt, model), cams, scene.background, frames_dir,
                 frames_dir.with_suffix(".mp4"), args.fps)
     return 0

@@ -75,7 +75,7 @@ def test_render_builtin_scene_from_a_ply(tmp_path, rng, capsys):
     assert read_image(sorted((out / "test" / "renders").glob("*.png"))[0]).shape == (36, 48, 3)   # replaced whole
 
 
-def test_a_run_trained_antialiased_renders_antialiased(tmp_path, rng):
+def test_a_run_trained_antialiased_renders_antialiased(tmp_path, rng, capsys):
     """--antialiased is the model's mode: config.json records it, render and eval use it, render
     --no-antialiased (or a PLY without --antialiased) does not; the renders differ only by the opacities."""
     run = tmp_path / "run"
@@ -92,6 +92,18 @@ def test_a_run_trained_antialiased_renders_antialiased(tmp_path, rng):
         renders[name] = read_image(sorted((tmp_path / name / "test" / "renders").glob("*.png"))[0])
     assert np.array_equal(renders["run"], renders["ply-aa"]) and np.array_equal(renders["off"], renders["ply"])
     assert np.abs(renders["run"] - renders["off"]).max() > 0.02
+    # .spz records the mode in its header (export of the run sets it; render of the file follows it); a PLY
+    # export says it cannot
+    from dc4gs_cl.apps.export import cmd_export, read_model_file, recorded_antialiased
+    for name in ("m.spz", "m.ply"):
+        assert cmd_export(argparse.Namespace(model=run, ply=None, iteration=None, out=tmp_path / name, format=None)) == 0
+    assert recorded_antialiased(tmp_path / "m.spz") is True and recorded_antialiased(tmp_path / "m.ply") is None
+    assert "cannot record" in capsys.readouterr().out
+    write_ply(tmp_path / "spz-read.ply", read_model_file(tmp_path / "m.spz"))
+    for name, source, flags in (("spz", "m.spz", []), ("spz-ply-aa", "spz-read.ply", ["--antialiased"])):
+        assert main(["render", "--ply", str(tmp_path / source), "--out", str(tmp_path / name), "-r", "4", *flags]) == 0
+        renders[name] = read_image(sorted((tmp_path / name / "test" / "renders").glob("*.png"))[0])
+    assert np.array_equal(renders["spz"], renders["spz-ply-aa"])
 
 
 def nan_ply(tmp_path, rng):

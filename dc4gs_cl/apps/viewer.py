@@ -485,7 +485,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def cmd_view(args) -> int:
     _viser()
     check_address(args.host, args.port)   # before loading: a large model takes a while
-    from .export import read_model_file
+    from .export import read_model_file, recorded_antialiased
     from ..render import DeviceGaussians, Renderer, RenderOptions
     from ..run_folder import RunFolder
     from ..runtime import Runtime, describe
@@ -507,7 +507,8 @@ def cmd_view(args) -> int:
         scene = load_scene(args.scene, white_background=args.white_background) if args.scene else None
     background = scene.background if scene else np.full(3, 1.0 if args.white_background else 0.0, np.float32)
     rt = Runtime(args.device)
-    renderer = Renderer(rt, options=RenderOptions.of_model(args.antialiased, cfg))
+    renderer = Renderer(rt, options=RenderOptions.of_model(args.antialiased, cfg,
+                                                           None if source.is_dir() else recorded_antialiased(source)))
     with Viewer(rt, renderer, scene.train if scene else [], port=args.port, host=args.host,
                 background=background, images=scene.image if scene else None, points=model.means) as viewer:
         viewer.show(DeviceGaussians(rt, model), model.sh_degree, iteration)

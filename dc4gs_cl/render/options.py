@@ -18,11 +18,13 @@ class RenderOptions:
     antialiased: bool = False          # opacities times sqrt(det Sigma / det(Sigma + dilation)) (project.h)
 
     @staticmethod
-    def of_model(antialiased: bool | None, cfg=None) -> "RenderOptions":
+    def of_model(antialiased: bool | None, cfg=None, recorded: bool | None = None) -> "RenderOptions":
         """The options a trained model renders with: antialiased as given (render / view --(no-)antialiased),
-        else as its run trained (cfg: the run's TrainConfig; None for a PLY, which does not record it: off)."""
-        return RenderOptions(antialiased=bool(antialiased if antialiased is not None else cfg is not None
-                                              and cfg.antialiased))
+        else as its run trained (cfg: the run's TrainConfig), else as its file records it (a .spz's flag;
+        export.recorded_antialiased), else off."""
+        if antialiased is None:
+            antialiased = cfg.antialiased if cfg is not None else bool(recorded)
+        return RenderOptions(antialiased=antialiased)
 
     def defines(self) -> dict[str, int]:
         return {"FAST_EXP": int(self.fast_exp), "ALPHA_CUT": int(self.alpha_cut), "EARLY_STOP": int(self.early_stop),

@@ -28,7 +28,7 @@ from ...ply import check_ranges, read_header, read_ply, write_ply
 from ...run_folder import RunFolder
 from .compressed_ply import read_compressed_ply, write_compressed_ply
 from .splat import read_splat, write_splat
-from .spz import read_spz, write_spz
+from .spz import read_spz, spz_antialiased, write_spz
 
 FORMATS = {"ply": (".ply", write_ply), "splat": (".splat", write_splat), "spz": (".spz", write_spz),
            "compressed-ply": (".compressed.ply", write_compressed_ply)}
@@ -68,6 +68,12 @@ def read_model_file(path: str | os.PathLike) -> GaussianModel:
     return model
 
 
+def recorded_antialiased(path: str | os.PathLike) -> bool | None:
+    """The rasterization mode a model file records: a .spz's header flag; None for the formats that have no place
+    for it (PLY, .splat, compressed PLY)."""
+    return spz_antialiased(path) if Path(path).name.lower().endswith(FORMATS["spz"][0]) else None
+
+
 def _has_chunks(path) -> bool:
     try:
         with open(path, "rb") as f:
@@ -77,14 +83,19 @@ def _has_chunks(path) -> bool:
     return any(e["name"] == "chunk" for e in elements)
 
 
-def export_model(model: GaussianModel, path: str | os.PathLike, fmt: str | None = None) -> None:
-    """Write `model` to `path` in `fmt` (default: by the file name). Atomic: the file appears complete or not
-    at all; an unwritable path raises OutputError, an unknown format or an empty model InputError."""
+def export_model(model: GaussianModel, path: str | os.PathLike, fmt: str | None = None,
+                 antialiased: bool = False) -> None:
+    """Write `model` to `path` in `fmt` (default: by the file name); antialiased: the model trained so, which .spz
+    records (the other formats cannot). Atomic: the file appears complete or not at all; an unwritable path raises
+    OutputError, an unknown format or an empty model InputError."""
     fmt = export_format(path, fmt)
     if len(model) == 0:
         raise InputError(path, "no Gaussians to export")
     check_ranges(path, model)   # (a model read from a PLY was checked there) no format then holds an Inf
-    FORMATS[fmt][1](Path(path), model)
+    if fmt == "spz":
+        write_spz(Path(path), model, antialiased)
+    else:
+        FORMATS[fmt][1](Path(path), model)
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -104,12 +115,18 @@ def cmd_export(args) -> int:
     if args.iteration is not None and args.model is None:
         raise InputError(None, "--iteration needs --model")
     fmt = export_format(args.out, args.format)   # a bad name fails before the model is read
+    antialiased = False
     if args.model is not None:
         if not args.model.is_dir():
             raise InputError(args.model, "no such training output folder")
-        _, model = RunFolder(args.model).load_model(args.iteration)
+        run = RunFolder(args.model)
+        _, model = run.load_model(args.iteration)
+        antialiased = run.config_path.is_file() and run.read_config().antialiased
     else:
         model = read_ply(args.ply)
-    export_model(model, args.out, fmt)
+    export_model(model, args.out, fmt, antialiased)
     print(f"{fmt}: {len(model):,} Gaussians, {args.out.stat().st_size:,} bytes written to {args.out}")
+    if antialiased and fmt != "spz":   # the viewers would render it without its compensation
+        print(f"the run trained --antialiased, which a {fmt} file cannot record: render it with --antialiased "
+              "(.spz records it)")
     return 0

@@ -2,7 +2,7 @@
 defaults to 4, zstd streams). A gzip stream of a 16-byte header:
 
     magic 0x5053474e ("NGSP"), version, Gaussians (uint32 each); SH degree, fractional bits F,
-    flags (0: not antialiased), reserved (uint8 each)
+    flags (bit 0: antialiased, the model trained with its 2D filter's compensation), reserved (uint8 each)
 
 then each attribute for all Gaussians in turn:
 
@@ -52,8 +52,12 @@ SPZ_SH_SIGNS = np.array([-1, -1, 1, -1, 1, 1, -1, 1, -1, 1, -1, -1, 1, -1, 1], n
 GZIP_LEVEL = 6                 # zlib's default, as their writer uses
 
 
-def write_spz(path: str | os.PathLike, model: GaussianModel) -> None:
-    """The version 3 .spz file of `model`, as Niantic's writer makes it from the PLY (from RDF)."""
+SPZ_ANTIALIASED = 0x1         # the header's flag bit
+
+
+def write_spz(path: str | os.PathLike, model: GaussianModel, antialiased: bool = False) -> None:
+    """The version 3 .spz file of `model`, as Niantic's writer makes it from the PLY (from RDF); antialiased sets
+    the header's flag (render and view then rasterize it so)."""
     n, rest = len(model), model.sh.shape[1] - 1
     means = model.means.astype(np.float64) * SPZ_AXIS_SIGNS
     bits = spz_fractional_bits(path, means)
@@ -65,7 +69,8 @@ def write_spz(path: str | os.PathLike, model: GaussianModel) -> None:
     fields = (others < 0) * (SPZ_ROTATION_MAX + 1) + magnitudes
     bucket = np.where(np.arange(rest) < 3, *SPZ_SH_BUCKETS)[None, :, None]
     sh = np.rint(model.sh[:, 1:] * SPZ_SH_SIGNS[:rest, None] * SPZ_SH_STEPS) + SPZ_SH_STEPS
-    header = np.array([(SPZ_MAGIC, SPZ_VERSION, n, model.sh_degree, bits, 0, 0)], SPZ_HEADER)
+    header = np.array([(SPZ_MAGIC, SPZ_VERSION, n, model.sh_degree, bits, SPZ_ANTIALIASED if antialiased else 0, 0)],
+                      SPZ_HEADER)
     parts = [header, fixed.view(np.uint8).reshape(n, 3, 4)[:, :, :3],   # the low three bytes of each
              to_bytes(255 * model.opacities),
              to_bytes(255 * (SPZ_COLOR_SCALE * model.sh[:, 0].astype(np.float64) + 0.5)),
@@ -83,6 +88,16 @@ def spz_fractional_bits(path, means: np.ndarray) -> int:
         if np.rint(largest * 2.0 ** bits) <= SPZ_POSITION_MAX:
             return bits
     raise InputError(path, f"a coordinate of {largest:g} is beyond the {SPZ_POSITION_MAX:,} units .spz can store")
+
+
+def spz_antialiased(path: str | os.PathLike) -> bool:
+    """Whether a .spz file's header says antialiased (False for a file too short or not gzip: read_spz says why)."""
+    try:
+        with gzip.open(path, "rb") as f:
+            head = f.read(SPZ_HEADER.itemsize)
+    except (OSError, EOFError, zlib.error):
+        return False
+    return len(head) == SPZ_HEADER.itemsize and bool(np.frombuffer(head, SPZ_HEADER)[0]["flags"] & SPZ_ANTIALIASED)
 
 
 def read_spz(path: str | os.PathLike) -> GaussianModel:
