@@ -176,7 +176,8 @@ def project_backward_reference(means, log_scales, quats, opacity_logits, sh, cam
     if antialiased:   # the opacity o x comp(a, b, c): the compensation's gradient to the covariance
         comp, square = antialias_compensation(a, b, c)
         det = a * c - b * b
-        v_square = v_opacity * o * 0.5 / (comp + K.ANTIALIAS_GRAD_EPS)   # d comp / d square, gsplat's guard
+        # d comp / d square, exact (the kernel adds gsplat's guard, + ANTIALIAS_GRAD_EPS, a relative 1e-6 / comp)
+        v_square = v_opacity * o * np.where(comp > 0, 0.5 / np.where(comp > 0, comp, 1.0), 0.0)
         da = da + v_square * ((1 - square) * c / det - K.EWA_DILATION / det)
         db = db + v_square * 2 * (1 - square) * (-b) / det
         dc = dc + v_square * ((1 - square) * a / det - K.EWA_DILATION / det)
