@@ -115,6 +115,24 @@ def test_a_refinement_step_relocates_the_dead_and_grows_to_the_cap(rng):
     assert all(np.array_equal(gs.params[k], gs2.params[k]) for k in params)   # the run's generator decides
 
 
+@pytest.mark.parametrize("iterations", [30_000, 3_000, 600])
+def test_a_shorter_run_refines_as_often_for_its_length(iterations):
+    """MCMC's schedule scales with the run as gsplat's steps_scaler scales it, its interval too, so a short run takes
+    the full schedule's number of refinement steps and can grow to a cap (a 3DGS run keeps its interval
+    unless under 10 steps would fit)."""
+    from dc4gs_cl.config import TrainConfig
+    from dc4gs_cl.train.schedule import Schedule
+    mcmc = Schedule(TrainConfig(scene="builtin", iterations=iterations, strategy="mcmc")).strategy()
+    scale = iterations / 30_000
+    c = mcmc.config
+    assert (c.densify_from, c.densify_until, c.densify_every) == (round(500 * scale), round(25_000 * scale),
+                                                                 round(100 * scale))
+    steps = sum(mcmc.densify_now(it) for it in range(1, iterations + 1))
+    assert steps == 244 and 1.05 ** steps > 100   # 600, 700, ..., 24,900 of 30,000
+    three_dgs = Schedule(TrainConfig(scene="builtin", iterations=iterations)).strategy().config
+    assert three_dgs.densify_every == min(100, (three_dgs.densify_until - three_dgs.densify_from) // 10)
+
+
 def test_mcmc_trains_grows_and_resumes_to_the_same_model(rt, tmp_path):
     """--strategy mcmc on the built-in scene: it learns, grows by 5% a step up to the cap, keeps no dead Gaussian
     past a step, and a run resumed from a checkpoint ends bit for bit where the straight run does (the noise is

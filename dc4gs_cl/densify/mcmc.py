@@ -1,6 +1,7 @@
 """MCMC densification (Kheradmand et al., "3D Gaussian Splatting as Markov Chain Monte Carlo", NeurIPS 2024), as
 gsplat's MCMCStrategy runs it: no gradient statistics, no clone, split or opacity reset. At each refinement step
-(every densify_every iterations inside the window) the dead Gaussians (opacity <= prune_opacity) are relocated
+(every densify_every iterations inside the window; a shorter run's steps come as often relative to its length,
+as gsplat's steps_scaler makes them) the dead Gaussians (opacity <= prune_opacity) are relocated
 onto live ones drawn by opacity, then the model grows by GROWTH_RATE up to the cap (--max-gaussians), new ones
 again drawn by opacity; a Gaussian drawn N - 1 times shares its opacity and scale with its N - 1 copies by the
 paper's equation (9) (relocated_opacity_scale). Every iteration, after Adam's step, the positions get noise
@@ -50,6 +51,7 @@ def relocated_opacity_scale(opacity: np.ndarray, scale: np.ndarray, shares: np.n
 class MCMC(Strategy):
     name = "mcmc"
     initial = {"opacity": INIT_OPACITY, "scale_factor": INIT_SCALE_FACTOR}
+    scaled_interval = True
 
     @staticmethod
     def default_config() -> DensifyConfig:

@@ -81,6 +81,7 @@ class Strategy:
     threshold; random split into two."""
     name = "3dgs"
     initial: dict = {}   # how the initial Gaussians differ from model.from_points' defaults (its keyword arguments)
+    scaled_interval = False   # whether a shorter run densifies more often (train/schedule.py says when)
     clone_criterion: Criterion = GRAD_PER_VIEW
     base_split_criterion: Criterion = GRAD_PER_VIEW   # the split criterion without DCC
 
