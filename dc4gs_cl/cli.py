@@ -225,6 +225,11 @@ def _add_train(p: argparse.ArgumentParser) -> None:
                    help="split Gaussians whose split criterion reaches this (default: the strategy's, 2e-4 for 3dgs "
                         "and pixelgs, 4e-4 for absgs); a higher one splits less. With DCC the criterion is DC-weighted "
                         "and the threshold the same")
+    p.add_argument("--batch", type=int, default=None,
+                   help="views per optimiser step (an iteration), their gradients' mean stepping the model; the "
+                        "learning rates times sqrt(B) and Adam's betas to the power B (Grendel's rule), so that "
+                        "--iterations N/B sees as many views as N iterations of one (1; under mpirun: the processes' "
+                        "count, each its share of the views)")
     p.add_argument("--max-gaussians", type=int, default=None,
                    help="a cap, not a target: densification never grows the model past N Gaussians. A step that "
                         "would takes its clone and split candidates by their criterion over its threshold, highest "
@@ -457,9 +462,9 @@ def print_stage_table(timings: list[dict[str, float]], width: int, height: int) 
     print(f"  {'total':12s} {total:9.2f} ms")
 
 
-def train_config(args, run) -> TrainConfig:
+def train_config(args, run, processes: int = 1) -> TrainConfig:
     """The run's settings: from the arguments, or with --resume from the run's config.json (explicit
-    arguments must then agree with it)."""
+    arguments must then agree with it). processes: those training together, a view each by default."""
     if args.dc4gs:
         args.dcc = args.dcs = True
     if args.feature_lr is not None and args.feature_rest_lr is None:   # the Inria code's ratio
@@ -481,6 +486,7 @@ def train_config(args, run) -> TrainConfig:
                              ", ".join(f"{k} {a!r} (saved) vs {b!r}" for k, (a, b) in clash.items()))
         return cfg
     given.setdefault("scene", BUILTIN_SCENE)
+    given.setdefault("batch", processes)
     given.setdefault("iterations", BUILTIN_ITERATIONS if given["scene"] == BUILTIN_SCENE else RECIPE_ITERATIONS)
     dc4gs_given = {k.removeprefix("dc4gs."): given.pop(k) for k in list(given) if k.startswith("dc4gs.")}
     try:
@@ -492,29 +498,36 @@ def train_config(args, run) -> TrainConfig:
 
 def cmd_train(args) -> int:
     import time
+    from contextlib import nullcontext
 
+    from .parallel import process_group
     from .run_folder import RunFolder
 
+    group = process_group()   # under mpirun: the processes training together (parallel.py)
     if args.out is None:
         if args.resume:
             raise InputError(None, "--resume needs --out (the folder of the run to continue)")
         name = Path(args.scene).resolve().name if args.scene and args.scene != BUILTIN_SCENE else BUILTIN_SCENE
-        args.out = Path("output") / f"{name}-{time.strftime('%Y%m%d-%H%M%S')}"
+        args.out = group.broadcast(Path("output") / f"{name}-{time.strftime('%Y%m%d-%H%M%S')}")
     run = RunFolder(args.out)
     if args.resume and args.force:
         raise InputError(None, "--resume and --force exclude each other")
     if args.log_every < 1:
         raise InputError(None, f"--log-every {args.log_every} must be at least 1")
-    with run.locked():   # one run per folder, from its checks to its last write (the OS lets go on any exit)
-        return _train_locked(args, run)
+    # one run per folder, from its checks to its last write (the OS lets go on any exit); a parallel run's other
+    # processes only read it
+    with run.locked() if group.writes else nullcontext():
+        return _train_locked(args, run, group)
 
 
-def _train_locked(args, run) -> int:
-    """cmd_train in its run folder, which it holds."""
+def _train_locked(args, run, group) -> int:
+    """cmd_train in its run folder, which it holds (process 0 of a parallel run; the others follow it, writing
+    nothing)."""
     import time
 
     from .evaluate import per_view_lines, summary
     from .metrics import lpips_metric
+    from .parallel import device_of_process
     from .run_folder import CORRUPT_CHECKPOINT
     from .runtime import Runtime, describe
     from .train import Stopped, Trainer
@@ -522,13 +535,16 @@ def _train_locked(args, run) -> int:
 
     if args.resume and not run.has_checkpoint():
         raise InputError(run.path, "nothing to resume: no checkpoint.npz")
-    if not args.resume and run.holds_run() and not args.force:
+    if not args.resume and run.holds_run() and not args.force and group.writes:
         raise InputError(run.path, "holds another run: continue it with --resume, or replace it with --force")
-    cfg = train_config(args, run)
+    cfg = train_config(args, run, group.size)
     scene = run.load_scene(cfg)
     scene.read_all_images()
-    rt = Runtime(args.device, profiling=True)   # stage times go to metrics.jsonl; no measurable cost on PoCL
-    trainer = Trainer(cfg, scene, rt, run, check_finite=args.check_finite, lpips=lpips_metric(args.lpips))
+    # stage times go to metrics.jsonl; no measurable cost on PoCL
+    rt = Runtime(device_of_process(group, args.device), profiling=True)
+    trainer = Trainer(cfg, scene, rt, run, check_finite=args.check_finite, lpips=lpips_metric(args.lpips), group=group)
+    if not group.writes:   # a parallel run's other processes: train, say nothing
+        return _follow(trainer, args)
     live = None
     if args.viewer:   # before anything is written: a port in use stops the command
         from .render import Renderer
@@ -544,8 +560,9 @@ def _train_locked(args, run) -> int:
         if args.force:
             run.clear()
         run.write_settings(cfg, scene)
-    print(f"device: {describe(rt.device)}\nscene: {cfg.scene} ({len(scene.train)} train / {len(scene.test)} test "
-          f"views, {view_sizes(scene.train + scene.test)}), strategy {trainer.strategy.label}, "
+    processes = f", {group.size} processes of a batch of {cfg.batch} views" if group.size > 1 else ""
+    print(f"device: {describe(rt.device)}{processes}\nscene: {cfg.scene} ({len(scene.train)} train / {len(scene.test)} "
+          f"test views, {view_sizes(scene.train + scene.test)}), strategy {trainer.strategy.label}, "
           f"{cfg.iterations:,} iterations, {trainer.model.n:,} initial Gaussians\noutput: {run}", file=sys.stderr)
     start, first = time.perf_counter(), trainer.iteration
     if live is not None:
@@ -564,8 +581,13 @@ def _train_locked(args, run) -> int:
         done = trainer.log.profiled_iterations
         print("device time per iteration: " + ", ".join(f"{k} {v / done * 1e3:.2f} ms"
                                                          for k, v in trainer.log.stage_seconds.items()))
-    print(f"trained {trainer.iteration - first:,} iterations in {seconds:.0f} s "
-          f"({(trainer.iteration - first) / max(seconds, 1e-9):.1f} it/s); {trainer.model.n:,} Gaussians")
+    done = trainer.iteration - first
+    print(f"trained {done:,} iterations in {seconds:.0f} s "
+          f"({done / max(seconds, 1e-9):.1f} it/s); {trainer.model.n:,} Gaussians")
+    if group.size > 1 and done:
+        print(f"gradients summed over {group.size} processes: {group.reduced_bytes / done / 1e6:.2f} MB and "
+              f"{group.reduce_seconds / done * 1e3:.1f} ms an iteration (device to host, MPI Allreduce, host to device; "
+              f"{group.reduce_seconds / max(seconds, 1e-9):.0%} of the training time)")
     if scene.test:
         result = trainer.evaluate_test(run.views_dir("test", trainer.iteration))
         for line in run.write_results(trainer.iteration, result):
@@ -573,6 +595,18 @@ def _train_locked(args, run) -> int:
         print(f"test views: {summary(result)}, {result['views']} views")
         print("\n".join(per_view_lines(result)))
     print(f"model: {run.model_path(trainer.iteration)}")
+    return 0
+
+
+def _follow(trainer, args) -> int:
+    """A parallel run's process other than 0: resume where process 0 does, train beside it, stop where it stops."""
+    from .train import Stopped
+    if args.resume:
+        trainer.resume()
+    try:
+        trainer.run(progress="none")
+    except Stopped as e:
+        return 128 + e.signum
     return 0
 
 

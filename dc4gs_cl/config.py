@@ -39,7 +39,7 @@ FLAGS = {
     "--scene": "scene", "--iterations": "iterations", "--strategy": "strategy", "--resolution": "resolution",
     "--test-every": "test_every", "--test-split": "test_split", "--white-background": "white_background",
     "--alpha-mask": "alpha_mask", "--seed": "seed", "--sh-degree": "sh_degree", "--save-at": "save_at",
-    "--checkpoint-every": "checkpoint_every", "--eval-at": "eval_at",
+    "--checkpoint-every": "checkpoint_every", "--eval-at": "eval_at", "--batch": "batch",
     "--position-lr-init": "lr_means", "--position-lr-final": "lr_means_final", "--feature-lr": "lr_sh_dc",
     "--feature-rest-lr": "lr_sh_rest", "--opacity-lr": "lr_opacity", "--scaling-lr": "lr_scales",
     "--rotation-lr": "lr_quats", "--lambda-dssim": "lambda_dssim", "--random-background": "random_background",
@@ -160,6 +160,7 @@ class TrainConfig:
     save_at: tuple[int, ...] = ()          # PLYs at these iterations (the last one is always saved)
     checkpoint_every: int = 1_000
     eval_at: tuple[int, ...] | None = None  # test views evaluated after these iterations (None: the recipe's)
+    batch: int = 1                         # views per optimiser step (an iteration), over all processes (optim/batch.py)
     # learning rates (3DGS); the position's decays log-linearly over the run and scales with the extent
     lr_means: float = 1.6e-4
     lr_means_final: float = 1.6e-6
@@ -202,6 +203,7 @@ class TrainConfig:
              and not (math.isfinite(self.split_threshold) and self.split_threshold > 0),
              f"{self.split_threshold} must be a positive number"),
             ("checkpoint_every", self.checkpoint_every < 1, f"{self.checkpoint_every} must be at least 1"),
+            ("batch", self.batch < 1, f"{self.batch} must be at least 1"),
             *((name, value is not None and value < least, f"{value} must be >= {least}")
               for name, value, least in (("densify_until", self.densify_until, 0), ("densify_from", self.densify_from, 0),
                                          ("densify_every", self.densify_every, 1),

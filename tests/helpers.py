@@ -33,3 +33,19 @@ def load_tool(name: str):
     sys.modules[name] = module      # dataclasses look their module up there
     spec.loader.exec_module(module)
     return module
+
+def straight_and_resumed(cfg, scene, rt, folder: Path, stop_at: int) -> tuple:
+    """Two trainers of cfg: one trained straight to cfg.iterations, one stopped after stop_at (a checkpoint
+    written), made anew and resumed from it to the end (what an interrupted run does)."""
+    from dc4gs_cl.train import Trainer
+
+    def run(out, upto, resume=False):
+        trainer = Trainer(cfg, scene, rt, out)
+        if resume:
+            trainer.resume()
+        while trainer.iteration < upto:
+            trainer.step()
+        return trainer
+    straight = run(folder / "straight", cfg.iterations)
+    run(folder / "stopped", stop_at).save_checkpoint()
+    return straight, run(folder / "stopped", cfg.iterations, resume=True)

@@ -7,6 +7,7 @@ from helpers import random_model
 from dc4gs_cl.backward import ProjectBackward
 from dc4gs_cl.model import group_widths
 from dc4gs_cl.optim.adam import Adam, AdamConfig, exponential_lr
+from dc4gs_cl.optim.batch import BatchGradients, batch_adam_config
 from dc4gs_cl.render import DeviceGaussians, Renderer
 from dc4gs_cl.runtime import DeviceArrays
 from dc4gs_cl.scene.camera import Camera
@@ -62,6 +63,56 @@ def test_fused_adam_matches_reference_over_several_steps(rt, rng, sh_degree):
         assert rel_l2(got_m[k], m[k]) < 1e-4, k
         assert rel_l2(got_v[k], v[k]) < 1e-4, k
     assert adam.steps == steps
+
+
+@pytest.mark.parametrize("sh_degree,regularized", [(0, False), (3, True)])
+def test_a_batch_sums_its_views_and_steps_on_their_mean(rt, rng, sh_degree, regularized):
+    """--batch: each view's gradients added to the batch's in launch order (the float32 sums the host computes from
+    the views' stored gradients, bit for bit), then one Adam step on their mean with the batch's betas (and MCMC's
+    regularisers once), against the float64 reference."""
+    cams = [Camera.look_at(f"c{k}", tuple(rng.uniform(-1, 1, 3) + (0, -3.0, 0.5)), (0.0, 0.0, 0.0), 64, 48, fov_x=0.9)
+            for k in range(3)]
+    model = random_model(rng, 700, sh_degree=sh_degree, spread=0.6, scale_range=(0.05, 0.3))
+    g = DeviceGaussians(rt, model)
+    n, widths = g.n, group_widths(g.sh_coeffs)
+    renderer, layout = Renderer(rt), GRADIENTS
+    backward, batch = ProjectBackward(renderer.context), BatchGradients(renderer.context, widths)
+    config = batch_adam_config(len(cams))
+    adam, single = Adam(rt, widths, n, config), DeviceArrays(rt, widths, n)
+    # moments from earlier steps, v of m's size squared: updates of about the rates (float32 parameters resolve them)
+    m_start = {k: rng.normal(scale=1e-3, size=(n, w)).astype(np.float32) for k, w in widths.items()}
+    adam.m.upload(m_start)
+    adam.v.upload({k: (x * x * rng.uniform(0.5, 2, x.shape)).astype(np.float32) for k, x in m_start.items()})
+    m0, v0 = adam.m.download(), adam.v.download()
+    host = {k: x.astype(np.float64) for k, x in g.download().items()}
+    expected = {k: np.zeros((n, w), np.float32) for k, w in widths.items()}
+    summed = batch.start(n)
+    for cam in cams:
+        res = renderer.render(g, cam, 3)
+        sums = rt.to_device(rng.normal(scale=10.0 ** rng.uniform(-4, 0), size=(n, layout.width)).astype(np.float32))
+        backward.gradients(g, cam, 3, res, sums, layout, single.buffers)
+        for k, x in single.download().items():
+            expected[k] = expected[k] + x
+        backward.gradients(g, cam, 3, res, sums, layout, summed, accumulate=True)
+    got_sums = batch.sums.download()
+    for k in widths:
+        np.testing.assert_array_equal(got_sums[k], expected[k], err_msg=k)
+    regularizers = (0.01 / n, 0.02 / (3 * n)) if regularized else None
+    # rates whose steps float32 parameters of size ~1 resolve to 1e-5 (the moments' test is the arithmetic)
+    lrs = {"means": 1e-2, "log_scales": 5e-2, "quats": 1e-2, "opacity_logits": 0.05, "sh": (2.5e-2, 1e-2)}
+    batch.step(g, len(cams), adam.step_value(lrs), adam.m, adam.v, regularizers)
+    got, got_m, got_v = g.download(), adam.m.download(), adam.v.download()
+    grad = {k: x.astype(np.float64) / len(cams) for k, x in expected.items()}
+    if regularized:
+        o = 1 / (1 + np.exp(-host["opacity_logits"]))
+        grad["opacity_logits"] += regularizers[0] * o * (1 - o)
+        grad["log_scales"] += regularizers[1] * np.exp(host["log_scales"])
+    for k, lr in lrs.items():
+        rate = np.repeat([lr[0], lr[1]], [3, widths[k] - 3]) if k == "sh" else lr
+        want, m, v = adam_reference(host[k], grad[k], m0[k].astype(np.float64), v0[k].astype(np.float64), 1, rate,
+                                    config.beta1, config.beta2)
+        assert rel_l2(got[k] - host[k], want - host[k]) < 1e-4, k
+        assert rel_l2(got_m[k], m) < 1e-4 and rel_l2(got_v[k], v) < 1e-4, k
 
 
 def test_exponential_lr_schedule():

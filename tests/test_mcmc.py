@@ -9,6 +9,7 @@ from dc4gs_cl.reference.mcmc import mcmc_noise_reference, philox4x32_10, philox_
 from dc4gs_cl.render import DeviceGaussians
 from dc4gs_cl.render.stage import StageContext
 from dc4gs_cl.testing import random_model
+from helpers import straight_and_resumed
 
 # Random123's known-answer vectors for Philox4x32-10 (its kat_vectors file): counter, key -> words
 PHILOX_KAT = [((0, 0, 0, 0), (0, 0), (0x6627E8D5, 0xE169C58D, 0xBC57AC4C, 0x9B00DBD8)),
@@ -139,22 +140,11 @@ def test_mcmc_trains_grows_and_resumes_to_the_same_model(rt, tmp_path):
     keyed by seed and iteration, the draws come from the checkpointed generator)."""
     from dc4gs_cl.config import TrainConfig
     from dc4gs_cl.scene import load_scene
-    from dc4gs_cl.train import Trainer
     scene = load_scene("builtin", resolution=4)
     cfg = TrainConfig(scene="builtin", iterations=150, resolution=4, strategy="mcmc", max_gaussians=6000)
 
-    def run(out, upto, resume=False):
-        trainer = Trainer(cfg, scene, rt, out)
-        if resume:
-            trainer.resume()
-        while trainer.iteration < upto:
-            trainer.step()
-        return trainer
-    straight = run(tmp_path / "straight", 150)
+    straight, resumed = straight_and_resumed(cfg, scene, rt, tmp_path, 70)
     start = len(scene.points)
-    first = run(tmp_path / "stopped", 70)
-    first.save_checkpoint()
-    resumed = run(tmp_path / "stopped", 150, resume=True)
     a, b = straight.model.download(), resumed.model.download()
     assert all(np.array_equal(a.params[k], b.params[k]) and np.array_equal(a.m[k], b.m[k]) for k in a.params)
     assert a.n == 6000 and start < 6000                     # grown to the cap

@@ -363,21 +363,21 @@ def test_check_finite_on_the_command_line(tmp_path):
     assert sorted(p.name for p in (out / "test" / "ours_12").iterdir()) == ["gt", "renders"]
 
 
-@pytest.mark.parametrize("strategy, walk", [("3dgs", "one run"), ("absgs+dc4gs", "one run"),
-                                            ("absgs+dc4gs", "runs")])
-def test_a_view_that_overflows_its_room_runs_again_to_the_same_model(rt, monkeypatch, strategy, walk):
+@pytest.mark.parametrize("strategy, walk, batch", [("3dgs", "one run", 1), ("absgs+dc4gs", "one run", 1),
+                                                   ("absgs+dc4gs", "runs", 1), ("absgs+dc4gs", "one run", 2)])
+def test_a_view_that_overflows_its_room_runs_again_to_the_same_model(rt, monkeypatch, strategy, walk, batch):
     """The trainer sizes a view's pair buffers by a capacity, and the backward's carry rows (for the Gaussians
     whose pairs span its runs) by another, and reads nothing back until the iteration is queued; a view with more
-    changes nothing on the device and runs again with room. Forced here every few iterations (a densification
-    step among them): the model, its moments and the window are those of a run that never overflowed, bit for
-    bit."""
+    changes nothing on the device and runs again with room (in a batch, before the batch's next view). Forced here
+    every few iterations (a densification step among them): the model, its moments and the window are those of a
+    run that never overflowed, bit for bit."""
     from dc4gs_cl.render import Tuning
     if walk == "runs":   # each view's backward in several runs of consecutive pairs, the window folded in them
         for_device = Tuning.for_device
         monkeypatch.setattr(Tuning, "for_device", staticmethod(
             lambda caps: replace(for_device(caps), pair_chunk=0.3, min_run_tiles=4)))
     scene = load_scene("builtin", resolution=4)
-    cfg = TrainConfig(scene="builtin", iterations=300, resolution=4, strategy=strategy.split("+")[0],
+    cfg = TrainConfig(scene="builtin", iterations=300, resolution=4, strategy=strategy.split("+")[0], batch=batch,
                       dc4gs=DC4GSConfig(dcc=True, dcs=True) if "dc4gs" in strategy else DC4GSConfig())
     steady, forced = Trainer(cfg, scene, rt), Trainer(cfg, scene, rt)
     overflows = []

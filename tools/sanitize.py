@@ -46,6 +46,7 @@ from dc4gs_cl.config import TrainConfig
 from dc4gs_cl.densify import MCMC, AbsGS, DC4GSConfig, PixelGS, Strategy
 from dc4gs_cl.errors import DeviceError
 from dc4gs_cl.model import group_widths
+from dc4gs_cl.optim.batch import BatchGradients
 from dc4gs_cl.optim.trainable import TrainableGaussians
 from dc4gs_cl.render import DeviceGaussians, Renderer, RenderOptions
 from dc4gs_cl.render.stage import StageContext
@@ -245,22 +246,24 @@ class Backward:
     the gradients alone, written out rather than stepped by Adam); runs: the per-pair slots held for a tile's
     worth of pairs at a time (the backward walked in runs of consecutive pairs, most tiles cut between two, the
     view folded in sum_pairs, Gaussians spanning runs carried between them), and the split sums added per column
-    block (Tuning.split_sums_per_block)."""
+    block (Tuning.split_sums_per_block); batch: the view's gradients added to a batch's, then Adam's step on
+    their mean (optim/batch.py), rather than the fused step."""
     pair_sums: bool
     masked: bool
     strategy: str | None
     runs: bool = False
+    batch: bool = False
 
 
 # Each forward (its switches; off, they change the backward's build too) and the backward variants run on
 # it: together every kernel, and every variant training builds: the statistics of 3DGS, of AbsGS with
 # DC4GS' split sums and of Pixel-GS with DCS pooled over the window and tracked, the masked loss and
 # backward, both sums modes (the slots in one run and in runs of a tile's worth of pairs), Adam's fused step and the
-# plain gradients; the antialiased projection and its backward with the exact switches off, and MCMC's
-# regularised step and position noise.
+# plain gradients, and a batch's (added, then stepped); the antialiased projection and its backward with the exact
+# switches off, and MCMC's regularised step and position noise.
 FORWARDS = (
     ({}, (Backward(True, False, "absgs+dc4gs", runs=True), Backward(True, True, "pixelgs+dcs"),
-          Backward(False, True, "absgs+dc4gs"), Backward(True, False, None))),
+          Backward(False, True, "absgs+dc4gs"), Backward(True, False, None), Backward(True, False, "mcmc", batch=True))),
     ({"fast_exp": False, "alpha_cut": False, "early_stop": False, "antialiased": True},
      (Backward(False, False, "3dgs"), Backward(False, False, "mcmc"))),
 )
@@ -311,8 +314,17 @@ def workload(shape: str) -> dict:
                 sums, layout = RasterizeBackward(ctx).folding(res, dL_dimage, background, gathering.layout,
                                                               gathering.geometry, keep_buf, gathering.window)
                 project_backward = ProjectBackward(ctx)
-                if b.strategy:
-                    regularizers = (0.01 / gaussians.n, 0.01 / (3 * gaussians.n)) if b.strategy == "mcmc" else None
+                regularizers = (0.01 / gaussians.n, 0.01 / (3 * gaussians.n)) if b.strategy == "mcmc" else None
+                if b.batch:
+                    batch = BatchGradients(ctx, gaussians.widths)
+                    summed = batch.start(gaussians.n)
+                    for _ in range(2):   # the second view adds to the first's
+                        project_backward.gradients(gaussians.params, cam, model.sh_degree, res, sums, layout, summed,
+                                                   accumulate=True)
+                    batch.step(gaussians.params, 2, gaussians.adam.step_value(lrs), gaussians.adam.m,
+                               gaussians.adam.v, regularizers)
+                    strategy.after_step(iteration, gaussians.params, lrs, SEED, 5e5)
+                elif b.strategy:
                     project_backward.step(gaussians.params, cam, model.sh_degree, res, sums, layout,
                                           gaussians.adam.step_value(lrs), gaussians.adam.m, gaussians.adam.v,
                                           regularizers)

@@ -95,6 +95,8 @@ class Strategy:
         self.white_background = False
         # an observer of the steps (a tool recording their decisions): densify calls it first, with (gs, window, it)
         self.before_densify: Callable[[GaussianSet, dict[str, np.ndarray], int], None] | None = None
+        # the window over every process's views (parallel.py; the trainer sets it): identity for one process
+        self.reduce_window: Callable[[dict[str, np.ndarray]], dict[str, np.ndarray]] = lambda window: window
 
     @staticmethod
     def default_config() -> DensifyConfig:
@@ -199,7 +201,7 @@ class Strategy:
         report = None
         if actions.densify:
             gs = model.download()
-            report = self.densify(gs, self.window.download(), it, rng)
+            report = self.densify(gs, self.reduce_window(self.window.download()), it, rng)
             model.upload(gs)
             self.window.reset(gs.n)
         if actions.opacity_ceiling is not None:

@@ -11,6 +11,7 @@
 //              SUM_OPACITY (ANTIALIASED: of the opacity times its compensation, as project.cl wrote it), dL/drgb at
 //              SUM_RGB
 //   FUSED_ADAM=0:  out d_means [N*3], d_log_scales [N*3], d_quats [N*4], d_opacity_logits [N], d_sh [N*SH_COEFFS*3]
+//                  (ACCUMULATE=1: in/out, this view's gradients added: a batch's views, optim/batch.py)
 //   FUSED_ADAM=1:  in step (AdamStep); in/out m_<group>, v_<group>: Adam's moments, shaped like the parameters
 //   REGULARIZED=1: reg_opacity, reg_scale: MCMC's loss terms opacity_reg mean(opacity) + scale_reg mean(scale) as
 //                  opacity_reg / N and scale_reg / 3N; their gradients reach every Gaussian, seen in the view or not
@@ -19,29 +20,10 @@
 // No gradient flows through a clamped x/z or y/z, nor through a colour channel clamped at 0 or COLOR_MAX.
 
 #include "project.h"
-#include "adam.h"
+#include "param_step.h"
 
-REQUIRE_DEFINED(FUSED_ADAM);
 REQUIRE_DEFINED(ANTIALIASED);
 REQUIRE_DEFINED(REGULARIZED);
-
-#if FUSED_ADAM
-#define PARAM __global float
-// EMIT(group, rates, buffer, index, count, gradients): Adam steps the `count` (<= 4) parameters from
-// buffer[index] by the gradients' lanes, with the rates' lanes.
-#define EMIT(grp, lr, buf, idx, count, g) \
-    adam_update(&step, grp, lr, count, buf + (idx), m_##buf + (idx), v_##buf + (idx), g)
-#define RATE(grp) ((float4)(step.lr[grp]))
-// The SH rates of floats j..j+3 of a row: the first 3 floats are the DC band, with their own rate.
-#define SH_RATES(j) ((float4)((j) < 3 ? step.lr[PARAM_SH] : step.lr[ADAM_SH_REST_RATE], \
-                              (j) + 1 < 3 ? step.lr[PARAM_SH] : step.lr[ADAM_SH_REST_RATE], \
-                              (j) + 2 < 3 ? step.lr[PARAM_SH] : step.lr[ADAM_SH_REST_RATE], step.lr[ADAM_SH_REST_RATE]))
-#else
-#define PARAM __global const float
-// EMIT(group, rates, buffer, index, count, gradients): the gradients are stored from d_<buffer>[index].
-#define EMIT(grp, lr, buf, idx, count, g) store_lanes(d_##buf + (idx), count, g)
-#endif
-#define SH_FLOATS (SH_COEFFS * 3)
 
 // The gradients of visible Gaussian i's parameters; it reads them and writes nothing global. The SH
 // coefficients' gradients are basis[k] * v_colour (k below (sh_degree + 1)^2; zero above).
@@ -200,21 +182,12 @@ void project_backward(__global const uint *frame, const int n, const Camera cam,
     if (visible)   // reads Gaussian i's parameters, before any of them is stepped below
         visible_gradients(i, cam, sh_degree, means, log_scales, quats, opacity_logits, sh, sums, &g_means,
                           &g_scales, &g_quat, &g_opacity, &v_colour, basis);
-#if REGULARIZED   // d/dlogit of reg_opacity sigmoid(logit); d/dlog s of reg_scale s (before the parameters step)
-    float o = 1.f / (1.f + exp_poly(-opacity_logits[i]));
-    g_opacity += reg_opacity * o * (1.f - o);
-    g_scales += reg_scale * load_scales(log_scales, i);
+#if REGULARIZED
+    ADD_REGULARIZERS(i, g_opacity, g_scales);
 #endif
-    EMIT(PARAM_MEANS, RATE(PARAM_MEANS), means, 3 * i, 3, (float4)(g_means, 0.f));
-    EMIT(PARAM_LOG_SCALES, RATE(PARAM_LOG_SCALES), log_scales, 3 * i, 3, (float4)(g_scales, 0.f));
-    EMIT(PARAM_QUATS, RATE(PARAM_QUATS), quats, 4 * i, 4, g_quat);
-    EMIT(PARAM_OPACITY_LOGITS, RATE(PARAM_OPACITY_LOGITS), opacity_logits, i, 1, (float4)(g_opacity, 0.f, 0.f, 0.f));
     int k_active = visible ? (sh_degree + 1) * (sh_degree + 1) : 0;
-    float g_sh[(SH_FLOATS + 3) / 4 * 4];   // whole float4 chunks, the padding zero
+    float g_sh[SH_FLOATS_PADDED];
     for (int k = 0; k < SH_COEFFS; ++k) STORE3(k < k_active ? basis[k] * v_colour : (float3)(0.f), g_sh, k);
-    for (int f = SH_FLOATS; f < (SH_FLOATS + 3) / 4 * 4; ++f) g_sh[f] = 0.f;
-    const size_t sh_row = (size_t)i * SH_FLOATS;
-    for (int j = 0; j < SH_FLOATS; j += 4)
-        EMIT(PARAM_SH, SH_RATES(j), sh, sh_row + j, SH_FLOATS - j < 4 ? SH_FLOATS - j : 4,
-             (float4)(g_sh[j], g_sh[j + 1], g_sh[j + 2], g_sh[j + 3]));
+    for (int f = SH_FLOATS; f < SH_FLOATS_PADDED; ++f) g_sh[f] = 0.f;
+    STEP_GAUSSIAN(i, g_means, g_scales, g_quat, g_opacity, g_sh);
 }

@@ -9,14 +9,14 @@ import numpy as np
 from ..model import GaussianModel, GaussianSet, group_widths
 from ..render.gaussians import DeviceGaussians
 from ..runtime import Runtime
-from .adam import Adam
+from .adam import Adam, AdamConfig
 
 
 class TrainableGaussians:
-    def __init__(self, rt: Runtime, model: GaussianModel):
+    def __init__(self, rt: Runtime, model: GaussianModel, adam: AdamConfig = AdamConfig()):
         self.params = DeviceGaussians(rt, model)
         self.widths = group_widths(self.params.sh_coeffs)
-        self.adam = Adam(rt, self.widths, self.params.n)
+        self.adam = Adam(rt, self.widths, self.params.n, adam)
 
     @property
     def n(self) -> int:

@@ -35,15 +35,15 @@ def progress_mode(no_progress: bool) -> str:
 
 
 class TrainingLog:
-    def __init__(self, run_folder: RunFolder, total: int, iteration: int, mode: str = "bar",
+    def __init__(self, run_folder: RunFolder | None, total: int, iteration: int, mode: str = "bar",
                  line_every: int = DEFAULT_LINE_EVERY, stage_times: Callable[[], dict[str, float]] | None = None):
         """iteration: where training starts (a resumed run: its checkpoint's), the metrics file is cut back to
-        it. stage_times: the runtime's per-stage device seconds since its last call (profiling runs only)."""
+        it (run_folder None: no metrics file, a parallel run's other processes). stage_times: the runtime's per-stage device seconds since its last call (profiling runs only)."""
         if mode not in PROGRESS_MODES:
             raise ValueError(f"progress mode {mode!r} is not one of {PROGRESS_MODES}")
         self.run_folder, self.total, self.mode, self.line_every = run_folder, total, mode, line_every
         self.stage_times, self.stream = stage_times, sys.stderr
-        earlier = run_folder.cut_metrics(iteration)
+        earlier = run_folder.cut_metrics(iteration) if run_folder is not None else []
         self.elapsed = next((r["elapsed_s"] for r in reversed(earlier) if "elapsed_s" in r), 0.0)
         self.last_iteration, self.last_time = iteration, time.perf_counter()
         self.paused_at: float | None = None
@@ -73,7 +73,8 @@ class TrainingLog:
             for k, v in times.items():
                 self.stage_seconds[k] = self.stage_seconds.get(k, 0.0) + v
             self.profiled_iterations += done
-        self.run_folder.append_metrics(row)
+        if self.run_folder is not None:
+            self.run_folder.append_metrics(row)
         self.last_iteration, self.last_time = iteration, now
         if self.bar is not None:
             self.bar.set_postfix(loss=f"{loss:.4f}", psnr=f"{row['train_psnr']:.2f}", gaussians=f"{gaussians:,}",
@@ -101,7 +102,8 @@ class TrainingLog:
                "test_views": result["views"]}
         if result.get("lpips_key") in result["mean"]:   # test_lpips (VGG) or test_lpips_alex
             row[f"test_{result['lpips_key'].lower()}"] = round(result["mean"][result["lpips_key"]], 5)
-        self.run_folder.append_metrics(row)
+        if self.run_folder is not None:
+            self.run_folder.append_metrics(row)
         if self.mode != "none":
             from ..evaluate import summary   # unrounded, as the final line of `train` prints it
             line = f"iteration {iteration:,}: test views {summary(result)}, {result['views']} views"

@@ -7,6 +7,7 @@ from dataclasses import replace
 from ..config import MCMC_DEFAULT_CAP, RECIPE_ITERATIONS, TrainConfig
 from ..densify import STRATEGIES, Strategy
 from ..optim.adam import exponential_lr
+from ..optim.batch import batch_rate_factor
 
 MIN_DENSIFY_STEPS = 10   # a short run still densifies about this often
 SH_DEGREE_EVERY = 1_000  # one more SH degree every this many (scaled) iterations
@@ -59,12 +60,13 @@ class Schedule:
         return min(self.cfg.sh_degree, it // self.scaled(SH_DEGREE_EVERY))
 
     def learning_rates(self, it: int, extent: float, opacity_steps: bool) -> dict:
-        """Each parameter group's rate at iteration it (the SH group: DC band, higher bands); the opacities are
-        left out where they take no step."""
+        """Each parameter group's rate at iteration it (the SH group: DC band, higher bands), times the batch's
+        factor; the opacities are left out where they take no step."""
         c = self.cfg
-        lrs = {"means": exponential_lr(it, c.lr_means * extent, c.lr_means_final * extent, c.iterations),
-               "log_scales": c.lr_scales, "quats": c.lr_quats, "opacity_logits": c.lr_opacity,
-               "sh": (c.lr_sh_dc, c.lr_sh_rest)}
+        f = batch_rate_factor(c.batch)
+        lrs = {"means": f * exponential_lr(it, c.lr_means * extent, c.lr_means_final * extent, c.iterations),
+               "log_scales": f * c.lr_scales, "quats": f * c.lr_quats, "opacity_logits": f * c.lr_opacity,
+               "sh": (f * c.lr_sh_dc, f * c.lr_sh_rest)}
         if not opacity_steps:
             del lrs["opacity_logits"]
         return lrs

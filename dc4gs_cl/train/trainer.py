@@ -28,7 +28,9 @@ from ..config import DEFAULT_LINE_EVERY, TrainConfig
 from ..densify import Actions, Strategy
 from ..errors import DeviceError, InputError
 from ..model import GaussianSet, initial_model
+from ..optim.batch import BatchGradients, batch_adam_config
 from ..optim.trainable import TrainableGaussians
+from ..parallel import SingleProcess
 from ..render import DeviceGaussians, Renderer, RenderOptions, Tuning
 from ..run_folder import Checkpoint, RunFolder, TrainingState
 from ..runtime import BUFFER_HEADROOM, Runtime, describe
@@ -50,13 +52,14 @@ class Stopped(KeyboardInterrupt):
 class Trainer:
     def __init__(self, cfg: TrainConfig, scene: Scene, rt: Runtime, out: str | Path | RunFolder | None = None,
                  strategy: Strategy | None = None, check_finite: bool = False, frozen: bool = False,
-                 lpips: tuple = (None, "")):
+                 lpips: tuple = (None, ""), group: SingleProcess | None = None):
         """out: the run folder, which checkpoints, saved models and run() need (None: none, for a trainer that
         only steps); strategy: the density control (default: the configuration's, its schedule scaled to the
         run); check_finite: every stage checks its outputs and the first NaN or Inf stops the run (finite.py);
         frozen: the strategy gathers its statistics but never densifies nor limits opacities, so that
         benchmarks step the same model again and again; lpips: metrics.lpips_metric's (network, note), for the
-        test-view evaluations (default none)."""
+        test-view evaluations (default none); group: the processes training together (parallel.py; default this
+        one alone), of which process 0 writes the run folder."""
         if not scene.train:
             raise InputError(scene.root, "the scene has no training cameras")
         if rt.caps.loop_limit:   # runtime.LOOP_LIMITED_DRIVERS: its renders are right, its gradients of busy views not
@@ -64,6 +67,10 @@ class Trainer:
                               "iterations (llvmpipe's loop limiter, removed in Mesa 25.0), which leaves the gradients "
                               "of busy views wrong: train on another device (see `dc4gs-cl devices`; PoCL comes with "
                               "dc4gs-cl) or with Mesa 25 or later. Rendering and eval work on it.")
+        self.group = group or SingleProcess()
+        if cfg.batch % self.group.size:
+            raise InputError(None, f"--batch {cfg.batch} must be a multiple of the {self.group.size} processes (each "
+                                   "renders the same number of a batch's views)")
         self.cfg, self.scene, self.rt = cfg, scene, rt
         self.run_folder = out if isinstance(out, RunFolder) or out is None else RunFolder(out)
         self.frozen = frozen
@@ -87,8 +94,11 @@ class Trainer:
         if cfg.max_gaussians is not None and len(initial) > cfg.max_gaussians:
             raise InputError(None, f"--max-gaussians {cfg.max_gaussians:,} is below the {len(initial):,} Gaussians the "
                                    "scene starts from (one per SfM point)")
-        self.model = TrainableGaussians(rt, initial)
+        self.model = TrainableGaussians(rt, initial, batch_adam_config(cfg.batch))
+        self.batch = BatchGradients(self.context, self.model.widths) if cfg.batch > 1 else None
+        self.actions = Actions()   # the last iteration's
         self.strategy.attach(self.context, scene.extent, self.model.n, cfg.white_background)
+        self.strategy.reduce_window = self.group.reduce_window
         self.log: TrainingLog | None = None   # while run() runs, and after it for the final evaluation
 
     @property
@@ -107,34 +117,93 @@ class Trainer:
 
     # one iteration ------------------------------------------------------------------------------------
     def step(self) -> None:
-        """One iteration. The host waits once, for the view's counts, once the whole iteration is queued: a view
-        whose pairs overflowed the capacity it was given (render/isect.py), or whose Gaussians spanning the
-        backward's runs its carry rows (RasterizeBackward.plan), changed nothing on the device (kernels/common.h
-        FRAME_VOID), and runs again, host state rewound, with room for them."""
-        before = self._host_state()
-        while True:
-            actions = self._queue_iteration()
-            counts = self.context.frame_counts()
-            if not counts["OVERFLOWED"]:
-                break
-            # room for busier views than this one
-            if counts["PAIRS"] > self.pair_capacity:
-                self.pair_capacity = int(counts["PAIRS"] * (1 + BUFFER_HEADROOM))
-            if counts["SPANNING"] > self.carry_rows:
-                self.carry_rows = int(counts["SPANNING"] * (1 + BUFFER_HEADROOM))
-            self._restore(before)
+        """One iteration: one view (the model stepped by its gradients, fused into their computation), or with
+        --batch B, B views (the model stepped by their mean; optim/batch.py)."""
+        if self.batch is None:
+            self._step_view()
+        else:
+            self._step_batch()
         if self.iteration in self.cfg.save_at:   # before this iteration's densification and opacity limits, as Inria saves
             self.save_model()
-        if self.strategy.apply(actions, self.iteration, self.model, self.rng) is not None:
+        if self.strategy.apply(self.actions, self.iteration, self.model, self.rng) is not None:
             if self.context.check.enabled:
                 self.context.check("densify", self.model.download().params)
 
-    def _queue_iteration(self) -> Actions:
-        """Queue one iteration up to the density control (its actions returned); nothing is read back."""
+    def _step_view(self) -> None:
+        """An iteration of one view. The host waits once, for the view's counts, once the whole iteration is
+        queued: a view whose pairs overflowed the capacity it was given (render/isect.py), or whose Gaussians
+        spanning the backward's runs its carry rows (RasterizeBackward.plan), changed nothing on the device
+        (kernels/common.h FRAME_VOID), and runs again, host state rewound, with room for them."""
+        before = self._host_state()
+        while True:
+            self._queue_iteration()
+            if not self._overflowed():
+                return
+            self._restore(before)
+
+    def _queue_iteration(self) -> None:
+        """Queue an iteration of one view, its step fused into the projection's backward; nothing is read back."""
         self.iteration += 1
-        it, rt, s, ws = self.iteration, self.rt, self.strategy, self.context.ws
+        it = self.iteration
+        cam, background = self.next_camera(), self._background()
+        self.actions = Actions() if self.frozen else self.strategy.actions(it)
+        res, sums, layout = self._queue_view(it, cam, background)
+        if self.actions.optimiser_step:
+            lrs = self.schedule.learning_rates(it, self.scene.extent, self.actions.opacity_steps)
+            self.project_backward.step(self.params, cam, self.sh_degree, res, sums, layout,
+                                       self.model.adam.step_value(lrs), self.model.adam.m, self.model.adam.v,
+                                       self.regularizers())
+            self.strategy.after_step(it, self.params, lrs, self.cfg.seed, self.cfg.mcmc_noise_lr)
+
+    def _step_batch(self) -> None:
+        """An iteration of cfg.batch views: this process's share of them queued one by one, each view's gradients
+        added to the batch's (a view that overflowed runs again, as in _step_view, before the next is queued:
+        one wait per view), the processes' sums added, then one step on their mean. Every process draws every
+        view of the batch, so that all keep the same generator."""
+        self.iteration += 1
+        it = self.iteration
+        views = [(self.next_camera(), self._background()) for _ in range(self.cfg.batch)]
+        self.actions = Actions() if self.frozen else self.strategy.actions(it)
+        summed = self.batch.start(self.model.n)
+        for cam, background in self.group.share(views):
+            calls = self.loss.calls
+            while True:
+                res, sums, layout = self._queue_view(it, cam, background)
+                if self.actions.optimiser_step:
+                    self.project_backward.gradients(self.params, cam, self.sh_degree, res, sums, layout, summed,
+                                                    accumulate=True)
+                if not self._overflowed():
+                    break
+                self.loss.calls = calls
+        if self.actions.optimiser_step:
+            self.group.sum_gradients(self.batch.sums)
+            lrs = self.schedule.learning_rates(it, self.scene.extent, self.actions.opacity_steps)
+            self.batch.step(self.params, self.cfg.batch, self.model.adam.step_value(lrs), self.model.adam.m,
+                            self.model.adam.v, self.regularizers())
+            self.strategy.after_step(it, self.params, lrs, self.cfg.seed, self.cfg.mcmc_noise_lr)
+
+    def _background(self) -> np.ndarray:
+        """A view's background: --random-background draws a colour from the run's generator (the Inria code's,
+        gsplat's random_bkgd: transparent regions cost loss on every view, whatever the target's background)."""
+        return self.rng.random(3).astype(np.float32) if self.cfg.random_background else self.scene.background
+
+    def _overflowed(self) -> bool:
+        """Wait for the last view's counts (the iteration's one blocking read); where they overflowed its buffers,
+        make room for them and say so (the view changed nothing: it runs again)."""
+        counts = self.context.frame_counts()
+        if not counts["OVERFLOWED"]:
+            return False
+        if counts["PAIRS"] > self.pair_capacity:
+            self.pair_capacity = int(counts["PAIRS"] * (1 + BUFFER_HEADROOM))
+        if counts["SPANNING"] > self.carry_rows:
+            self.carry_rows = int(counts["SPANNING"] * (1 + BUFFER_HEADROOM))
+        return True
+
+    def _queue_view(self, it: int, cam: Camera, background: np.ndarray) -> tuple:
+        """Queue a view of iteration it up to its per-Gaussian sums (the render, the loss, what the strategy
+        gathers, the rasterizer backward); nothing is read back. Returns (render result, sums, their layout)."""
+        rt, s, ws = self.rt, self.strategy, self.context.ws
         self.context.check.at = f"iteration {it}"
-        cam = self.next_camera()
         target, keep = self.scene.image(cam), self.scene.mask(cam)
         target_buf, dL_dimage = ws.get("train.target", target.nbytes), ws.get("train.dL_dimage", target.nbytes)
         keep_buf = None
@@ -142,15 +211,10 @@ class Trainer:
             keep_buf = ws.get("train.keep", keep.size)
             rt.write_async(keep_buf, keep)   # bool: one byte, 0 or 1, as the kernels' uchar
         rt.write_async(target_buf, target)   # the scene keeps its images as decoded: nothing to wait for
-        # --random-background: the render's background a random colour each iteration (the Inria code's, gsplat's
-        # random_bkgd): transparent regions cost loss on every view, whatever the target's background
-        background = (self.rng.random(3).astype(np.float32) if self.cfg.random_background
-                      else self.scene.background)
 
         # --check-finite reads each stage's outputs as it goes: the view sized exactly, so that none is left void
         capacity = None if self.context.check.enabled else self.pair_capacity
         res = self.renderer.render(self.params, cam, self.sh_degree, background, capacity)
-        actions = Actions() if self.frozen else s.actions(it)
         gathering = s.gather(it, self.params, cam, res)
         # before the loss: a view that needs more carry rows is void before any lasting state changes
         plan = self.rasterize_backward.plan(res, gathering.layout, gathering.window,
@@ -159,13 +223,7 @@ class Trainer:
                   kept=np.count_nonzero(keep) if keep is not None else 0)
         sums, layout = self.rasterize_backward.folding(res, dL_dimage, background, gathering.layout,
                                                        gathering.geometry, keep_buf, gathering.window, plan)
-        if actions.optimiser_step:
-            lrs = self.schedule.learning_rates(it, self.scene.extent, actions.opacity_steps)
-            self.project_backward.step(self.params, cam, self.sh_degree, res, sums, layout,
-                                       self.model.adam.step_value(lrs), self.model.adam.m, self.model.adam.v,
-                                       self.regularizers())
-            s.after_step(it, self.params, lrs, self.cfg.seed, self.cfg.mcmc_noise_lr)
-        return actions
+        return res, sums, layout
 
     def regularizers(self) -> tuple[float, float] | None:
         """MCMC's loss terms opacity_reg mean(opacity) + scale_reg mean(scale), as the gradient factors the
@@ -207,9 +265,18 @@ class Trainer:
         return self.run_folder
 
     def save_checkpoint(self) -> None:
+        """Write a checkpoint (process 0). In a parallel run every process calls this together: the processes'
+        windows are summed into process 0's (the others' restart at zero, so that a run resumed from it, with any
+        process count, goes on from the same state), and their models are checked to be the same."""
         gs = self.model.download()
+        window = self.group.reduce_window(self.strategy.window.download())
+        if self.group.size > 1:
+            self.strategy.window.upload(window if self.group.rank == 0 else {k: np.zeros_like(v) for k, v in window.items()})
+            self.group.check_same(gs.params, f"iteration {self.iteration}")
+        if not self.group.writes:
+            return
         state = TrainingState(config=self.cfg, params=gs.params, m=gs.m, v=gs.v,
-                              window=self.strategy.window.download(), iteration=self.iteration,
+                              window=window, iteration=self.iteration,
                               adam_steps=self.model.adam.steps, rng=self.rng.bit_generator.state,
                               camera_stack=self.camera_stack, train_cameras=[c.name for c in self.scene.train],
                               # so that the first metrics sample after --resume is the same
@@ -230,7 +297,9 @@ class Trainer:
             self.model.upload(GaussianSet(state.params, state.m, state.v))
         except (ValueError, KeyError):
             raise InputError(path, "checkpoint arrays do not match the model layout") from None
-        self.strategy.window.upload(state.window)
+        # a parallel run's window is process 0's (save_checkpoint)
+        self.strategy.window.upload(state.window if self.group.rank == 0
+                                    else {k: np.zeros_like(v) for k, v in state.window.items()})
         self.model.adam.steps = state.adam_steps
         self.rng.bit_generator.state = state.rng
         self.camera_stack = state.camera_stack
@@ -241,7 +310,11 @@ class Trainer:
 
     # outputs ------------------------------------------------------------------------------------------
     def save_model(self) -> Path:
-        return self._folder_for("saving a model").save_model(self.iteration, self.params.download_model())
+        """Write the model at this iteration (process 0; the others' path only)."""
+        folder = self._folder_for("saving a model")
+        if not self.group.writes:
+            return folder.model_path(self.iteration)
+        return folder.save_model(self.iteration, self.params.download_model())
 
     def evaluate_test(self, render_dir: Path | None = None) -> dict:
         """Evaluate the test views now (evaluate.evaluate; with render_dir, their PNGs too) and log it; the
@@ -270,14 +343,17 @@ class Trainer:
         main_thread = threading.current_thread() is threading.main_thread()
         previous = {sig: signal.signal(sig, lambda signum, _: stop.update(signal=signum))
                     for sig in STOP_SIGNALS} if main_thread else {}
-        self.log = TrainingLog(run_folder, self.cfg.iterations, self.iteration, progress, line_every,
+        writes = self.group.writes   # a parallel run's other processes log nothing and evaluate nothing
+        self.log = TrainingLog(run_folder if writes else None, self.cfg.iterations, self.iteration,
+                               progress if writes else "none", line_every,
                                self.rt.stage_times if self.rt.profiling else None)
-        evaluate_at = {i for i in self.schedule.evaluations() if i < self.cfg.iterations} if self.scene.test else set()
+        evaluate_at = ({i for i in self.schedule.evaluations() if i < self.cfg.iterations}
+                       if self.scene.test and writes else set())
         try:
             while self.iteration < self.cfg.iterations:
-                if stop["signal"] is not None:
+                if self.group.any(stop["signal"] is not None):   # every process stops at the same iteration
                     self.save_checkpoint()
-                    raise Stopped(stop["signal"])
+                    raise Stopped(stop["signal"] or signal.SIGTERM)
                 self.step()
                 self.log.step()
                 if viewer is not None:   # returns at once while no browser is connected

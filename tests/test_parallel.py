@@ -1,0 +1,133 @@
+"""Training on batches of views (--batch B) and in several processes (mpirun -n P dc4gs-cl train): the batch's
+rules, a batch run resuming to the same model, and two MPI processes training as one process with a batch of two,
+their models the same on both, interrupted and resumed. The MPI tests skip where mpi4py or mpirun is absent."""
+import importlib.util
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from helpers import straight_and_resumed
+
+from dc4gs_cl.config import TrainConfig
+from dc4gs_cl.densify import DC4GSConfig
+from dc4gs_cl.errors import InputError
+from dc4gs_cl.parallel import MAX_COLUMNS, SingleProcess
+from dc4gs_cl.run_folder import CHECKPOINT
+from dc4gs_cl.scene import load_scene
+from dc4gs_cl.train import Trainer
+from dc4gs_cl.train.schedule import Schedule
+
+MPIRUN = shutil.which("mpirun", path=f"{Path(sys.executable).parent}{os.pathsep}{os.environ.get('PATH', '')}")
+needs_mpi = pytest.mark.skipif(importlib.util.find_spec("mpi4py") is None or MPIRUN is None,
+                               reason="mpi4py or mpirun is not installed (pip install '.[mpi]')")
+
+
+def test_a_batch_scales_the_rates_and_betas_and_splits_among_processes(rt):
+    """Grendel's rule: rates times sqrt(B), Adam's betas to the power B; a batch that the processes cannot share
+    evenly is refused; each process takes a contiguous share."""
+    one, four = (Schedule(TrainConfig(scene="builtin", batch=b)).learning_rates(10, 2.0, True) for b in (1, 4))
+    assert four["means"] == pytest.approx(2 * one["means"]) and four["sh"] == pytest.approx((2 * one["sh"][0],
+                                                                                           2 * one["sh"][1]))
+    scene = load_scene("builtin", resolution=8)
+    trainer = Trainer(TrainConfig(scene="builtin", resolution=8, batch=4), scene, rt)
+    assert trainer.model.adam.config.beta1 == pytest.approx(0.9 ** 4)
+    assert trainer.model.adam.config.beta2 == pytest.approx(0.999 ** 4)
+
+    class Two(SingleProcess):
+        size, rank = 2, 1
+    with pytest.raises(InputError, match="--batch 3 must be a multiple of the 2 processes"):
+        Trainer(TrainConfig(scene="builtin", resolution=8, batch=3), scene, rt, group=Two())
+    assert Two().share(list("abcd")) == ["c", "d"]
+    assert not Two().writes
+
+
+def test_a_batch_run_learns_and_resumes_to_the_same_model(rt, tmp_path):
+    """--batch 2 with AbsGS + DC4GS (the window gathered over both views of each step): the test views improve,
+    it densifies, and a run stopped at a checkpoint and resumed ends bit for bit where the straight run does."""
+    scene = load_scene("builtin", resolution=4)
+    cfg = TrainConfig(scene="builtin", resolution=4, iterations=120, batch=2, strategy="absgs",
+                      dc4gs=DC4GSConfig(dcc=True, dcs=True))
+
+    straight, resumed = straight_and_resumed(cfg, scene, rt, tmp_path, 50)
+    a, b = straight.model.download(), resumed.model.download()
+    for name in a.params:
+        np.testing.assert_array_equal(a.params[name], b.params[name], err_msg=name)
+        np.testing.assert_array_equal(a.m[name], b.m[name], err_msg=name)
+    stepping = sum(straight.strategy.actions(it).optimiser_step for it in range(1, 121))   # not on densify steps
+    assert straight.model.adam.steps["means"] == stepping > 100 and a.n > len(scene.points)
+    assert straight.loss.read_stats()["loss"] < 0.25
+
+
+def mpi_train(n: int, *args, wait: bool = True) -> subprocess.Popen:
+    cmd = [MPIRUN, "--allow-run-as-root", "--oversubscribe", "-n", str(n), sys.executable, "-m", "dc4gs_cl", "train",
+           "--no-progress", "--lpips", "none", *args]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    if wait:
+        proc.out, proc.err = proc.communicate(timeout=600)
+    return proc
+
+
+def one_process(*args) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "dc4gs_cl", "train", "--no-progress", "--lpips", "none", *args],
+                          capture_output=True, text=True, timeout=600)
+
+
+def model_bytes(out: Path, iterations: int) -> bytes:
+    return (out / "point_cloud" / f"iteration_{iterations}" / "point_cloud.ply").read_bytes()
+
+
+RUN = ["--scene", "builtin", "-r", "4", "--iterations", "150", "--checkpoint-every", "30"]
+
+
+@pytest.fixture(scope="module")
+def two_processes(tmp_path_factory):
+    out = tmp_path_factory.mktemp("mpi") / "run"
+    proc = mpi_train(2, *RUN, "--out", str(out))
+    assert proc.returncode == 0, proc.err
+    return out, proc
+
+
+@needs_mpi
+def test_two_processes_train_as_one_process_with_a_batch_of_two(two_processes, tmp_path):
+    """mpirun -n 2: a view each per iteration (the batch defaults to the process count), models checked the same on
+    both at every checkpoint; the result equals one process's --batch 2 run bit for bit: the gradients of two views
+    are added in either order to the same floats, and the windows' sums, added in another order, take the same
+    decisions here (they may differ in their last bits: float addition is not associative)."""
+    out, proc = two_processes
+    assert "2 processes of a batch of 2 views" in proc.err
+    assert "gradients summed over 2 processes" in proc.out
+    single = tmp_path / "single"
+    done = one_process(*RUN, "--batch", "2", "--out", str(single))
+    assert done.returncode == 0, done.stderr
+    assert model_bytes(out, 150) == model_bytes(single, 150)
+
+
+@needs_mpi
+def test_two_processes_stopped_and_resumed_end_where_they_would_have(two_processes, tmp_path):
+    """SIGTERM to mpirun (what a job scheduler sends): both processes stop at the same iteration after a checkpoint;
+    resumed under mpirun they end bit for bit where the uninterrupted run did."""
+    out, _ = two_processes
+    stopped = tmp_path / "stopped"
+    proc = mpi_train(2, *RUN, "--out", str(stopped), wait=False)
+    deadline = time.time() + 300
+    while not (stopped / CHECKPOINT).exists() and proc.poll() is None and time.time() < deadline:
+        time.sleep(0.05)
+    os.killpg(proc.pid, signal.SIGTERM)
+    _, err = proc.communicate(timeout=300)
+    assert proc.returncode != 0
+    resumed = mpi_train(2, "--out", str(stopped), "--resume")
+    assert resumed.returncode == 0, resumed.err
+    assert model_bytes(stopped, 150) == model_bytes(out, 150)
+
+
+def test_the_window_columns_that_take_a_maximum_exist():
+    """parallel.MAX_COLUMNS names window columns (a renamed column would be summed silently)."""
+    from dc4gs_cl.statistics import StatisticsSpec
+    columns = {f.name for f in StatisticsSpec(dc=True, split_candidates=5).window.fields}
+    assert set(MAX_COLUMNS) <= columns
