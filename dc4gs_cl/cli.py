@@ -278,7 +278,7 @@ def _add_recipe(p: argparse.ArgumentParser) -> None:
     add("--densify-from-iter", int, f"start of the densification window ({d.densify_from:,}, scaled)")
     add("--densify-until", int, f"end of the densification window ({d.densify_until:,}, scaled; 0: no densification)")
     add("--densification-interval", int, f"iterations between densification steps ({d.densify_every}; fewer where a "
-                                         "short run's window would hold under 10 steps; mcmc: scaled)")
+                                         "short run's window would hold under 10 steps; --batch B: 100 / B; mcmc: scaled)")
     add("--opacity-reset-interval", int, f"iterations between opacity resets ({d.opacity_reset_every:,}, scaled; "
                                          "0: none)")
 

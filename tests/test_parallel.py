@@ -2,6 +2,7 @@
 rules, a batch run resuming to the same model, and two MPI processes training as one process with a batch of two,
 their models the same on both, interrupted and resumed. The MPI tests skip where mpi4py or mpirun is absent."""
 import importlib.util
+import json
 import os
 import shutil
 import signal
@@ -28,12 +29,16 @@ needs_mpi = pytest.mark.skipif(importlib.util.find_spec("mpi4py") is None or MPI
                                reason="mpi4py or mpirun is not installed (pip install '.[mpi]')")
 
 
-def test_a_batch_scales_the_rates_and_betas_and_splits_among_processes(rt):
-    """Grendel's rule: rates times sqrt(B), Adam's betas to the power B; a batch that the processes cannot share
-    evenly is refused; each process takes a contiguous share."""
+def test_a_batch_scales_the_rates_betas_and_schedule_and_splits_among_processes(rt):
+    """Grendel's rule: rates times sqrt(B), Adam's betas to the power B; the schedule in views; a batch that the
+    processes cannot share evenly is refused; each process takes a contiguous share."""
     one, four = (Schedule(TrainConfig(scene="builtin", batch=b)).learning_rates(10, 2.0, True) for b in (1, 4))
     assert four["means"] == pytest.approx(2 * one["means"]) and four["sh"] == pytest.approx((2 * one["sh"][0],
                                                                                            2 * one["sh"][1]))
+    # the densification interval counts views: a batch of 4 over 7,500 iterations densifies where 30,000 of one do
+    for batch, iterations in ((1, 30_000), (4, 7_500)):
+        c = Schedule(TrainConfig(scene="builtin", batch=batch, iterations=iterations)).strategy().config
+        assert (c.densify_from * batch, c.densify_until * batch, c.densify_every * batch) == (500, 15_000, 100)
     scene = load_scene("builtin", resolution=8)
     trainer = Trainer(TrainConfig(scene="builtin", resolution=8, batch=4), scene, rt)
     assert trainer.model.adam.config.beta1 == pytest.approx(0.9 ** 4)
@@ -111,7 +116,7 @@ def test_two_processes_train_as_one_process_with_a_batch_of_two(two_processes, t
 @needs_mpi
 def test_two_processes_stopped_and_resumed_end_where_they_would_have(two_processes, tmp_path):
     """SIGTERM to mpirun (what a job scheduler sends): both processes stop at the same iteration after a checkpoint;
-    resumed under mpirun they end bit for bit where the uninterrupted run did."""
+    resumed under mpirun they end bit for bit where the uninterrupted run did; one process can resume it too."""
     out, _ = two_processes
     stopped = tmp_path / "stopped"
     proc = mpi_train(2, *RUN, "--out", str(stopped), wait=False)
@@ -121,9 +126,16 @@ def test_two_processes_stopped_and_resumed_end_where_they_would_have(two_process
     os.killpg(proc.pid, signal.SIGTERM)
     _, err = proc.communicate(timeout=300)
     assert proc.returncode != 0
+    alone = tmp_path / "alone"
+    shutil.copytree(stopped, alone)
     resumed = mpi_train(2, "--out", str(stopped), "--resume")
     assert resumed.returncode == 0, resumed.err
     assert model_bytes(stopped, 150) == model_bytes(out, 150)
+    # one process takes the run over (its batch of 2 from config.json): the same state, sums added in its order
+    done = one_process("--out", str(alone), "--resume")
+    assert done.returncode == 0, done.stderr
+    psnr = [json.loads((run / "results.json").read_text())["ours_150"]["PSNR"] for run in (alone, out)]
+    assert abs(psnr[0] - psnr[1]) < 0.2, psnr
 
 
 def test_the_window_columns_that_take_a_maximum_exist():

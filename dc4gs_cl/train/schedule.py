@@ -29,8 +29,9 @@ class Schedule:
     def strategy(self) -> Strategy:
         """The run's strategy with its schedule scaled to the run's length. The interval between densification
         steps of a strategy that gathers gradient statistics is not scaled, as the statistics need that many views
-        and new Gaussians that many steps to settle (scaling it grows the model explosively); it shrinks only where
-        fewer than MIN_DENSIFY_STEPS would fit in the window. MCMC's is scaled as gsplat's steps_scaler scales it:
+        and new Gaussians that many steps to settle (scaling it grows the model explosively); with --batch B it is
+        that many views, 1/B as many iterations, and it shrinks only where fewer than MIN_DENSIFY_STEPS would fit in
+        the window. MCMC's is scaled as gsplat's steps_scaler scales it:
         it gathers nothing, its growth per step is bounded by the cap, and a short run keeps the full schedule's
         number of steps (at 3,000 iterations 24 steps of 5% would grow the model 3.2x at most, short of any cap)."""
         cls = STRATEGIES[self.cfg.strategy]
@@ -38,8 +39,8 @@ class Schedule:
         start, stop = self.scaled(base.densify_from), self.scaled(base.densify_until)
         if cls.scaled_interval:
             every = self.scaled(base.densify_every)
-        else:
-            every = min(base.densify_every, max(1, (stop - start) // MIN_DENSIFY_STEPS))
+        else:   # that many views: a batch of B views gathers them in 1/B as many iterations (Grendel counts views)
+            every = min(max(1, round(base.densify_every / self.cfg.batch)), max(1, (stop - start) // MIN_DENSIFY_STEPS))
         c = replace(base, densify_from=start, densify_until=stop, densify_every=every,
                     big_world_after=self.scaled(base.big_world_after),
                     opacity_reset_every=self.scaled(base.opacity_reset_every),
