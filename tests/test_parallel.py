@@ -138,6 +138,21 @@ def test_two_processes_stopped_and_resumed_end_where_they_would_have(two_process
     assert abs(psnr[0] - psnr[1]) < 0.2, psnr
 
 
+def test_started_by_a_launcher_without_mpi4py_says_how_to_get_it(monkeypatch):
+    """A process an MPI launcher started among several, where mpi4py does not import: one line naming the extra;
+    started alone (no launcher's variables, or a world of one), no MPI at all."""
+    from dc4gs_cl.parallel import SIZE_VARIABLES, process_group
+    for name in SIZE_VARIABLES:
+        monkeypatch.delenv(name, raising=False)
+    assert type(process_group()) is SingleProcess
+    monkeypatch.setenv("PMI_SIZE", "1")
+    assert type(process_group()) is SingleProcess
+    monkeypatch.setenv("PMI_SIZE", "4")
+    monkeypatch.setitem(sys.modules, "mpi4py", None)   # import mpi4py raises ImportError
+    with pytest.raises(InputError, match=r"one of 4 MPI processes, but mpi4py is not installed: pip install"):
+        process_group()
+
+
 def test_the_window_columns_that_take_a_maximum_exist():
     """parallel.MAX_COLUMNS names window columns (a renamed column would be summed silently)."""
     from dc4gs_cl.statistics import StatisticsSpec
