@@ -16,7 +16,7 @@ import time
 
 import numpy as np
 
-from .errors import InputError
+from .errors import DeviceError, InputError
 from .runtime import DeviceArrays
 from .statistics import MAX_RADIUS, SKIP_SPLIT
 
@@ -100,8 +100,9 @@ class MPIGroup(SingleProcess):
         digests = self.comm.allgather(digest.hexdigest())
         differ = [rank for rank, d in enumerate(digests) if d != digests[0]]
         if differ:
-            raise RuntimeError(f"{what}: the model of process {differ[0]} differs from process 0's (they must stay "
-                               "identical: the same gradients and decisions on every process)")
+            raise DeviceError(f"{what}: the model of process {differ[0]} differs from process 0's (they must stay "
+                              "identical: the same gradients and decisions on every process; their devices computed "
+                              "different ones)")
 
 
 def launched_size() -> int:

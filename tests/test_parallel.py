@@ -153,6 +153,34 @@ def test_started_by_a_launcher_without_mpi4py_says_how_to_get_it(monkeypatch):
         process_group()
 
 
+def test_processes_whose_models_differ_stop_with_one_line():
+    """MPIGroup.check_same on a world whose processes hash their models differently: a DeviceError naming the first
+    process that differs (the command line prints it as one line, exit 2); equal hashes pass."""
+    from dc4gs_cl.errors import DeviceError
+    from dc4gs_cl.parallel import MPIGroup
+
+    class World:   # what check_same asks of a communicator, the other process's model hash given
+        def __init__(self, other):
+            self.other = other
+
+        def Get_rank(self):
+            return 0
+
+        def Get_size(self):
+            return 2
+
+        def Split_type(self, kind):
+            return self
+
+        def allgather(self, mine):
+            return [mine, mine if self.other is None else self.other]
+
+    model = {"means": np.zeros((3, 3), np.float32)}
+    MPIGroup(World(None), type("MPI", (), {"COMM_TYPE_SHARED": 0})).check_same(model, "iteration 30")
+    with pytest.raises(DeviceError, match="iteration 30: the model of process 1 differs from process 0's"):
+        MPIGroup(World("0" * 64), type("MPI", (), {"COMM_TYPE_SHARED": 0})).check_same(model, "iteration 30")
+
+
 def test_the_window_columns_that_take_a_maximum_exist():
     """parallel.MAX_COLUMNS names window columns (a renamed column would be summed silently)."""
     from dc4gs_cl.statistics import StatisticsSpec
