@@ -20,7 +20,6 @@ DEFAULT_LINE_EVERY = 100     # --log-every: iterations between progress lines wh
 # The strategies' names, spelled here so that settings are checked without importing the strategies (device
 # code); densify.STRATEGIES holds a class for each, in this order (tests/test_structure.py checks)
 STRATEGY_NAMES = ("3dgs", "absgs", "pixelgs", "mcmc")
-DC4GS_BASES = ("3dgs", "absgs", "pixelgs")   # the strategies DC4GS applies to (MCMC neither clones nor splits)
 MCMC_DEFAULT_CAP = 1_000_000                 # MCMC's --max-gaussians when none is given: gsplat's cap_max
 POOLINGS = ("view", "window")       # per view (the paper) or over the window (the authors' release)
 SPLIT_PICKS = ("poly", "argmin", "dense", "middle")   # middle: DCS' split at x = 0.5, no costs (an ablation)
@@ -214,9 +213,11 @@ class TrainConfig:
                                   ("scale_reg", self.scale_reg))),
             *((name, self.strategy != "mcmc" and getattr(self, name) != getattr(TrainConfig, name),
                "applies to --strategy mcmc only") for name in ("mcmc_noise_lr", "opacity_reg", "scale_reg")),
-            ("strategy", self.strategy not in DC4GS_BASES and self.dc4gs.enabled,
-             f"{self.strategy}: DC4GS applies to {', '.join(DC4GS_BASES)} (MCMC relocates, it neither clones nor "
-             "splits)"),
+            ("strategy", self.strategy == "mcmc" and self.dc4gs.dcc,
+             "mcmc: of DC4GS only --dcs applies (DCC weights a split criterion; MCMC splits nothing, it places "
+             "copies)"),
+            ("dc4gs.track", self.strategy == "mcmc" and self.dc4gs.track > 0,
+             "does not apply to --strategy mcmc (it tracks a split criterion; MCMC has none)"),
             ("max_gaussians", self.max_gaussians is not None and self.max_gaussians < 1,
              f"{self.max_gaussians} must be at least 1"),
             ("sh_degree", not 0 <= self.sh_degree <= SH_MAX_DEGREE, f"{self.sh_degree} must be 0..{SH_MAX_DEGREE}"),

@@ -1,5 +1,7 @@
 """MCMC densification: the counter-based normals against Random123's published answers and their distribution,
 the position noise kernel against its float64 reference."""
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -116,6 +118,71 @@ def test_a_refinement_step_relocates_the_dead_and_grows_to_the_cap(rng):
     assert all(np.array_equal(gs.params[k], gs2.params[k]) for k in params)   # the run's generator decides
 
 
+@pytest.mark.parametrize("pick", ["poly", "middle"])
+def test_dcs_makes_a_gaussian_drawn_once_and_its_copy_dcs_children(rng, pick):
+    """--strategy mcmc --dcs: a live Gaussian drawn once for a dead slot becomes, with its copy there, the two
+    children DCS' split makes of it on the bases (ops.split_at, cut where its split costs are lowest, or in the
+    middle with split_pick middle); one drawn more often shares by equation (9) and its slots hold copies, as
+    without DCS."""
+    from dc4gs_cl.config import DC4GSConfig
+    from dc4gs_cl.densify import DensifyConfig
+    from dc4gs_cl.densify import ops
+    from dc4gs_cl.densify.mcmc import MCMC, relocated_opacity_scale
+    from dc4gs_cl.model import GaussianSet
+    from dc4gs_cl.statistics import SPLIT_COSTS
+    n, dead = 600, np.arange(200)     # many dead: some live ones are drawn twice or more
+    model = random_model(rng, n, sh_degree=1, spread=1.0)
+    model.opacity_logits[dead] = -8.0
+    model.opacity_logits[200:] = rng.uniform(-3.0, 3.0, n - 200)
+    params = {k: np.asarray(getattr(model, k), np.float32).reshape(n, -1)
+              for k in ("means", "log_scales", "quats", "opacity_logits", "sh")}
+    zeros = lambda: {k: np.zeros_like(v) for k, v in params.items()}   # noqa: E731
+    costs = rng.uniform(0.0, 1.0, (n, 5)) ** 3    # each Gaussian's own preferred cut
+    strategy = MCMC(DensifyConfig(densify_from=0, densify_until=100, densify_every=10, prune_opacity=0.005,
+                                  max_gaussians=n), DC4GSConfig(dcs=True, split_pick=pick))
+    window = {SPLIT_COSTS: costs} if pick != "middle" else {}
+    gs = GaussianSet({k: v.copy() for k, v in params.items()}, zeros(), zeros())
+    assert strategy.densify(gs, window, 10, np.random.default_rng(5)).pruned == len(dead)
+
+    # the live Gaussian each dead slot was drawn from: neither a share nor DCS changes rotation or colour
+    sources = np.array([np.flatnonzero((params["quats"][200:] == gs.params["quats"][i]).all(axis=1))[0] + 200
+                        for i in dead])
+    drawn = np.bincount(sources, minlength=n)[sources]
+    once, more = drawn == 1, drawn > 1
+    assert once.sum() > 50 and more.sum() > 20
+    cuts = strategy.dcs_cuts(window, sources[once])
+    if pick == "middle":
+        assert (cuts == 0.5).all()
+    else:
+        assert np.ptp(cuts) > 0.3                       # the costs placed the cuts, not the middle
+    split = GaussianSet({k: v.copy() for k, v in params.items()}, zeros(), zeros())
+    ops.split_at(split, sources[once], cuts)          # DCS on a base: the children, in pairs, at the end
+    children = {k: v[n - once.sum():] for k, v in split.params.items()}
+    for k in params:
+        np.testing.assert_allclose(gs.params[k][sources[once]], children[k][0::2], rtol=1e-6, atol=1e-7)
+        np.testing.assert_allclose(gs.params[k][dead[once]], children[k][1::2], rtol=1e-6, atol=1e-7)
+        np.testing.assert_array_equal(gs.params[k][dead[more]], gs.params[k][sources[more]])
+    o, sigma = relocated_opacity_scale(1 / (1 + np.exp(-params["opacity_logits"][sources[more], 0].astype(np.float64))),
+                                       np.exp(params["log_scales"][sources[more]].astype(np.float64)), drawn[more] + 1)
+    np.testing.assert_allclose(gs.opacities()[sources[more]], o, rtol=1e-6)
+    np.testing.assert_allclose(gs.scales()[sources[more]], sigma, rtol=1e-6)
+    # a pair's opacities add up to its parent's: DCS partitions the parent along its axis
+    parent_opacity = 1 / (1 + np.exp(-params["opacity_logits"][sources[once], 0].astype(np.float64)))
+    np.testing.assert_allclose(gs.opacities()[sources[once]] + gs.opacities()[dead[once]], parent_opacity, rtol=1e-5)
+
+    # growing after relocating, DCS places only Gaussians the relocation left alone (the window's costs are theirs)
+    gs = GaussianSet({k: v.copy() for k, v in params.items()}, zeros(), zeros())
+    strategy.config = dataclasses.replace(strategy.config, max_gaussians=n + 30)
+    assert strategy.densify(gs, window, 10, np.random.default_rng(5)).cloned == 30
+    placed = 0
+    for j in range(n, n + 30):
+        family = np.flatnonzero((gs.params["quats"] == gs.params["quats"][j]).all(axis=1))
+        if not any((gs.params["means"][i] == gs.params["means"][j]).all() for i in family if i != j):
+            placed += 1      # a DCS pair: its parent, an original untouched by relocation, has no other copy
+            assert len(family) == 2 and family[0] >= 200 and family[0] not in sources
+    assert placed > 5
+
+
 @pytest.mark.parametrize("iterations", [30_000, 3_000, 600])
 def test_a_shorter_run_refines_as_often_for_its_length(iterations):
     """MCMC's schedule scales with the run as gsplat's steps_scaler scales it, its interval too, so a short run takes
@@ -134,14 +201,17 @@ def test_a_shorter_run_refines_as_often_for_its_length(iterations):
     assert three_dgs.densify_every == min(100, (three_dgs.densify_until - three_dgs.densify_from) // 10)
 
 
-def test_mcmc_trains_grows_and_resumes_to_the_same_model(rt, tmp_path):
-    """--strategy mcmc on the built-in scene: it learns, grows by 5% a step up to the cap, keeps no dead Gaussian
-    past a step, and a run resumed from a checkpoint ends bit for bit where the straight run does (the noise is
-    keyed by seed and iteration, the draws come from the checkpointed generator)."""
-    from dc4gs_cl.config import TrainConfig
+@pytest.mark.parametrize("dcs", [False, True])
+def test_mcmc_trains_grows_and_resumes_to_the_same_model(rt, tmp_path, dcs):
+    """--strategy mcmc (and with --dcs) on the built-in scene: it learns, grows by 5% a step up to the cap, keeps
+    no dead Gaussian past a step, and a run resumed from a checkpoint ends bit for bit where the straight run does
+    (the noise is keyed by seed and iteration, the draws come from the checkpointed generator, DCS' split costs
+    from the checkpointed window)."""
+    from dc4gs_cl.config import DC4GSConfig, TrainConfig
     from dc4gs_cl.scene import load_scene
     scene = load_scene("builtin", resolution=4)
-    cfg = TrainConfig(scene="builtin", iterations=150, resolution=4, strategy="mcmc", max_gaussians=6000)
+    cfg = TrainConfig(scene="builtin", iterations=150, resolution=4, strategy="mcmc", max_gaussians=6000,
+                      dc4gs=DC4GSConfig(dcs=dcs))
 
     straight, resumed = straight_and_resumed(cfg, scene, rt, tmp_path, 70)
     start = len(scene.points)
@@ -154,7 +224,9 @@ def test_mcmc_trains_grows_and_resumes_to_the_same_model(rt, tmp_path):
 
 @pytest.mark.parametrize("args,says", [
     (["--opacity-reg", "0.1"], "--opacity-reg applies to --strategy mcmc only"),
-    (["--strategy", "mcmc", "--dc4gs"], "--strategy mcmc: DC4GS applies to 3dgs, absgs, pixelgs"),
+    (["--strategy", "mcmc", "--dc4gs"], "--strategy mcmc: of DC4GS only --dcs applies"),
+    (["--strategy", "mcmc", "--dcc"], "--strategy mcmc: of DC4GS only --dcs applies"),
+    (["--strategy", "mcmc", "--dcs", "--dcs-track", "0.5"], "--dcs-track does not apply to --strategy mcmc"),
     (["--strategy", "mcmc", "--scale-reg", "-1"], "--scale-reg -1.0 must be a finite number >= 0"),
 ])
 def test_mcmc_settings_that_make_no_sense(tmp_path, capsys, args, says):

@@ -3,7 +3,7 @@ curve the base's split threshold swept. One point per method cannot tell better 
 (any higher threshold gives fewer Gaussians at lower PSNR); a curve can.
 
     python tools/frontier.py [--scenes builtin temple_sparse_ring ...] [--bases absgs 3dgs]
-                             [--methods base dc4gs dcc dcs mcmc] [--scales 0.5 1 1.5 2 4] [--seeds 0 1 2]
+                             [--methods base dc4gs dcc dcs mcmc mcmc-dcs] [--scales 0.5 1 1.5 2 4] [--seeds 0 1 2]
                              [--iterations 3000] [--test-split llff|interpolated] [-r K] [--out DIR] [--device D]
                              [--report-only]
 
@@ -13,7 +13,7 @@ dc4gs-middle: DCC with that split, DC4GS without split costs, and dc4gs-shrink: 
 two axes shrink as 3DGS' children do, --dcs-other-scale 0.625); a scale multiplies the
 base's split threshold (--split-threshold; the clone threshold stays). mcmc is MCMC densification beside the base,
 its cap (--max-gaussians) swept instead: at each scale, the final Gaussian count of the base's run of that scale and
-seed, so that its curve spans the base's range. Every (scene, base, method, scale, seed) is one
+seed, so that its curve spans the base's range; mcmc-dcs is MCMC with DCS' placement (--strategy mcmc --dcs). Every (scene, base, method, scale, seed) is one
 training run measured as tools/bench_train.py measures it (test PSNR and SSIM per view, final and peak Gaussians,
 wall and device time), its folder kept under DIR. Each result is added to DIR/frontier.json when its run ends and a
 rerun skips the runs that file holds, so a sweep that is interrupted, or spread over sessions, goes on where it
@@ -52,11 +52,13 @@ from dc4gs_cl.scene.camera import TEST_SPLITS  # noqa: E402
 # method -> bench_train strategy suffix (mcmc: the strategy itself, its cap swept); the last four are not run by
 # default (see the docstring)
 METHODS = {"base": "", "dc4gs": "+dc4gs", "dcc": "+dcc", "dcs": "+dcs", "dcs-middle": "+dcs:middle",
-           "dc4gs-middle": "+dc4gs:middle", "dc4gs-shrink": "+dc4gs:shrink", "mcmc": None}
+           "dc4gs-middle": "+dc4gs:middle", "dc4gs-shrink": "+dc4gs:shrink", "mcmc": None,
+           "mcmc-dcs": None}
 DEFAULT_METHODS = ("base", "dc4gs", "dcc", "dcs")
 SCALES = (0.5, 1.0, 1.5, 2.0, 4.0)
 COLOURS = {"base": "black", "dc4gs": "tab:red", "dcc": "tab:blue", "dcs": "tab:green", "dcs-middle": "tab:olive",
-           "dc4gs-middle": "tab:purple", "dc4gs-shrink": "tab:orange", "mcmc": "tab:cyan"}
+           "dc4gs-middle": "tab:purple", "dc4gs-shrink": "tab:orange", "mcmc": "tab:cyan",
+           "mcmc-dcs": "tab:pink"}
 
 
 def run_key(scene: str, base: str, method: str, scale: float, iterations: int, test_split: str, seed: int = 0) -> str:
@@ -65,7 +67,9 @@ def run_key(scene: str, base: str, method: str, scale: float, iterations: int, t
 
 def strategy_of(base: str, method: str, cap: int | None = None) -> str:
     """bench_train's strategy spec of a method beside a base."""
-    return f"mcmc:cap={cap}" if method == "mcmc" else base + METHODS[method]
+    if method.startswith("mcmc"):
+        return f"mcmc{'+dcs' if method == 'mcmc-dcs' else ''}:cap={cap}"
+    return base + METHODS[method]
 
 
 def at_equal_gaussians(point: dict, base_points: list[dict]) -> float | None:
@@ -122,7 +126,7 @@ def markdown(report: dict) -> str:
             for r in methods.get(method, []):
                 d = at_equal_gaussians(r, base_pts) if method != "base" else None
                 views = sorted(r["per_view_psnr"].items(), key=lambda kv: kv[1])
-                limit = f"cap {r['cap']:,}" if method == "mcmc" else f"{r['split_threshold']:.2e}"
+                limit = f"cap {r['cap']:,}" if method.startswith("mcmc") else f"{r['split_threshold']:.2e}"
                 tables.append(
                     f"| {method} | {r['scale']:g} | {r.get('seed', 0)} | {limit} | {r['gaussians_final']:,} | "
                     f"{r['psnr']:.2f} | {r['ssim']:.4f} | {'-' if d is None else f'{d:+.2f}'} | "
@@ -149,7 +153,7 @@ def plot(report: dict, out: Path) -> list[Path]:
     for (scene, base, iterations, split), methods in curves(report["runs"]).items():
         fig, (by_count, by_time) = plt.subplots(1, 2, figsize=(11, 4.2))
         for method, runs in methods.items():
-            label = base if method == "base" else "mcmc" if method == "mcmc" else f"{base}+{method}"
+            label = base if method == "base" else method if method.startswith("mcmc") else f"{base}+{method}"
             pts = mean_points(runs)
             spread = [[p["psnr"] - p["psnr_min"] for p in pts], [p["psnr_max"] - p["psnr"] for p in pts]]
             for ax, x in ((by_count, [p["gaussians_final"] for p in pts]), (by_time, [p["wall_s"] for p in pts])):
@@ -254,10 +258,10 @@ def main(argv=None) -> int:
                     if key in done:          # a sweep running beside this one has recorded it meanwhile
                         continue
                     cap = None
-                    if method == "mcmc":     # the base's final count at this scale and seed (just run, or recorded)
+                    if method.startswith("mcmc"):     # the base's final count at this scale and seed (just run, or recorded)
                         base_key = run_key(name, base, "base", scale, args.iterations, args.test_split, seed)
                         cap = next(r["gaussians_final"] for r in report["runs"] if r["key"] == base_key)
-                    settings = {} if method == "mcmc" else {"split_threshold": threshold * scale}
+                    settings = {} if method.startswith("mcmc") else {"split_threshold": threshold * scale}
                     cfg = bench_train.config(scene, strategy_of(base, method, cap), args.iterations, r, seed=seed,
                                              test_split=args.test_split, **settings)
                     folder = args.out / "runs" / key.replace("|", "-")

@@ -8,6 +8,10 @@ paper's equation (9) (relocated_opacity_scale). Every iteration, after Adam's st
 (optim/position_noise.py, the SGLD step), and the loss carries the regularisers opacity_reg mean(opacity) +
 scale_reg mean(scale) (project_backward.cl, REGULARIZED).
 
+With DCS (--strategy mcmc --dcs; DC4GS' split placement, our addition) the window gathers every Gaussian's split
+costs, and a Gaussian drawn exactly once in a step becomes, with its copy, DCS' two children (cut where its costs
+are lowest) rather than two coinciding halves; one drawn more often shares by equation (9) as without it.
+
 Where this departs from gsplat: the Adam moments of a relocated Gaussian (the dead one's slot) restart at zero as
 those of the live one it copies do (gsplat zeroes the live one's only); the draws come from the run's generator.
 """
@@ -21,6 +25,7 @@ from ..config import DensifyConfig
 from ..model import GaussianSet, logit
 from ..optim.position_noise import PositionNoise
 from ..render.gaussians import DeviceGaussians
+from .ops import split_children
 from .strategy import Actions, DensifyReport, Strategy
 
 GROWTH_RATE = 0.05       # each refinement step grows the model by 5% (up to the cap)
@@ -55,12 +60,13 @@ class MCMC(Strategy):
 
     @staticmethod
     def default_config() -> DensifyConfig:
-        # refine from 500 to 25,000 of 30,000 every 100; dead below opacity 0.005; no opacity resets
+        # refine from 500 to 25,000 of 30,000 every 100; dead below opacity 0.005; no opacity resets; with DCS,
+        # every Gaussian may be placed, so every one gathers split costs (percent_dense 0: no size rule)
         return DensifyConfig(densify_from=500, densify_until=25_000, densify_every=100, prune_opacity=0.005,
-                             opacity_reset_every=0)
+                             opacity_reset_every=0, percent_dense=0.0)
 
     def collecting(self, it: int) -> bool:
-        return False   # MCMC reads no gradient statistics
+        return self.dc4gs is not None and it <= self.last_densify_step   # DCS' split costs; else nothing
 
     def actions(self, it: int) -> Actions:
         return Actions(densify=self.densify_now(it), step_with_densify=True)
@@ -80,29 +86,43 @@ class MCMC(Strategy):
             self.before_densify(gs, window, it)
         c = self.config
         report = DensifyReport()
+        # DCS: the Gaussians it may place, those whose split costs the window gathered and no share has touched yet
+        placeable = np.ones(gs.n, bool) if self.dc4gs is not None else None
         opacity = gs.opacities()
         dead = np.flatnonzero(opacity <= c.prune_opacity)
         alive = np.flatnonzero(opacity > c.prune_opacity)
         if len(dead) and len(alive):
-            report.pruned = self._share(gs, rng.choice(alive, len(dead), p=_weights(opacity[alive])), dead)
+            report.pruned = self._share(gs, rng.choice(alive, len(dead), p=_weights(opacity[alive])), dead, window,
+                                        placeable)
         cap = c.max_gaussians if c.max_gaussians is not None else gs.n
         grow = max(0, min(cap, int((1 + GROWTH_RATE) * gs.n)) - gs.n)
         if grow:
-            report.cloned = self._share(gs, rng.choice(gs.n, grow, p=_weights(gs.opacities())), None)
+            report.cloned = self._share(gs, rng.choice(gs.n, grow, p=_weights(gs.opacities())), None, window,
+                                        placeable)
         return report
 
-    def _share(self, gs: GaussianSet, sampled: np.ndarray, into: np.ndarray | None) -> int:
+    def _share(self, gs: GaussianSet, sampled: np.ndarray, into: np.ndarray | None, window: dict[str, np.ndarray],
+               placeable: np.ndarray | None) -> int:
         """Each sampled Gaussian shares its opacity and scale with its copies, written over `into` (relocation)
-        or appended (growth); the sampled and their copies restart Adam's moments."""
+        or appended (growth); the sampled and their copies restart Adam's moments. With DCS (placeable: a mask
+        over the Gaussians before this step, see densify) a placeable Gaussian drawn once becomes, with its copy,
+        DCS' two children instead: cut across its principal axis where its split costs are lowest (as DCS splits on
+        the bases), not two copies on one spot."""
         counts = np.bincount(sampled, minlength=gs.n)
         opacity, scale = relocated_opacity_scale(gs.opacities()[sampled], gs.scales()[sampled], counts[sampled] + 1)
         opacity = np.clip(opacity, self.config.prune_opacity, 1 - OPACITY_EPS)
+        if placeable is not None:
+            once = np.flatnonzero((counts[sampled] == 1) & placeable[sampled])
+            parents = sampled[once]
+            children = split_children({k: v[parents] for k, v in gs.params.items()}, self.dcs_cuts(window, parents),
+                                      self.dc4gs.other_scale)
         gs.params["opacity_logits"][sampled] = logit(opacity)[:, None].astype(np.float32)
         gs.params["log_scales"][sampled] = np.log(scale).astype(np.float32)
         for moments in (gs.m, gs.v):
             for array in moments.values():
                 array[sampled] = 0
         if into is None:
+            into = np.arange(gs.n, gs.n + len(sampled))
             gs.append({k: v[sampled] for k, v in gs.params.items()}, sampled)
         else:
             for k, v in gs.params.items():
@@ -110,6 +130,12 @@ class MCMC(Strategy):
             for moments in (gs.m, gs.v):
                 for array in moments.values():
                     array[into] = 0
+        if placeable is not None:
+            for k, v in gs.params.items():
+                v[parents] = children[0][k]
+                v[into[once]] = children[1][k]
+            placeable[sampled] = False
+            placeable[into[into < len(placeable)]] = False
         return len(sampled)
 
 

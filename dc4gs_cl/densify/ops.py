@@ -65,26 +65,27 @@ def split_at(gs: GaussianSet, idx: np.ndarray, x: np.ndarray, other_scale: float
     zero."""
     if len(idx) == 0:
         return 0
-    p = {k: v[idx].astype(np.float64) for k, v in gs.params.items()}
-    axis, sigma, direction = principal_axis(p["log_scales"], p["quats"])
-    x = np.asarray(x, np.float64)
-    offsets = [-3 * sigma * (1 - x), 3 * sigma * x]
-    fractions = [x, 1 - x]
-    opacity = sigmoid(p["opacity_logits"][:, 0])
-    children = {k: [] for k in p}
-    others = p["log_scales"] + math.log(other_scale)
-    for offset, fraction in zip(offsets, fractions):
-        log_scales = others.copy()
-        log_scales[np.arange(len(idx)), axis] = np.log(sigma * fraction)
-        children["means"].append(p["means"] + offset[:, None] * direction)
-        children["log_scales"].append(log_scales)
-        children["opacity_logits"].append(logit(opacity * fraction)[:, None])
-        for k in ("quats", "sh"):
-            children[k].append(p[k])
+    children = split_children({k: v[idx] for k, v in gs.params.items()}, x, other_scale)
     # Children of one parent in a row, as replace_with_children expects.
-    stacked = {k: np.stack(v, axis=1).reshape(len(offsets) * len(idx), -1) for k, v in children.items()}
+    stacked = {k: np.stack([c[k] for c in children], axis=1).reshape(2 * len(idx), -1) for k in children[0]}
     replace_with_children(gs, idx, stacked)
     return len(idx)
+
+
+def split_children(params: dict[str, np.ndarray], x: np.ndarray, other_scale: float = 1.0) -> list[dict[str, np.ndarray]]:
+    """split_at's two children of the Gaussians params (float64)."""
+    p = {k: v.astype(np.float64) for k, v in params.items()}
+    axis, sigma, direction = principal_axis(p["log_scales"], p["quats"])
+    x = np.asarray(x, np.float64)
+    opacity = sigmoid(p["opacity_logits"][:, 0])
+    others = p["log_scales"] + math.log(other_scale)
+    children = []
+    for offset, fraction in ((-3 * sigma * (1 - x), x), (3 * sigma * x, 1 - x)):
+        log_scales = others.copy()
+        log_scales[np.arange(len(x)), axis] = np.log(sigma * fraction)
+        children.append({"means": p["means"] + offset[:, None] * direction, "log_scales": log_scales,
+                         "opacity_logits": logit(opacity * fraction)[:, None], "quats": p["quats"], "sh": p["sh"]})
+    return children
 
 
 def replace_with_children(gs: GaussianSet, idx: np.ndarray, children: dict[str, np.ndarray]) -> None:

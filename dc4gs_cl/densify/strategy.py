@@ -213,10 +213,14 @@ class Strategy:
         if self.dc4gs is None or not self.dc4gs.dcs:
             return ops.split_random(gs, mask, rng)
         idx = np.flatnonzero(mask)
-        if not self.split_candidates:   # split_pick middle: DCS' split without its costs
-            return ops.split_at(gs, idx, np.full(len(idx), 0.5), self.dc4gs.other_scale)
-        return ops.split_at(gs, idx, split_positions(window[SPLIT_COSTS][idx], self.dc4gs.split_pick),
-                            self.dc4gs.other_scale)
+        return ops.split_at(gs, idx, self.dcs_cuts(window, idx), self.dc4gs.other_scale)
+
+    def dcs_cuts(self, window: dict[str, np.ndarray], idx: np.ndarray) -> np.ndarray:
+        """Where DCS cuts the Gaussians idx along their principal axes, in (0, 1): where their split costs are
+        lowest, or the middle with split_pick middle (no costs gathered)."""
+        if not self.split_candidates:
+            return np.full(len(idx), 0.5)
+        return split_positions(window[SPLIT_COSTS][idx], self.dc4gs.split_pick)
 
     def large(self, gs: GaussianSet) -> np.ndarray:
         """The Gaussians a step would split rather than clone: largest scale above percent_dense x extent."""
