@@ -62,6 +62,10 @@ def test_projection_matches_float64_reference(rt, rng, sh_degree, antialiased):
     if antialiased:   # the compensation spans its range: sub-pixel Gaussians far below 1, large ones near it
         ratio = ref["opacity"][both] * (1 + np.exp(-model.opacity_logits[both].astype(np.float64)))
         assert ratio.min() < 0.2 and ratio.max() > 0.95, (ratio.min(), ratio.max())
+        # each Gaussian's, not only in the mean: a faint one's error is its alpha extent's, amplified
+        # 1 / ln(opacity / ALPHA_MIN) times (formed from the dilated covariance, det(Sigma) cancelled to 1e-3)
+        opacity = got["conic_opacity"][both, 3].astype(np.float64)
+        assert np.max(np.abs(opacity - ref["opacity"][both]) / ref["opacity"][both]) < 5e-5
 
 
 @pytest.mark.parametrize("antialiased", [False, True], ids=["classic", "antialiased"])

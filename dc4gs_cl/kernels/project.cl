@@ -47,7 +47,7 @@ __kernel void project(const int n, const Camera cam, const int sh_degree, const 
     int2 free;
     ewa_jacobian(&cam, pc, T, &t_clamped, &free);
     float3 cov = covariance_2d(T, M, TM);
-    float a = cov.x, b = cov.y, c = cov.z;
+    float a = cov.x + EWA_DILATION, b = cov.y, c = cov.z + EWA_DILATION;
     float det = a * c - b * b;
     if (!(det > 0.f) || !IS_FINITE(det)) return;
     float inv_det = 1.f / det;
@@ -63,7 +63,7 @@ __kernel void project(const int n, const Camera cam, const int sh_degree, const 
     float op = 1.f / (1.f + exp_poly(-opacity_logits[i]));
 #if ANTIALIASED
     float square;
-    op *= antialias_compensation(a, c, inv_det, &square);
+    op *= antialias_compensation(cov.x, cov.y, cov.z, inv_det, &square);
 #endif
     // alpha >= ALPHA_MIN needs the Mahalanobis distance q <= 2 ln(op / ALPHA_MIN); the box of that
     // ellipse has half-sizes sqrt(q a) and sqrt(q c) (a, c: the 2D covariance's diagonal).

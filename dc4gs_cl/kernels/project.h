@@ -65,22 +65,26 @@ ALWAYS_INLINE void ewa_jacobian(const Camera *cam, float3 pc, float *T, float2 *
     }
 }
 
-// 2D covariance (a, b, c) = T Sigma T^T + dilation, with TM = T M kept for the backward.
+// 2D covariance (a, b, c) = T Sigma T^T before the dilation (callers add EWA_DILATION to a and c), with TM = T M
+// kept for the backward.
 ALWAYS_INLINE float3 covariance_2d(const float *T, const float *M, float *TM) {
     for (int r = 0; r < 2; ++r)
         for (int c = 0; c < 3; ++c)
             TM[3 * r + c] = T[3 * r] * M[c] + T[3 * r + 1] * M[3 + c] + T[3 * r + 2] * M[6 + c];
-    return (float3)(TM[0] * TM[0] + TM[1] * TM[1] + TM[2] * TM[2] + EWA_DILATION,
+    return (float3)(TM[0] * TM[0] + TM[1] * TM[1] + TM[2] * TM[2],
                     TM[0] * TM[3] + TM[1] * TM[4] + TM[2] * TM[5],
-                    TM[3] * TM[3] + TM[4] * TM[4] + TM[5] * TM[5] + EWA_DILATION);
+                    TM[3] * TM[3] + TM[4] * TM[4] + TM[5] * TM[5]);
 }
 
 // The antialiased mode's opacity factor, sqrt(det(Sigma) / det(Sigma + EWA_DILATION I)) (Mip-Splatting's 2D
 // filter, gsplat's rasterize_mode "antialiased"): a dilated Gaussian keeps its integral instead of growing it.
-// Its square from the dilated covariance's a, c and determinant: det(Sigma) = det - EWA_DILATION (a + c) +
-// EWA_DILATION^2. Also returns the square (s), which the backward needs; 0 where Sigma is degenerate.
-inline float antialias_compensation(float a, float c, float inv_det, float *s) {
-    *s = 1.f - EWA_DILATION * (a + c - EWA_DILATION) * inv_det;
+// det(Sigma) from the undilated covariance (a0, b0, c0) (covariance_2d), inv_det the dilated one's inverse
+// determinant: from the dilated entries, det - EWA_DILATION (a + c) + EWA_DILATION^2 cancels to float32 noise
+// where Sigma is sub-pixel (s << 1: errors of 1e-3 in the opacity, 10% in its alpha extent). Also returns the square (s), which
+// the backward needs; 0 where Sigma is degenerate. Scalars, not a float3: Intel's CPU runtime (intel-opencl-rt
+// 2026.2) garbles a float3 passed to this non-inlined function.
+inline float antialias_compensation(float a0, float b0, float c0, float inv_det, float *s) {
+    *s = (a0 * c0 - b0 * b0) * inv_det;
     return sqrt_nocall(MAXF(*s, 0.f));
 }
 

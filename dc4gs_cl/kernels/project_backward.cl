@@ -48,7 +48,7 @@ ALWAYS_INLINE void visible_gradients(int i, const Camera cam, int sh_degree, PAR
     int2 free;
     ewa_jacobian(&cam, pc, T, &t_clamped, &free);
     float3 cov = covariance_2d(T, M, TM);
-    float a = cov.x, b = cov.y, c = cov.z;
+    float a = cov.x + EWA_DILATION, b = cov.y, c = cov.z + EWA_DILATION;
     float inv_det = 1.f / (a * c - b * b);
     float k0 = c * inv_det, k1 = -b * inv_det, k2 = a * inv_det;   // the conic, as the forward wrote it
 
@@ -63,7 +63,7 @@ ALWAYS_INLINE void visible_gradients(int i, const Camera cam, int sh_degree, PAR
 #if ANTIALIASED
     // the opacity o x comp, comp = sqrt(s): ds/d(a, b, c) = (1 - s) (k0, 2 k1, k2) - EWA_DILATION / det (1, 0, 1)
     float s_comp;
-    float comp = antialias_compensation(a, c, inv_det, &s_comp);
+    float comp = antialias_compensation(cov.x, cov.y, cov.z, inv_det, &s_comp);
     float v_s = g[SUM_OPACITY] * o * 0.5f / (comp + ANTIALIAS_GRAD_EPS);
     da += v_s * ((1.f - s_comp) * k0 - EWA_DILATION * inv_det);
     db += v_s * 2.f * (1.f - s_comp) * k1;
