@@ -80,9 +80,9 @@ ALWAYS_INLINE float3 covariance_2d(const float *T, const float *M, float *TM) {
 // filter, gsplat's rasterize_mode "antialiased"): a dilated Gaussian keeps its integral instead of growing it.
 // det(Sigma) from the undilated covariance (a0, b0, c0) (covariance_2d), inv_det the dilated one's inverse
 // determinant: from the dilated entries, det - EWA_DILATION (a + c) + EWA_DILATION^2 cancels to float32 noise
-// where Sigma is sub-pixel (s << 1: errors of 1e-3 in the opacity, 10% in its alpha extent). Also returns the square (s), which
-// the backward needs; 0 where Sigma is degenerate. Scalars, not a float3: Intel's CPU runtime (intel-opencl-rt
-// 2026.2) garbles a float3 passed to this non-inlined function.
+// where Sigma is sub-pixel (s << 1: errors of 1e-3 in the opacity, 10% in its alpha extent). Also returns the
+// square (s), which the backward needs; 0 where Sigma is degenerate. Scalars, not a float3: Intel's CPU runtime
+// (intel-opencl-rt 2026.2) garbles a float3 passed to this non-inlined function.
 inline float antialias_compensation(float a0, float b0, float c0, float inv_det, float *s) {
     *s = (a0 * c0 - b0 * b0) * inv_det;
     return sqrt_nocall(MAXF(*s, 0.f));
