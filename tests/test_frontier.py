@@ -23,6 +23,7 @@ def test_psnr_against_the_base_at_equal_gaussians():
     assert frontier.at_equal_gaussians(point(999, 30.0), base) is None                    # outside the base's range
     assert frontier.at_equal_gaussians(point(20000, 30.0), base) is None
     assert frontier.at_equal_gaussians(point(2000, 21.0), base[:1]) is None
+    assert frontier.at_equal_gaussians(point(4000, 22.5), base[:1]) == pytest.approx(0.5)   # MCMC at the base's count
 
 
 def test_sweep_runs_each_point_once_and_reports_it(tmp_path):
@@ -64,23 +65,28 @@ def test_side_by_side_sweeps_keep_each_others_runs(tmp_path):
     assert "| base | 1 |" in (tmp_path / "frontier.md").read_text()
 
 
-def test_mcmc_is_capped_at_the_bases_counts_and_seeds_are_averaged(tmp_path):
-    """mcmc beside a base: each of its runs capped at the final count of the base's run of the same scale and
-    seed; with several seeds each point's runs are averaged (the summary) and every run is a row."""
-    args = ["--scenes", "builtin", "--bases", "absgs", "--methods", "base", "mcmc", "--iterations", "60", "-r", "4",
-            "--scales", "1", "--seeds", "0", "5", "--out", str(tmp_path)]
+def test_mcmc_is_capped_at_the_bases_counts_and_seeds_are_averaged(tmp_path, capsys):
+    """mcmc (and mcmc-dcs) beside a base: each of its runs capped at the final count of the base's run of the same
+    scale and seed; with several seeds each point's runs are averaged (the summary) and every run is a row."""
+    args = ["--scenes", "builtin", "--bases", "absgs", "--methods", "base", "mcmc", "mcmc-dcs", "--iterations", "60",
+            "-r", "4", "--scales", "1", "--seeds", "0", "5", "--out", str(tmp_path)]
     assert frontier.main(args) == 0
     runs = json.loads((tmp_path / "frontier.json").read_text())["runs"]
-    assert [(r["method"], r["seed"]) for r in runs] == [("base", 0), ("mcmc", 0), ("base", 5), ("mcmc", 5)]
-    assert runs[0]["key"].endswith("|llff") and runs[2]["key"].endswith("|llff|seed5")   # seed 0 keeps old keys
-    for base, mcmc in (runs[:2], runs[2:]):
-        saved = json.loads((tmp_path / "runs" / mcmc["key"].replace("|", "-") / "config.json").read_text())
-        assert saved["strategy"] == "mcmc" and saved["max_gaussians"] == base["gaussians_final"] == mcmc["cap"]
-        assert saved["seed"] == base["seed"] and mcmc["gaussians_final"] <= mcmc["cap"]
+    assert [(r["method"], r["seed"]) for r in runs] == [("base", 0), ("mcmc", 0), ("mcmc-dcs", 0), ("base", 5),
+                                                         ("mcmc", 5), ("mcmc-dcs", 5)]
+    assert runs[0]["key"].endswith("|llff") and runs[3]["key"].endswith("|llff|seed5")   # seed 0 keeps old keys
+    for base, *capped in (runs[:3], runs[3:]):
+        for mcmc in capped:
+            saved = json.loads((tmp_path / "runs" / mcmc["key"].replace("|", "-") / "config.json").read_text())
+            assert saved["strategy"] == "mcmc" and saved["max_gaussians"] == base["gaussians_final"] == mcmc["cap"]
+            assert saved["seed"] == base["seed"] and mcmc["gaussians_final"] <= mcmc["cap"]
+            assert saved["dc4gs"]["dcs"] == (mcmc["method"] == "mcmc-dcs") and not saved["dc4gs"]["dcc"]
     points = frontier.mean_points([r for r in runs if r["method"] == "base"])
     assert len(points) == 1 and points[0]["seeds"] == 2
     assert points[0]["psnr_min"] <= points[0]["psnr"] <= points[0]["psnr_max"]
     text = (tmp_path / "frontier.md").read_text()
     assert text.count("\n| mcmc |") == 2 and f"cap {runs[1]['cap']:,}" in text
-    with pytest.raises(SystemExit):
-        frontier.main([*args[:6], "mcmc", "base", *args[8:]])   # mcmc before the base it is capped by
+    for methods in (["mcmc-dcs", "base"], ["mcmc"]):   # before the base it is capped by, or without it
+        with pytest.raises(SystemExit):
+            frontier.main([*args[:5], *methods, *args[8:]])
+        assert "give --methods base before mcmc" in capsys.readouterr().err

@@ -74,13 +74,19 @@ def strategy_of(base: str, method: str, cap: int | None = None) -> str:
 
 def at_equal_gaussians(point: dict, base_points: list[dict]) -> float | None:
     """point's PSNR minus the base curve's at point's Gaussian count (linear in log Gaussians); None outside the
-    base's range."""
+    base's range (a curve of one point: MCMC capped at its count)."""
     pts = sorted(base_points, key=lambda r: r["gaussians_final"])
     g = [math.log(r["gaussians_final"]) for r in pts]
     x = math.log(point["gaussians_final"])
-    if len(pts) < 2 or not g[0] <= x <= g[-1]:
+    if not pts or not g[0] <= x <= g[-1]:
         return None
     return point["psnr"] - float(np.interp(x, g, [r["psnr"] for r in pts]))
+
+
+def versus(runs: list[dict], reference_points: list[dict]) -> list[float]:
+    """A method's seed-mean points against a reference curve at equal Gaussians (at_equal_gaussians), those in its
+    range."""
+    return [d for p in mean_points(runs) if (d := at_equal_gaussians(p, reference_points)) is not None]
 
 
 def curves(runs: list[dict]) -> dict[tuple, dict[str, list[dict]]]:
@@ -112,9 +118,9 @@ def markdown(report: dict) -> str:
              "PSNR on the test views against final Gaussians, the base's split threshold scaled; \"vs base\" is the "
              "PSNR minus the base curve's at the same Gaussian count (log-linear between its runs; - outside them); "
              "with several seeds the summary compares their means.", ""]
-    summary = ["## Summary: mean PSNR vs base at equal Gaussians", "",
+    summary = ["## Summary: mean PSNR vs base (and vs base + DC4GS) at equal Gaussians", "",
                "| scene | size | base | iterations | test split | method | points in base's range | mean vs base | "
-               "range |", "|---|---|---|---:|---|---|---:|---:|---|"]
+               "range | vs base + DC4GS (points in its range) |", "|---|---|---|---:|---|---|---:|---:|---|---:|"]
     tables = []
     for (scene, base, iterations, split), methods in curves(report["runs"]).items():
         base_pts = mean_points(methods.get("base", []))
@@ -132,11 +138,13 @@ def markdown(report: dict) -> str:
                     f"{r['psnr']:.2f} | {r['ssim']:.4f} | {'-' if d is None else f'{d:+.2f}'} | "
                     f"{r['wall_s']:.0f} | {', '.join(f'{Path(n).stem} {p:.2f}' for n, p in views)} |")
             if method != "base" and methods.get(method):
-                ds = [d for p in mean_points(methods[method]) if (d := at_equal_gaussians(p, base_pts)) is not None]
+                ds = versus(methods[method], base_pts)
                 mean = f"{np.mean(ds):+.2f} dB" if ds else "-"
                 spread = f"{min(ds):+.2f} to {max(ds):+.2f}" if ds else "-"
+                dc = versus(methods[method], mean_points(methods.get("dc4gs", []))) if method != "dc4gs" else []
                 summary.append(f"| {scene} | {size} | {base} | {iterations:,} | {split} | {method} | "
-                               f"{len(ds)} of {len(mean_points(methods[method]))} | {mean} | {spread} |")
+                               f"{len(ds)} of {len(mean_points(methods[method]))} | {mean} | {spread} | "
+                               f"{f'{np.mean(dc):+.2f} dB ({len(dc)})' if dc else '-'} |")
         tables.append("")
     return "\n".join(lines + summary + [""] + tables)
 
@@ -217,8 +225,9 @@ def main(argv=None) -> int:
     if any(not (s > 0 and math.isfinite(s)) for s in args.scales):
         ap.error("--scales must be positive")
     methods = args.methods
-    if "mcmc" in methods and ("base" not in methods or methods.index("mcmc") < methods.index("base")):
-        ap.error("mcmc's caps are the base's Gaussian counts: give --methods base before mcmc")
+    capped = [methods.index(m) for m in methods if m.startswith("mcmc")]
+    if capped and ("base" not in methods or min(capped) < methods.index("base")):
+        ap.error("mcmc's caps are the base's Gaussian counts: give --methods base before mcmc and mcmc-dcs")
     args.out.mkdir(parents=True, exist_ok=True)
     path = args.out / "frontier.json"
     report = json.loads(path.read_text()) if path.is_file() else {"device": None, "runs": []}
