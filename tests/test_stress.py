@@ -178,11 +178,12 @@ def make_extreme(rng, params: dict, cams, extent: float) -> list[str]:
     return done
 
 
-STRATEGIES = {"3dgs": ("3dgs", False), "absgs+dc4gs": ("absgs", True), "pixelgs+dc4gs": ("pixelgs", True),
-              "mcmc": ("mcmc", False)}
+DC4GS = {"dcc": True, "dcs": True}
+STRATEGIES = {"3dgs": ("3dgs", {}), "absgs+dc4gs": ("absgs", DC4GS), "pixelgs+dc4gs": ("pixelgs", DC4GS),
+              "mcmc": ("mcmc", {}), "mcmc+dcs": ("mcmc", {"dcs": True})}
 
 
-def fuzz_training(rt, rng, strategy: str, dc4gs: bool, cases: int, out) -> None:
+def fuzz_training(rt, rng, strategy: str, dc4gs: dict, cases: int, out) -> None:
     """Forward, loss, backward, Adam and a densification step on random extreme states: every stage's outputs
     are checked (--check-finite) and the parameters after each step must be finite."""
     from dc4gs_cl.config import TrainConfig
@@ -193,7 +194,7 @@ def fuzz_training(rt, rng, strategy: str, dc4gs: bool, cases: int, out) -> None:
         extent_scale = float(10.0 ** rng.uniform(-3, 3))
         scene = extreme_scene(rng, extent_scale)
         cfg = TrainConfig(scene="fuzz", iterations=30_000, strategy=strategy, test_every=0, sh_degree=3,
-                          dc4gs=DC4GSConfig(dcc=dc4gs, dcs=dc4gs))
+                          dc4gs=DC4GSConfig(**dc4gs))
         trainer = Trainer(cfg, scene, rt, out, check_finite=True)
         gs = trainer.model.download()
         edits = make_extreme(rng, gs.params, scene.train, scene.extent)
