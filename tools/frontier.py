@@ -13,7 +13,8 @@ dc4gs-middle: DCC with that split, DC4GS without split costs, and dc4gs-shrink: 
 two axes shrink as 3DGS' children do, --dcs-other-scale 0.625); a scale multiplies the
 base's split threshold (--split-threshold; the clone threshold stays). mcmc is MCMC densification beside the base,
 its cap (--max-gaussians) swept instead: at each scale, the final Gaussian count of the base's run of that scale and
-seed, so that its curve spans the base's range; mcmc-dcs is MCMC with DCS' placement (--strategy mcmc --dcs). Every (scene, base, method, scale, seed) is one
+seed, so that its curve spans the base's range; mcmc-dcs is MCMC with DCS' placement (--strategy mcmc
+--dcs). Every (scene, base, method, scale, seed) is one
 training run measured as tools/bench_train.py measures it (test PSNR and SSIM per view, final and peak Gaussians,
 wall and device time), its folder kept under DIR. Each result is added to DIR/frontier.json when its run ends and a
 rerun skips the runs that file holds, so a sweep that is interrupted, or spread over sessions, goes on where it
@@ -267,7 +268,7 @@ def main(argv=None) -> int:
                     if key in done:          # a sweep running beside this one has recorded it meanwhile
                         continue
                     cap = None
-                    if method.startswith("mcmc"):     # the base's final count at this scale and seed (just run, or recorded)
+                    if method.startswith("mcmc"):   # the base's final count at this scale and seed (run or recorded)
                         base_key = run_key(name, base, "base", scale, args.iterations, args.test_split, seed)
                         cap = next(r["gaussians_final"] for r in report["runs"] if r["key"] == base_key)
                     settings = {} if method.startswith("mcmc") else {"split_threshold": threshold * scale}

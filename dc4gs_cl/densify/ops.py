@@ -72,7 +72,8 @@ def split_at(gs: GaussianSet, idx: np.ndarray, x: np.ndarray, other_scale: float
     return len(idx)
 
 
-def split_children(params: dict[str, np.ndarray], x: np.ndarray, other_scale: float = 1.0) -> list[dict[str, np.ndarray]]:
+def split_children(params: dict[str, np.ndarray], x: np.ndarray,
+                   other_scale: float = 1.0) -> list[dict[str, np.ndarray]]:
     """split_at's two children of the Gaussians params (float64)."""
     p = {k: v.astype(np.float64) for k, v in params.items()}
     axis, sigma, direction = principal_axis(p["log_scales"], p["quats"])
