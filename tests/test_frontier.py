@@ -48,6 +48,19 @@ def test_sweep_runs_each_point_once_and_reports_it(tmp_path):
     assert (tmp_path / "builtin-absgs-40.png").stat().st_size > 10_000
 
 
+def test_a_resumed_sweep_keeps_its_scenes_resolution(tmp_path, capsys):
+    """Run keys do not name -r: resuming at another one would mix image sizes on one curve, and MCMC's caps would
+    come from runs of another size."""
+    args = ["--scenes", "builtin", "--bases", "absgs", "--methods", "base", "--iterations", "20", "--out", str(tmp_path)]
+    assert frontier.main([*args, "--scales", "1", "-r", "4"]) == 0
+    with pytest.raises(SystemExit):
+        frontier.main([*args, "--scales", "1", "2", "-r", "2"])
+    assert "holds builtin's runs at -r 4, not -r 2" in capsys.readouterr().err
+    assert frontier.main([*args, "--scales", "1", "2"]) == 0            # no -r: the recorded one, not the default
+    runs = json.loads((tmp_path / "frontier.json").read_text())["runs"]
+    assert [(r["scale"], r["resolution"], r["size"]) for r in runs] == [(1, 4, "48x36"), (2, 4, "48x36")]
+
+
 def test_side_by_side_sweeps_keep_each_others_runs(tmp_path):
     """Two sweeps into one folder each hold the report as it was when they started; each finished run is added to
     the file as it is now, so neither drops the other's (and a rerun of a key replaces it, once)."""

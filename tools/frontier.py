@@ -218,7 +218,8 @@ def main(argv=None) -> int:
     ap.add_argument("--iterations", type=int, default=3000)
     ap.add_argument("--test-split", choices=TEST_SPLITS, default="llff")
     ap.add_argument("-r", "--resolution", type=int, default=None,
-                    help=f"downscale factor (default: per scene, at most {bench_train.MAX_WIDTH} px wide)")
+                    help=f"downscale factor (default: per scene, at most {bench_train.MAX_WIDTH} px wide; a resumed "
+                         "sweep keeps the one its recorded runs of the scene used)")
     ap.add_argument("--out", type=Path, default=Path("frontier"), help="results and run folders (default: %(default)s)")
     ap.add_argument("--device", default=None)
     ap.add_argument("--report-only", action="store_true", help="rewrite the tables and plots from DIR/frontier.json")
@@ -242,6 +243,14 @@ def main(argv=None) -> int:
         ap.error(f"not COLMAP scenes of {bench_train.DATA}: {', '.join(unknown)} "
                  f"(there are: {', '.join(available) or 'none'})")
 
+    resolution = {}     # per scene: its recorded runs' -r (one curve, one image size), else the given or default one
+    for name in scenes:
+        recorded = {r["resolution"] for r in report["runs"] if r["scene"] == name and r["test_split"] == args.test_split}
+        if args.resolution and recorded and recorded != {args.resolution}:
+            ap.error(f"{path} holds {name}'s runs at -r {', '.join(map(str, sorted(recorded)))}, not -r "
+                     f"{args.resolution}: give that -r or another --out")
+        resolution[name] = args.resolution or (min(recorded) if recorded else None)
+
     rt = Runtime(args.device, profiling=True)
     report["device"] = report["device"] or describe(rt.device)
     if report["device"] != describe(rt.device):
@@ -255,7 +264,7 @@ def main(argv=None) -> int:
                 if not todo:
                     continue
                 try:
-                    scene, r = bench_train.load(name, args.resolution, args.out, args.test_split)
+                    scene, r = bench_train.load(name, resolution[name], args.out, args.test_split)
                 except InputError as e:
                     print(f"{name}: skipped, the scene does not load: {e}", file=sys.stderr)
                     break
