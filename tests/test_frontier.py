@@ -51,7 +51,8 @@ def test_sweep_runs_each_point_once_and_reports_it(tmp_path):
 def test_a_resumed_sweep_keeps_its_scenes_resolution(tmp_path, capsys):
     """Run keys do not name -r: resuming at another one would mix image sizes on one curve, and MCMC's caps would
     come from runs of another size."""
-    args = ["--scenes", "builtin", "--bases", "absgs", "--methods", "base", "--iterations", "20", "--out", str(tmp_path)]
+    args = ["--scenes", "builtin", "--bases", "absgs", "--methods", "base", "--iterations", "20",
+            "--out", str(tmp_path)]
     assert frontier.main([*args, "--scales", "1", "-r", "4"]) == 0
     with pytest.raises(SystemExit):
         frontier.main([*args, "--scales", "1", "2", "-r", "2"])

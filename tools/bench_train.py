@@ -8,8 +8,8 @@ A strategy is a base (3dgs, absgs, pixelgs) with optional DC4GS parts and settin
 DCS), "absgs+dcc", "absgs+dcs", and ":" options, e.g. "absgs+dc4gs:window:argmin" (pooling, split pick,
 "abs" / "base" for the DCC reading, "track=F" for --dcs-track, "every=K" for --dcs-every, "shrink" for
 --dcs-other-scale 0.625); "mcmc:cap=N" is MCMC with --max-gaussians N ("mcmc+dcs:cap=N" with DCS).
---dc4gs runs the DC4GS results table: each base with and without DC4GS and the AbsGS
-ablation (base, +DCC, +DCS, +both), then prints each DC4GS row against its base.
+--dc4gs runs the DC4GS results table: each base with and without DC4GS and the AbsGS ablation (base, +DCC, +DCS,
++both), then prints each DC4GS row against its base.
 
 A scene's runs train interleaved: each in turn trains --turn iterations (default 100) until all are done, so
 that a slower or busier stretch of the machine falls on every run alike and the wall-time ratios between them

@@ -13,14 +13,14 @@ dc4gs-middle: DCC with that split, DC4GS without split costs, and dc4gs-shrink: 
 two axes shrink as 3DGS' children do, --dcs-other-scale 0.625); a scale multiplies the
 base's split threshold (--split-threshold; the clone threshold stays). mcmc is MCMC densification beside the base,
 its cap (--max-gaussians) swept instead: at each scale, the final Gaussian count of the base's run of that scale and
-seed, so that its curve spans the base's range; mcmc-dcs is MCMC with DCS' placement (--strategy mcmc
---dcs). Every (scene, base, method, scale, seed) is one
-training run measured as tools/bench_train.py measures it (test PSNR and SSIM per view, final and peak Gaussians,
-wall and device time), its folder kept under DIR. Each result is added to DIR/frontier.json when its run ends and a
-rerun skips the runs that file holds, so a sweep that is interrupted, or spread over sessions, goes on where it
-stopped. After each run DIR/frontier.md (tables) and DIR/<scene>-<base>-<iterations>[-interpolated].png (the
-`report` extra's matplotlib; skipped with a note without it) are rewritten. Runs go scale by scale, every method
-at a scale back to back, so slow phases of a shared machine spread over all methods.
+seed, so that its curve spans the base's range; mcmc-dcs is MCMC with DCS' placement (--strategy mcmc --dcs).
+Every (scene, base, method, scale, seed) is one training run measured as tools/bench_train.py measures it (test
+PSNR and SSIM per view, final and peak Gaussians, wall and device time), its folder kept under DIR. Each result is
+added to DIR/frontier.json when its run ends and a rerun skips the runs that file holds (at the -r they used), so a
+sweep that is interrupted, or spread over sessions, goes on where it stopped. After each run DIR/frontier.md
+(tables) and DIR/<scene>-<base>-<iterations>[-interpolated].png (the `report` extra's matplotlib; skipped with a
+note without it) are rewritten. Runs go scale by scale, every method at a scale back to back, so slow phases of a
+shared machine spread over all methods.
 
 Reading it: a method helps where its curve lies above its base's, more PSNR at the same number of Gaussians. For
 each point of a method, "vs base at equal Gaussians" is its PSNR minus the base's interpolated at its Gaussian count
@@ -245,7 +245,8 @@ def main(argv=None) -> int:
 
     resolution = {}     # per scene: its recorded runs' -r (one curve, one image size), else the given or default one
     for name in scenes:
-        recorded = {r["resolution"] for r in report["runs"] if r["scene"] == name and r["test_split"] == args.test_split}
+        recorded = {r["resolution"] for r in report["runs"]
+                    if r["scene"] == name and r["test_split"] == args.test_split}
         if args.resolution and recorded and recorded != {args.resolution}:
             ap.error(f"{path} holds {name}'s runs at -r {', '.join(map(str, sorted(recorded)))}, not -r "
                      f"{args.resolution}: give that -r or another --out")
