@@ -1,12 +1,13 @@
 """OpenCL runtime: device choice, context and queue, the program registry, per-stage profiling.
 
-One `Runtime` per process and device. Programs are built once per (kernel file, -D options) (PoCL and
-pyopencl also keep compiled binaries on disk, so a new process builds fast); the stage hosts keep their
-`Kernel` objects (render/stage.py), so nothing is rebuilt or looked up on the hot path. `#include "x.h"`
-lines in kernel files are resolved here, textually (generated headers included), so the source text alone
-decides what the driver caches. Every device buffer
-is made here (`buffer`, `to_device`), which counts the bytes held (`memory_in_use`) and their
-high-water mark (`memory_peak`, restarted by `reset_memory_peak()`).
+One `Runtime` per process and device. Programs are built once per (kernel file, -D options) (PoCL and pyopencl
+also keep compiled binaries on disk, so a new process builds fast); the stage hosts keep their `Kernel`
+objects (render/stage.py), so nothing is rebuilt or looked up on the hot path, and `launch` sets only the
+arguments that changed since a kernel's last launch (a quarter of them per training iteration). `#include
+"x.h"` lines in kernel files are resolved here, textually (generated headers included), so the source text
+alone decides what the driver caches. Every device buffer is made here (`buffer`, `to_device`), which counts
+the bytes held (`memory_in_use`) and their high-water mark (`memory_peak`, restarted by
+`reset_memory_peak()`).
 """
 from __future__ import annotations
 
@@ -258,6 +259,22 @@ class _Buffer(cl.Buffer):
     """A cl.Buffer that can be weakly referenced (pyopencl's cannot), so that its release can be counted."""
 
 
+def _held_argument(value):
+    """What Runtime keeps of a kernel argument it set, to tell whether the next launch passes the same: a scalar
+    or record's bytes (the kernel receives nothing else), a buffer of ours as a weak reference (the same while
+    that very object lives: a released buffer's handle may come back for another), else None (set every time)."""
+    if isinstance(value, np.generic):
+        return value.tobytes()
+    return weakref.ref(value) if isinstance(value, _Buffer) else None
+
+
+def _holds(held, value) -> bool:
+    """Whether an argument kept by _held_argument is `value`."""
+    if isinstance(value, np.generic):
+        return held == value.tobytes()
+    return isinstance(held, weakref.ref) and held() is value
+
+
 def _format_define(v) -> str:
     if isinstance(v, bool):
         return "1" if v else "0"
@@ -278,13 +295,16 @@ class Runtime:
         self.caps = Capabilities.of(self.device)
         self._programs: dict[tuple, cl.Program] = {}
         self._kernel_limits: dict[cl.Kernel, KernelLimits] = {}   # as the driver reports them
+        self._kernel_arguments: dict[cl.Kernel, list] = {}         # as launch() last set them (_held_argument)
         self.events: dict[str, list[cl.Event]] = defaultdict(list)
         self.memory_in_use = 0   # bytes in device buffers made here and not yet released
         self.memory_peak = 0     # the most memory_in_use has been since the last reset_memory_peak()
         # Since the runtime was made: kernels enqueued, and the host's blocking waits on the queue (a read back,
-        # or a write that waits for the queue before its copy); stage_times' own wait is the caller's, uncounted.
+        # or a write that waits for the queue before its copy); stage_times' own wait is the caller's, uncounted;
+        # and the kernel arguments set (launch sets only those that changed).
         self.launches = 0
         self.syncs = 0
+        self.arguments_set = 0
 
     def __repr__(self) -> str:
         return f"Runtime({self.device_key} {describe(self.device)})"
@@ -322,18 +342,36 @@ class Runtime:
 
     def launch(self, stage: str, kernel: cl.Kernel, global_size, local_size, *args) -> cl.Event:
         """Enqueue a kernel; with profiling on, its event is kept under `stage`. A work-group beyond the kernel's
-        limits is a DeviceError naming them (the stages choose shapes within them; this says which did not)."""
+        limits is a DeviceError naming them (the stages choose shapes within them; this says which did not).
+        Only the arguments that differ from the kernel's last launch here are set: setting one costs the host
+        about what the enqueue does, and from one iteration to the next most stay the same (buffers, counts).
+        So a kernel launched here must never have its arguments set elsewhere."""
         if isinstance(global_size, int):
             global_size = (global_size,)
         if isinstance(local_size, int):
             local_size = (local_size,)
         if local_size is not None:
             self.check_launch(stage, kernel, local_size)
-        ev = kernel(self.queue, global_size, local_size, *args)
+        self._set_arguments(kernel, args)
+        ev = cl.enqueue_nd_range_kernel(self.queue, kernel, global_size, local_size)
         self.launches += 1
         if self.profiling:
             self.events[stage].append(ev)
         return ev
+
+    def _set_arguments(self, kernel: cl.Kernel, args: tuple) -> None:
+        held = self._kernel_arguments.get(kernel)
+        if held is None:
+            if len(args) != kernel.num_args:
+                raise DeviceError(f"kernel {kernel.function_name} takes {kernel.num_args} arguments, given {len(args)}")
+            held = self._kernel_arguments[kernel] = [None] * len(args)
+        elif len(args) != len(held):
+            raise DeviceError(f"kernel {kernel.function_name} takes {len(held)} arguments, given {len(args)}")
+        for i, value in enumerate(args):
+            if held[i] is None or not _holds(held[i], value):
+                kernel.set_arg(i, value)
+                held[i] = _held_argument(value)
+                self.arguments_set += 1
 
     def check_launch(self, stage: str, kernel: cl.Kernel, local_size: tuple) -> None:
         items, (item_limit, local) = math.prod(local_size), self.kernel_limits(kernel)

@@ -40,6 +40,8 @@ def test_quick_suite_measures_every_stage_and_writes_both_reports(quick_report):
             assert 100 < run["bytes_per_gaussian"] < 1e5
         for name, run in bench.case_runs(case).items():   # per frame or iteration
             assert run["launches"] >= len(run["stages_ms"]) and run["syncs"] >= 1, (name, run)
+            # set only where they changed: ~2 an iteration's launch sets, of the ~9 each passes
+            assert 0 <= run["arguments"] < 4 * run["launches"], (name, run)
             assert run["host_ms"] == pytest.approx(run["wall_ms"] - run["device_ms"])
     rows = {(r["stage"], r["quantity"]): r["rel_l2"] for r in report["accuracy"]}
     assert len(rows) == 14
@@ -51,6 +53,7 @@ def test_quick_suite_measures_every_stage_and_writes_both_reports(quick_report):
         assert f"## {name}" in text
     assert text.count("| **device total** |") == 3 and "dL/dmeans" in text
     assert text.count("| kernel launches |") == text.count("| blocking host syncs |") == 3
+    assert text.count("| kernel arguments set |") == 3
 
 
 def test_compare_prints_ratios_line_by_line(quick_report, tmp_path, capsys):

@@ -255,12 +255,12 @@ class Backward:
     batch: bool = False
 
 
-# Each forward (its switches; off, they change the backward's build too) and the backward variants run on
-# it: together every kernel, and every variant training builds: the statistics of 3DGS, of AbsGS with
-# DC4GS' split sums and of Pixel-GS with DCS pooled over the window and tracked, the masked loss and
-# backward, both sums modes (the slots in one run and in runs of a tile's worth of pairs), Adam's fused step and the
-# plain gradients, and a batch's (added, then stepped); the antialiased projection and its backward with the exact
-# switches off, and MCMC's regularised step and position noise.
+# Each forward (its switches; off, they change the backward's build too) and the backward variants run on it:
+# together every kernel, and every variant training builds: the statistics of 3DGS, of AbsGS with DC4GS' split
+# sums and of Pixel-GS with DCS pooled over the window and tracked, the evaluation's loss, the masked loss and
+# backward, both sums modes (the slots in one run and in runs of a tile's worth of pairs), Adam's fused step and
+# the plain gradients, and a batch's (added, then stepped); the antialiased projection and its backward with the
+# exact switches off, and MCMC's regularised step and position noise.
 FORWARDS = (
     ({}, (Backward(True, False, "absgs+dc4gs", runs=True), Backward(True, True, "pixelgs+dcs"),
           Backward(False, True, "absgs+dc4gs"), Backward(True, False, None), Backward(True, False, "mcmc", batch=True))),
@@ -287,9 +287,12 @@ def workload(shape: str) -> dict:
     for switches, backwards in FORWARDS:
         options = RenderOptions(**switches)
         try:
-            res = Renderer(rt, tuning, options).render(DeviceGaussians(rt, model), cam, model.sh_degree, background)
+            renderer = Renderer(rt, tuning, options)
+            res = renderer.render(DeviceGaussians(rt, model), cam, model.sh_degree, background)
         except Refused:
             continue
+        # the evaluation's loss: its statistics only (loss_reduce; training's loss_grad adds them itself)
+        Loss(renderer.context, *LOSS_SHAPES[shape])(res.raster.image, rt.to_device(target), WIDTH, HEIGHT, None)
         ranges = rt.to_host(res.isect.ranges, (res.tiles_x * res.tiles_y, 2), np.uint32)
         if np.diff(ranges, axis=1).max() <= tuning.batch:
             raise RuntimeError(f"no tile holds more than {tuning.batch} pairs: the rasterizers' batch loop runs "

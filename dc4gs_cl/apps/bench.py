@@ -14,8 +14,8 @@ different suites are never compared line by line):
 - each stage's error against the float64 references (dc4gs_cl/reference) on a small random case.
 
 Times are medians over ROUNDS rounds of OpenCL profiling events (device ms per stage) and of the wall clock;
-beside them, per frame or iteration, the host ms (wall less device), the kernel launches and the blocking host
-syncs (Runtime.launches, Runtime.syncs).
+beside them, per frame or iteration, the host ms (wall less device), the kernel launches, the blocking host
+syncs and the kernel arguments set (Runtime.launches, syncs, arguments_set).
 With `--gsplat` (torch and gsplat importable, with CUDA), every case's frames also run through gsplat
 (apps/gsplat_frames.py): its forward and its simple_trainer iteration (absgrad off beside our 3DGS, on beside our
 AbsGS + DC4GS), each case's ours / gsplat wall-time ratio, and its image against ours (PSNR: the same frame).
@@ -62,10 +62,11 @@ from ..train import Trainer
 from ..train.schedule import Schedule
 
 # 2: launches, blocking syncs and host ms per frame or iteration; 3: the GPU sort and the host loop of #39, --garden,
-# --gsplat
-SUITE_VERSION = 3
+# --gsplat; 4: kernel arguments set (only those that changed since the kernel's last launch)
+SUITE_VERSION = 4
 # per frame or iteration, beside the times (timed_rounds): the quantity and its row in the reports
-COUNTS = {"host_ms": "host ms (wall - device)", "launches": "kernel launches", "syncs": "blocking host syncs"}
+COUNTS = {"host_ms": "host ms (wall - device)", "launches": "kernel launches", "syncs": "blocking host syncs",
+          "arguments": "kernel arguments set"}
 
 
 @dataclass(frozen=True)
@@ -116,10 +117,11 @@ def frozen_trainer(cfg: TrainConfig, scene: Scene, rt: Runtime, state: GaussianS
 def timed_rounds(rt: Runtime, rounds: int, per: int, work) -> dict:
     """`work()` (per frames or iterations) run `rounds` times: per frame or iteration, the median device ms of
     each stage and in all (OpenCL profiling events), the median wall ms, the host ms (wall less device: the
-    host's own time and its waits) and the kernel launches and blocking host syncs (Runtime.launches, syncs)."""
+    host's own time and its waits), the kernel launches, blocking host syncs and kernel arguments set
+    (Runtime.launches, syncs, arguments_set)."""
     rt.stage_times()
     times, walls = [], []
-    launches, syncs = rt.launches, rt.syncs
+    launches, syncs, arguments = rt.launches, rt.syncs, rt.arguments_set
     for _ in range(rounds):
         start = time.perf_counter()
         work()
@@ -129,7 +131,8 @@ def timed_rounds(rt: Runtime, rounds: int, per: int, work) -> dict:
     device, wall = median([sum(r.values()) for r in times]) * 1e3 / per, median(walls) * 1e3 / per
     return {"stages_ms": {s: median([r.get(s, 0.0) for r in times]) * 1e3 / per for s in stages},
             "device_ms": device, "wall_ms": wall, "host_ms": wall - device,
-            "launches": (rt.launches - launches) / (rounds * per), "syncs": (rt.syncs - syncs) / (rounds * per)}
+            "launches": (rt.launches - launches) / (rounds * per), "syncs": (rt.syncs - syncs) / (rounds * per),
+            "arguments": (rt.arguments_set - arguments) / (rounds * per)}
 
 
 def time_forward(rt: Runtime, model: GaussianModel, cams: list[Camera], background, suite: Suite) -> dict:

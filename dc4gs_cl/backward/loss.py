@@ -87,12 +87,13 @@ class Loss(Stage):
         d = [scratch[f"d{q}"] for q in range(3)]
         partial = scratch["partial"]
         args = (np.int32(n3w), np.int32(h))
+        stats = (self.ctx.frame, np.int32(groups_x * h), np.float32(1 / scale), partial, self.stats)
         rt.launch(stage, self.k_ssim, shape, local, *args, np.float32(-self.lambda_dssim / scale), image, target, *d, partial)
-        if grad_out is not None:
+        if grad_out is not None:   # its first work-group adds the stats too
             rt.launch(stage, self.k_grad, shape, local, *args, np.float32((1 - self.lambda_dssim) / scale), image, target,
-                      *d, grad_out)
-        rt.launch(stage, self.k_reduce, self.wg, self.wg, self.ctx.frame, np.int32(groups_x * h),
-                  np.float32(1 / scale), partial, self.stats)
+                      *d, grad_out, *stats)
+        else:
+            rt.launch(stage, self.k_reduce, self.wg, self.wg, *stats)
         self.calls += 1
         if grad_out is not None:
             self.check(lambda: {"dL_dimage": rt.to_host(grad_out, (h, width, 3))})

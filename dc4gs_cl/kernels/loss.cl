@@ -10,8 +10,10 @@
 //   loss_ssim   x, y [H][n3w] -> d0, d1, d2 [H][n3w] float32 = dscale * (dS/dmu_x, dS/dE[x^2], dS/dE[xy]),
 //               partial [H][groups per row][3]: each work-group's sums of |x - y|, (x - y)^2 and 1 - S
 //   loss_grad   d0, d1, d2, x, y -> grad [H][n3w] float32, dL/dx = l1scale * sign(x - y) + blur(d0)
-//               + 2 x blur(d1) + y blur(d2)
-//   loss_reduce partial -> stats [4] float32 += (loss, L1, 1 - SSIM, MSE) of this image (means over M)
+//               + 2 x blur(d1) + y blur(d2); its first work-group also does loss_reduce's work (one launch
+//               fewer per training iteration: the partials are complete once loss_ssim has run)
+//   loss_reduce partial -> stats [4] float32 += (loss, L1, 1 - SSIM, MSE) of this image (means over M),
+//               for a loss without gradient (evaluation)
 // A masked view (a mask, keep [H*W] uchar, 0 = masked out): mask_pixels zeroes x and y where masked, so
 // masked pixels add no L1 and, in SSIM windows reaching them, are equal; M then counts the kept floats only
 // (the scales are host arguments), and the backward skips masked pixels.
@@ -74,6 +76,27 @@ inline void work_group_sum3(float s[3], __local float *red) {
     }
     for (int q = 0; q < 3; ++q) s[q] = red[q * WG];
 #endif
+}
+
+// Run by one whole work-group of WG items: compensated strided sums of the partials (there can be
+// thousands), then a tree; adds this image's means to stats.
+inline void add_image_stats(__global const uint *frame, const int groups, const float inv_m, GLOBAL_IN partial,
+                            __global float *stats, __local float *red) {
+    if (FRAME_VOID(frame)) return;   // every item: the sums stay as they were
+    float s[3] = {0.0f, 0.0f, 0.0f}, lost[3] = {0.0f, 0.0f, 0.0f};
+    for (int g = get_local_id(0); g < groups; g += WG)
+        for (int q = 0; q < 3; ++q) {   // Kahan summation
+            float v = partial[3 * g + q] - lost[q], t = s[q] + v;
+            lost[q] = (t - s[q]) - v;
+            s[q] = t;
+        }
+    work_group_sum3(s, red);
+    if (get_local_id(0) != 0) return;
+    float l1 = s[0] * inv_m, dssim = s[2] * inv_m;
+    stats[0] += (1.0f - LAMBDA_DSSIM) * l1 + LAMBDA_DSSIM * dssim;
+    stats[1] += l1;
+    stats[2] += dssim;
+    stats[3] += s[1] * inv_m;
 }
 
 __kernel __attribute__((reqd_work_group_size(WG, 1, 1)))
@@ -139,8 +162,10 @@ void loss_ssim(const int n3w, const int h, const float dscale, GLOBAL_IN x, GLOB
 
 __kernel __attribute__((reqd_work_group_size(WG, 1, 1)))
 void loss_grad(const int n3w, const int h, const float l1scale, GLOBAL_IN x, GLOBAL_IN y,
-               GLOBAL_IN d0, GLOBAL_IN d1, GLOBAL_IN d2, GLOBAL_OUT grad) {
-    __local float a_[LEN], b_[LEN], c_[LEN];
+               GLOBAL_IN d0, GLOBAL_IN d1, GLOBAL_IN d2, GLOBAL_OUT grad,
+               __global const uint *frame, const int groups, const float inv_m, GLOBAL_IN partial,
+               __global float *stats) {
+    __local float a_[LEN], b_[LEN], c_[LEN], red[3 * WG];
     SPAN_RANGES
     VERTICAL_TAPS(off, w)
     for (int j = lid; j < jlo; j += WG) a_[j] = b_[j] = c_[j] = 0.0f;
@@ -172,29 +197,15 @@ void loss_grad(const int n3w, const int h, const float l1scale, GLOBAL_IN x, GLO
         float xv = x[i], yv = y[i], d = xv - yv;
         grad[i] = (d > 0.0f ? l1scale : (d < 0.0f ? -l1scale : 0.0f)) + sa + 2.0f * xv * sb + yv * sc;
     }
+    if (get_group_id(0) == 0 && get_group_id(1) == 0)   // the whole group: add_image_stats has barriers
+        add_image_stats(frame, groups, inv_m, partial, stats, red);
 }
 
-// One work-group of WG items: compensated strided sums of the partials (there can be thousands), then a
-// tree; adds this image's means to stats.
 __kernel __attribute__((reqd_work_group_size(WG, 1, 1)))
 void loss_reduce(__global const uint *frame, const int groups, const float inv_m, GLOBAL_IN partial,
                  __global float *stats) {
-    if (FRAME_VOID(frame)) return;   // every item: the sums stay as they were
     __local float red[3 * WG];
-    float s[3] = {0.0f, 0.0f, 0.0f}, lost[3] = {0.0f, 0.0f, 0.0f};
-    for (int g = get_local_id(0); g < groups; g += WG)
-        for (int q = 0; q < 3; ++q) {   // Kahan summation
-            float v = partial[3 * g + q] - lost[q], t = s[q] + v;
-            lost[q] = (t - s[q]) - v;
-            s[q] = t;
-        }
-    work_group_sum3(s, red);
-    if (get_local_id(0) != 0) return;
-    float l1 = s[0] * inv_m, dssim = s[2] * inv_m;
-    stats[0] += (1.0f - LAMBDA_DSSIM) * l1 + LAMBDA_DSSIM * dssim;
-    stats[1] += l1;
-    stats[2] += dssim;
-    stats[3] += s[1] * inv_m;
+    add_image_stats(frame, groups, inv_m, partial, stats, red);
 }
 
 __kernel void mask_pixels(const int n_pixels, GLOBAL_IN x, __global const uchar *restrict keep, GLOBAL_OUT out) {
