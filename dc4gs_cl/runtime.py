@@ -362,10 +362,8 @@ class Runtime:
     def _set_arguments(self, kernel: cl.Kernel, args: tuple) -> None:
         held = self._kernel_arguments.get(kernel)
         if held is None:
-            if len(args) != kernel.num_args:
-                raise DeviceError(f"kernel {kernel.function_name} takes {kernel.num_args} arguments, given {len(args)}")
-            held = self._kernel_arguments[kernel] = [None] * len(args)
-        elif len(args) != len(held):
+            held = self._kernel_arguments[kernel] = [None] * kernel.num_args
+        if len(args) != len(held):
             raise DeviceError(f"kernel {kernel.function_name} takes {len(held)} arguments, given {len(args)}")
         for i, value in enumerate(args):
             if held[i] is None or not _holds(held[i], value):

@@ -20,7 +20,7 @@ N = 100
 def test_a_launch_sets_only_the_arguments_that_changed_and_runs_on_those_given(rt, rng):
     kernel = cl.Kernel(cl.Program(rt.context, SOURCE).build(), "shifted")
 
-    def run(out, shift, values) -> np.ndarray:
+    def run(out, shift, values) -> tuple[np.ndarray, int]:
         cl.enqueue_fill_buffer(rt.queue, out, np.float32(np.nan), 0, 4 * N)   # poisoned: the kernel writes it all
         before = rt.arguments_set
         rt.launch_items("test", kernel, N, 64, out, np.uint32(N), np.float32(shift), values)
