@@ -276,16 +276,17 @@ def test_sum_pairs_folds_the_window_as_the_window_kernel_does(rt, rng, base, poo
 
 def test_pair_runs_hold_the_bound_within_the_budget(rng):
     """A view's pairs (its room for them: the bound) in runs of consecutive pairs: one run unless the bound tops the
-    budget (pair_chunk slots per Gaussian, or fewer where the frame's pair temporaries hold fewer slots of the
-    width) in a frame of at least 2 min_run_tiles tiles; then runs of at least the budget, as few as cover the bound,
+    budget (the slots of the width that the frame's pair temporaries hold, or fewer: pair_chunk per Gaussian) in a
+    frame of at least 2 min_run_tiles tiles; then runs of at least the budget, as few as cover the bound,
     and at most one per min_run_tiles tiles."""
     for _ in range(500):
         n, tiles = int(rng.integers(1, 5000)), int(rng.integers(1, 4000))
         bound, width = int(rng.integers(0, 40 * n)), int(rng.choice([9, 12, 15, 40, 90]))
-        tuning = replace(SHAPES["cpu"], pair_chunk=float(rng.choice([0.1, 1.0, 2.5])),
-                         min_run_tiles=int(rng.choice([1, 16, 256])))
+        chunk = [None, 0.1, 1.0, 2.5][int(rng.integers(4))]
+        tuning = replace(SHAPES["cpu"], pair_chunk=chunk, min_run_tiles=int(rng.choice([1, 16, 256])))
         runs, per_run = pair_runs(bound, n, tiles, tuning, width)
-        budget = max(min(int(np.ceil(tuning.pair_chunk * n)), len(PAIR_TEMPORARIES) * bound // width), 1)
+        room = len(PAIR_TEMPORARIES) * bound // width
+        budget = max(room if chunk is None else min(int(np.ceil(chunk * n)), room), 1)
         if bound <= budget or tiles < 2 * tuning.min_run_tiles:
             assert (runs, per_run) == (1, max(bound, 1))
             continue

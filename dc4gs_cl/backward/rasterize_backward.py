@@ -191,12 +191,12 @@ def pair_runs(bound: int, n: int, tiles: int, tuning: Tuning, width: int) -> tup
     """The runs of consecutive pairs a view with room for `bound` pairs is walked in, and the pairs per run, for
     slots of `width` sums: one run unless the pairs outnumber the slots held at once in a frame of at least
     2 min_run_tiles tiles, and at most one run per min_run_tiles tiles (a launch ends with cores idle behind its
-    slowest tiles). The slots held at once: Tuning.pair_chunk per Gaussian, or fewer where the frame's pair
-    temporaries (PAIR_SCRATCH, whose room the slots take over) hold fewer, so that wide slots (DC4GS' 40 sums) add
-    nothing to the peak. Fixed on the host from the bound alone, so that nothing is read back: a run past the
+    slowest tiles). The slots held at once: as many as the frame's pair temporaries (PAIR_SCRATCH, whose room the
+    slots take over) hold, so that even wide slots (DC4GS' 40 sums) add nothing to the peak; Tuning.pair_chunk per
+    Gaussian where that is fewer. Fixed on the host from the bound alone, so that nothing is read back: a run past the
     view's pairs has nothing to do."""
     room = len(PAIR_TEMPORARIES) * bound // width
-    budget = max(min(math.ceil(tuning.pair_chunk * n), room), 1)
+    budget = max(room if tuning.pair_chunk is None else min(math.ceil(tuning.pair_chunk * n), room), 1)
     if not tuning.pair_sums or bound <= budget or tiles < 2 * tuning.min_run_tiles:
         return 1, max(bound, 1)
     per_run = max(budget, -(-bound // (tiles // tuning.min_run_tiles)))

@@ -24,12 +24,14 @@ class Tuning:
     # ranking each tile's keys in local memory (GPUs: coalesced loads and stores, 8-bit digits without a ballot)
     sort_wg: int = 1
     pair_sums: bool = True  # backward: per-pair slots summed per Gaussian (deterministic) instead of float atomics
-    # backward with pair_sums: the slots held at once, in pairs per Gaussian (fewer where the frame's pair temporaries
-    # hold fewer: rasterize_backward.pair_runs); a frame with room for more pairs is
+    # backward with pair_sums: the slots held at once, in pairs per Gaussian; None: as many as the frame's pair
+    # temporaries hold, whose room the slots take over (rasterize_backward.pair_runs), so that they add nothing to
+    # the peak (1.0 before: a million random Gaussians at 1280x720, 3DGS, 6 runs -> 3 and 44 -> 37 launches per
+    # iteration, gsplat's garden 4 -> 3 and 39 -> 37, the peak bytes the same). A frame with room for more pairs is
     # walked in runs of consecutive pairs, each run's slots summed before the next, at most one run per
     # min_run_tiles tiles: a launch ends with cores idle behind its slowest tiles (PoCL, 48k Gaussians: 2 runs of
     # ~54 tiles at 192x144 cost +20% of the backward; 4 runs of 90-476 tiles at 576x432, +1%)
-    pair_chunk: float = 1.0
+    pair_chunk: float | None = None
     min_run_tiles: int = 256
     # backward with a densification window: sum_pairs folds the view into it (only Gaussians spanning runs keep sums
     # between runs) in frames walked in at most this many runs; past that the full per-Gaussian sums and the
