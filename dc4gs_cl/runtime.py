@@ -423,6 +423,13 @@ class Runtime:
             self.syncs += 1
         return out
 
+    def to_host_later(self, buf: cl.Buffer, shape, dtype=np.float32) -> "HostRead":
+        """Queue a copy of buf into a new host array without waiting: the host goes on queueing while the device
+        runs up to the copy and past it; HostRead.result() waits for the copy alone (a blocking sync)."""
+        out = np.empty(shape, dtype=dtype)
+        event = cl.enqueue_copy(self.queue, out, buf, is_blocking=False) if out.nbytes else None
+        return HostRead(self, out, event)
+
     def write(self, buf: cl.Buffer, array: np.ndarray) -> None:
         a = np.ascontiguousarray(array)
         if a.nbytes:
@@ -440,6 +447,22 @@ class Runtime:
         """Fill the first nbytes of buf with a 4-byte pattern (a float32, int32 or uint32 scalar)."""
         if nbytes:
             cl.enqueue_fill_buffer(self.queue, buf, value, 0, int(nbytes))
+
+
+class HostRead:
+    """A read queued by Runtime.to_host_later: result() waits for it once (flushing the queue first, so that the
+    commands queued after the copy start meanwhile) and returns the host array."""
+
+    def __init__(self, rt: Runtime, out: np.ndarray, event: cl.Event | None):
+        self.rt, self.out, self.event = rt, out, event
+
+    def result(self) -> np.ndarray:
+        if self.event is not None:
+            self.rt.queue.flush()
+            self.event.wait()
+            self.rt.syncs += 1
+            self.event = None
+        return self.out
 
 
 class DeviceArrays:

@@ -367,7 +367,7 @@ def test_check_finite_on_the_command_line(tmp_path):
                                                    ("absgs+dc4gs", "runs", 1), ("absgs+dc4gs", "one run", 2)])
 def test_a_view_that_overflows_its_room_runs_again_to_the_same_model(rt, monkeypatch, strategy, walk, batch):
     """The trainer sizes a view's pair buffers by a capacity, and the backward's carry rows (for the Gaussians
-    whose pairs span its runs) by another, and reads nothing back until the iteration is queued; a view with more
+    whose pairs span its runs) by another, and waits for nothing until the iteration is queued; a view with more
     changes nothing on the device and runs again with room (in a batch, before the batch's next view). Forced here
     every few iterations (a densification step among them): the model, its moments and the window are those of a
     run that never overflowed, bit for bit."""
@@ -381,8 +381,12 @@ def test_a_view_that_overflows_its_room_runs_again_to_the_same_model(rt, monkeyp
                       dc4gs=DC4GSConfig(dcc=True, dcs=True) if "dc4gs" in strategy else DC4GSConfig())
     steady, forced = Trainer(cfg, scene, rt), Trainer(cfg, scene, rt)
     overflows = []
-    counts = forced.context.frame_counts
-    monkeypatch.setattr(forced.context, "frame_counts", lambda: overflows.append(counts()["OVERFLOWED"]) or counts())
+    overflowed = forced._overflowed   # each view's counts, as the trainer takes them
+
+    def counted(read):
+        overflows.append(read.result()["OVERFLOWED"])
+        return overflowed(read)
+    monkeypatch.setattr(forced, "_overflowed", counted)
     densify_at = [it for it in range(1, 201) if steady.strategy.actions(it).densify]
     assert densify_at, "the test wants a densification step to overflow"
     for it in range(1, 201):
@@ -403,6 +407,39 @@ def test_a_view_that_overflows_its_room_runs_again_to_the_same_model(rt, monkeyp
         for name in mine:
             np.testing.assert_array_equal(mine[name], theirs[name], err_msg=f"{what} {name}")
     assert steady.loss.read_stats() == forced.loss.read_stats()
+
+
+@pytest.mark.parametrize("walk", ["one run", "runs"])
+def test_the_views_counts_are_read_where_they_are_final_not_after_the_backward(rt, monkeypatch, walk):
+    """The iteration's one wait is for the view's counts alone: their read is queued after every kernel that
+    counts or overflows (the intersection, its sorts and scans, run_spans where the view is walked in runs) and
+    before the loss, so that the device runs the loss and the backward while the host queues the next iteration;
+    and it is the only read of the iteration."""
+    from dc4gs_cl.render import Tuning
+    if walk == "runs":
+        for_device = Tuning.for_device
+        monkeypatch.setattr(Tuning, "for_device", staticmethod(
+            lambda caps: replace(for_device(caps), pair_chunk=0.3, min_run_tiles=4)))
+    scene = load_scene("builtin", resolution=4)
+    cfg = TrainConfig(scene="builtin", iterations=300, resolution=4, strategy="absgs",
+                      dc4gs=DC4GSConfig(dcc=True, dcs=True))
+    trainer = Trainer(cfg, scene, rt)
+    for _ in range(3):   # the pair room and carry rows sized
+        trainer.step()
+    queued = []
+    launch, read_later = rt.launch, rt.to_host_later
+    monkeypatch.setattr(rt, "launch", lambda stage, kernel, *a: queued.append((stage, kernel.function_name))
+                        or launch(stage, kernel, *a))
+    monkeypatch.setattr(rt, "to_host_later", lambda *a: queued.append(("read", "")) or read_later(*a))
+    syncs = rt.syncs
+    trainer.step()
+    assert rt.syncs - syncs == 1 and queued.count(("read", "")) == 1
+    at = queued.index(("read", ""))
+    before, after = {s for s, _ in queued[:at]}, queued[at + 1:]
+    assert {"project", "isect", "sort"} <= before
+    assert (("sum_pairs", "run_spans") in queued[:at]) == (walk == "runs")
+    assert not {s for s, k in after if s in ("isect", "sort") or k == "run_spans"}, after
+    assert after[0][0] == "loss" and {"rasterize_backward", "sum_pairs", "project_backward"} <= {s for s, _ in after}
 
 
 @pytest.mark.parametrize("low_memory", [False, True], ids=["pair-slots", "atomics"])

@@ -15,7 +15,7 @@ import pyopencl as cl
 from ..constants import FRAME_WORDS
 from ..errors import DeviceError
 from ..finite import FiniteCheck
-from ..runtime import Runtime
+from ..runtime import HostRead, Runtime
 from .options import RenderOptions
 from .tuning import Tuning
 from .workspace import Workspace
@@ -39,7 +39,22 @@ class StageContext:
 
     def frame_counts(self) -> dict[str, int]:
         """The last frame's counts, read back (a blocking read): constants.FRAME_WORDS, each word's value."""
-        return dict(zip(FRAME_WORDS, map(int, self.rt.to_host(self.frame, len(FRAME_WORDS), np.uint32))))
+        return self.frame_counts_later().result()
+
+    def frame_counts_later(self) -> "FrameCounts":
+        """The frame's counts as the queue stands, read without waiting: FrameCounts.result() waits for them."""
+        return FrameCounts(self.rt.to_host_later(self.frame, len(FRAME_WORDS), np.uint32))
+
+
+class FrameCounts:
+    """A frame's counts queued for reading (StageContext.frame_counts_later)."""
+
+    def __init__(self, read: HostRead):
+        self.read = read
+
+    def result(self) -> dict[str, int]:
+        """constants.FRAME_WORDS, each word's value (waits for the read: a blocking sync, the first time)."""
+        return dict(zip(FRAME_WORDS, map(int, self.read.result())))
 
 
 class Stage:

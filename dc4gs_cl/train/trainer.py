@@ -9,9 +9,10 @@ One iteration (docs/architecture.md draws it module by module):
     with Adam's step fused in, where the recipe steps -> the strategy densifies and limits opacities where its
     schedule says.
 Per iteration the host queues everything, the target image's upload included, and then waits once, for the view's
-counts (visible Gaussians, pairs: render/isect.py): buffers sized by a pair capacity, a view with more pairs runs
-again with room (step). A view walked in runs of tiles reads their plan too (backward/). The loss is read every
-few iterations for the metrics file and the progress display (log.py).
+counts alone (visible Gaussians, pairs: render/isect.py; Gaussians spanning the backward's runs: backward/), read as
+soon as they are final, before the loss: the device runs the loss and the backward while the host goes on to the
+next iteration. Buffers are sized by a pair capacity and carry rows; a view with more runs again with room (step).
+The loss is read every few iterations for the metrics file and the progress display (log.py).
 """
 from __future__ import annotations
 
@@ -32,6 +33,7 @@ from ..optim.batch import BatchGradients, batch_adam_config
 from ..optim.trainable import TrainableGaussians
 from ..parallel import SingleProcess
 from ..render import DeviceGaussians, Renderer, RenderOptions, Tuning
+from ..render.stage import FrameCounts
 from ..run_folder import Checkpoint, RunFolder, TrainingState
 from ..runtime import BUFFER_HEADROOM, Runtime, describe
 from ..scene.camera import Camera, Scene
@@ -130,30 +132,33 @@ class Trainer:
                 self.context.check("densify", self.model.download().params)
 
     def _step_view(self) -> None:
-        """An iteration of one view. The host waits once, for the view's counts, once the whole iteration is
-        queued: a view whose pairs overflowed the capacity it was given (render/isect.py), or whose Gaussians
-        spanning the backward's runs its carry rows (RasterizeBackward.plan), changed nothing on the device
-        (kernels/common.h FRAME_VOID), and runs again, host state rewound, with room for them."""
+        """An iteration of one view. The host waits once, once the whole iteration is queued, for the view's
+        counts alone (read as soon as they are final, before the loss: the device runs the rest of the iteration
+        while the host goes on): a view whose pairs overflowed the capacity it was given (render/isect.py), or
+        whose Gaussians spanning the backward's runs its carry rows (RasterizeBackward.plan), changed nothing on
+        the device (kernels/common.h FRAME_VOID), and runs again, host state rewound, with room for them."""
         before = self._host_state()
         while True:
-            self._queue_iteration()
-            if not self._overflowed():
+            counts = self._queue_iteration()
+            if not self._overflowed(counts):
                 return
             self._restore(before)
 
-    def _queue_iteration(self) -> None:
-        """Queue an iteration of one view, its step fused into the projection's backward; nothing is read back."""
+    def _queue_iteration(self) -> FrameCounts:
+        """Queue an iteration of one view, its step fused into the projection's backward; nothing is read back
+        (the view's counts are queued for reading: returned)."""
         self.iteration += 1
         it = self.iteration
         cam, background = self.next_camera(), self._background()
         self.actions = Actions() if self.frozen else self.strategy.actions(it)
-        res, sums, layout = self._queue_view(it, cam, background)
+        res, sums, layout, counts = self._queue_view(it, cam, background)
         if self.actions.optimiser_step:
             lrs = self.schedule.learning_rates(it, self.scene.extent, self.actions.opacity_steps)
             self.project_backward.step(self.params, cam, self.sh_degree, res, sums, layout,
                                        self.model.adam.step_value(lrs), self.model.adam.m, self.model.adam.v,
                                        self.regularizers())
             self.strategy.after_step(it, self.params, lrs, self.cfg.seed, self.cfg.mcmc_noise_lr)
+        return counts
 
     def _step_batch(self) -> None:
         """An iteration of cfg.batch views: this process's share of them queued one by one, each view's gradients
@@ -168,11 +173,11 @@ class Trainer:
         for cam, background in self.group.share(views):
             calls = self.loss.calls
             while True:
-                res, sums, layout = self._queue_view(it, cam, background)
+                res, sums, layout, counts = self._queue_view(it, cam, background)
                 if self.actions.optimiser_step:
                     self.project_backward.gradients(self.params, cam, self.sh_degree, res, sums, layout, summed,
                                                     accumulate=True)
-                if not self._overflowed():
+                if not self._overflowed(counts):
                     break
                 self.loss.calls = calls
         if self.actions.optimiser_step:
@@ -187,10 +192,10 @@ class Trainer:
         gsplat's random_bkgd: transparent regions cost loss on every view, whatever the target's background)."""
         return self.rng.random(3).astype(np.float32) if self.cfg.random_background else self.scene.background
 
-    def _overflowed(self) -> bool:
-        """Wait for the last view's counts (the iteration's one blocking read); where they overflowed its buffers,
-        make room for them and say so (the view changed nothing: it runs again)."""
-        counts = self.context.frame_counts()
+    def _overflowed(self, read: FrameCounts) -> bool:
+        """Wait for a view's counts (the iteration's one blocking read); where they overflowed its buffers, make
+        room for them and say so (the view changed nothing: it runs again)."""
+        counts = read.result()
         if not counts["OVERFLOWED"]:
             return False
         if counts["PAIRS"] > self.pair_capacity:
@@ -201,7 +206,8 @@ class Trainer:
 
     def _queue_view(self, it: int, cam: Camera, background: np.ndarray) -> tuple:
         """Queue a view of iteration it up to its per-Gaussian sums (the render, the loss, what the strategy
-        gathers, the rasterizer backward); nothing is read back. Returns (render result, sums, their layout)."""
+        gathers, the rasterizer backward); nothing is read back. Returns (render result, sums, their layout, the
+        view's counts queued for reading)."""
         rt, s, ws = self.rt, self.strategy, self.context.ws
         self.context.check.at = f"iteration {it}"
         target, keep = self.scene.image(cam), self.scene.mask(cam)
@@ -219,11 +225,12 @@ class Trainer:
         # before the loss: a view that needs more carry rows is void before any lasting state changes
         plan = self.rasterize_backward.plan(res, gathering.layout, gathering.window,
                                             None if capacity is None else self.carry_rows)
+        counts = self.context.frame_counts_later()   # final from here on: no later kernel counts or overflows
         self.loss(res.raster.image, target_buf, cam.width, cam.height, dL_dimage, keep=keep_buf,
                   kept=np.count_nonzero(keep) if keep is not None else 0)
         sums, layout = self.rasterize_backward.folding(res, dL_dimage, background, gathering.layout,
                                                        gathering.geometry, keep_buf, gathering.window, plan)
-        return res, sums, layout
+        return res, sums, layout, counts
 
     def regularizers(self) -> tuple[float, float] | None:
         """MCMC's loss terms opacity_reg mean(opacity) + scale_reg mean(scale), as the gradient factors the
