@@ -110,6 +110,10 @@ def test_runtime_counts_launches_and_blocking_syncs(rt):
     assert (rt.launches - launches, rt.syncs - syncs) == (2, 2)
     rt.write_async(buf, np.full(4, 7, np.int32))   # queued, no wait: not a sync
     assert rt.syncs - syncs == 2 and (rt.to_host(buf, 4, np.int32) == 7).all() and rt.syncs - syncs == 3
+    later = rt.to_host_later(buf, 4, np.int32)     # queued, no wait until its result is asked for, once
+    rt.write_async(buf, np.full(4, 9, np.int32))
+    assert rt.syncs - syncs == 3 and (later.result() == 7).all() and (later.result() == 7).all()
+    assert rt.syncs - syncs == 4
 
 
 def test_garden_case_and_the_gsplat_side_refused_without_it(rt, tmp_path, capsys):
@@ -123,6 +127,20 @@ def test_garden_case_and_the_gsplat_side_refused_without_it(rt, tmp_path, capsys
     assert len(err.splitlines()) == 1 and "--gsplat needs torch and gsplat" in err
     assert main(["bench", "--quick", "--garden", str(tmp_path / "no.npz"), "--out", str(tmp_path)]) == 2
     assert "no.npz" in capsys.readouterr().err and not list(tmp_path.iterdir())
+
+
+def test_a_gsplat_failure_keeps_our_measurements(rt, monkeypatch):
+    """gsplat's side is another project's code on our frames: where it fails, the case keeps our numbers, says why
+    it has no ratios, and the suite goes on."""
+    def failing(*args):
+        raise RuntimeError("CUDA error: out of memory")
+    monkeypatch.setattr(bench, "gsplat_side", failing)
+    said = []
+    report = bench.run_suite(rt, bench.QUICK, said.append, gsplat=True)
+    assert report["cases"] and all(c["gsplat_error"] == "RuntimeError: CUDA error: out of memory" and
+                                   "gsplat" not in c and c["train"] for c in report["cases"])
+    assert sum("gsplat failed" in line for line in said) == len(report["cases"])
+    assert bench.markdown(report).count("gsplat failed on these frames: RuntimeError") == len(report["cases"])
 
 
 def test_garden_case_times_gsplats_asset(rt):
