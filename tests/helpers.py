@@ -7,12 +7,14 @@ from dataclasses import replace
 from pathlib import Path
 
 from dc4gs_cl.render import Tuning
+from dc4gs_cl.render.tuning import DEAL_TILES_CPU
 from dc4gs_cl.runtime import Capabilities
 from dc4gs_cl.testing import random_camera, random_model  # noqa: F401 (re-exported for the tests)
 
 # Both work shapes of every kernel run on PoCL: the CPU's (256 pixels per work-item) and the GPUs'
 # (1 pixel per work-item, cooperative work-groups, work-groups ranking 8-bit sort digits), plus one in between.
-CPU_SHAPE = Tuning(pixels_per_item=256, batch=64, radix_bits=8, sort_blocks=8, scan_wg=1, scan_groups=8, isect_wg=64)
+CPU_SHAPE = Tuning(pixels_per_item=256, batch=64, radix_bits=8, sort_blocks=8, scan_wg=1, scan_groups=8, isect_wg=64,
+                   deal_tiles=DEAL_TILES_CPU)
 GPU_SHAPE = Tuning(pixels_per_item=1, batch=256, radix_bits=8, sort_blocks=512, sort_wg=256, scan_wg=256,
                    scan_groups=64, isect_wg=256)
 # small sort work-groups: 6-bit digits ranked 4 + 2 bits at a time, more digits than items

@@ -390,7 +390,8 @@ void rasterize_backward(const int width, const int height, const int tiles_x, co
                         __global const uchar *keep,
 #endif
                         __global float *sums) {
-    const int tile = get_group_id(0), lid = get_local_id(0);
+    const int tile = tile_of_group(get_group_id(0), tiles_x, (height + TILE_SIZE - 1) / TILE_SIZE);
+    const int lid = get_local_id(0);
     const int x0 = (tile % tiles_x) * TILE_SIZE, y0 = (tile / tiles_x) * TILE_SIZE;
     const int first = ranges[2 * tile], range_end = ranges[2 * tile + 1];
     if (range_end <= (int)pair0 || first >= (int)pair_end) return;     // none of the run's pairs: the whole group

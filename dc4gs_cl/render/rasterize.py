@@ -22,7 +22,9 @@ class Raster:
 
 def raster_defines(ctx: StageContext) -> dict:
     """What the rasterizer's forward and backward kernels share: the switches and the tile work shape."""
-    return {**ctx.options.defines(), "PIXELS_PER_ITEM": ctx.tuning.pixels_per_item, "BATCH": ctx.tuning.batch}
+    t = ctx.tuning
+    return {**ctx.options.defines(), "PIXELS_PER_ITEM": t.pixels_per_item, "BATCH": t.batch,
+            "DEAL_TILES": t.deal_tiles}
 
 
 def background_value(background) -> np.ndarray:

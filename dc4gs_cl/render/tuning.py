@@ -9,6 +9,7 @@ from ..runtime import Capabilities
 
 # CPU implementations whose compiler wants the split sums added per column block (Tuning.split_sums_per_block).
 SPLIT_SUMS_PER_BLOCK = ("intel(r) opencl",)
+DEAL_TILES_CPU = 16   # stripes of tiles dealt to consecutive work-groups on CPUs (Tuning.deal_tiles)
 
 
 @dataclass(frozen=True)
@@ -20,6 +21,11 @@ class Tuning:
     scan_wg: int            # scan: work-group size
     scan_groups: int        # scan: work-groups (upper bound)
     isect_wg: int           # compaction: work-group size
+    # rasterizer, forward and backward: consecutive work-groups take tiles about tiles / deal_tiles apart (raster.h
+    # tile_of_group), so that a CPU runtime's chunks of consecutive groups each hold tiles from all over the image:
+    # PoCL dealt a backward run's few hundred consecutive tiles to one core (a million random Gaussians at 1280x720,
+    # AbsGS + DC4GS in 9 runs: ~160 ms a run, whatever its pairs). 1 on GPUs: neighbouring tiles run together
+    deal_tiles: int = 1
     # sort: 1, each run walked in sequence by a work-item (CPUs); else the work-group size that walks a run in tiles,
     # ranking each tile's keys in local memory (GPUs: coalesced loads and stores, 8-bit digits without a ballot)
     sort_wg: int = 1
@@ -58,7 +64,7 @@ class Tuning:
             cores = max(1, caps.compute_units)
             per_block = any(name in caps.platform.lower() for name in SPLIT_SUMS_PER_BLOCK)
             return Tuning(pixels_per_item=256, batch=32, radix_bits=8, sort_blocks=4 * cores,
-                          scan_wg=1, scan_groups=4 * cores, isect_wg=64,
+                          scan_wg=1, scan_groups=4 * cores, isect_wg=64, deal_tiles=DEAL_TILES_CPU,
                           split_sums_per_block=per_block).within(caps)
         # GPUs, and drivers that cut a work-item's loops short (Capabilities.loop_limit): one pixel, and short
         # runs of keys and of scan elements, per work-item.
