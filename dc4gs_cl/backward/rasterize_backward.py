@@ -158,7 +158,9 @@ class RasterizeBackward(Stage):
             target = sums
             rt.fill(sums, np.float32(0), 4 * layout.width * n)
         fold = window if plan.fused else None
-        variant = {**layout.defines(), "PIXEL_MASK": int(keep is not None)}
+        # a run's tiles are consecutive: dealt in stripes, as CPU runtimes deal each core consecutive groups
+        variant = {**layout.defines(), "PIXEL_MASK": int(keep is not None),
+                   "DEAL_TILES": tuning.deal_tiles if plan.runs > 1 else 1}
         k = self.fitted_kernels(variant)
         items = self.items(self.shape(variant))
         split_geometry = geometry if geometry is not None else sums
