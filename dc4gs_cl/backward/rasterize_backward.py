@@ -111,7 +111,7 @@ class RasterizeBackward(Stage):
         # pair_sums: one slot per (tile, Gaussian) pair, summed per Gaussian in a fixed order (deterministic);
         # otherwise float atomics into the per-Gaussian sums (--low-memory).
         return {**raster_defines(self.ctx), "PAIR_SUMS": int(self.ctx.tuning.pair_sums),
-                "SPLIT_SUMS_PER_BLOCK": int(self.ctx.tuning.split_sums_per_block)}
+                "SPLIT_SUMS_PER_BLOCK": int(self.ctx.tuning.split_sums_per_block), "DEAL_TILES": 1}
 
     def __call__(self, res: RenderResult, dL_dimage: cl.Buffer, background, layout: SumsLayout,
                  geometry: cl.Buffer | None = None, keep: cl.Buffer | None = None) -> cl.Buffer:

@@ -3,7 +3,6 @@
 // -D PIXELS_PER_ITEM: pixels one work-item owns: 1, 2, 4, 8, or whole rows (a multiple of TILE_SIZE
 // dividing TILE_SIZE^2); the work-group has TILE_SIZE^2 / PIXELS_PER_ITEM items. -D BATCH: Gaussians
 // loaded into local memory at a time (both from render/tuning.py). -D FAST_EXP, ALPHA_CUT (RenderOptions).
-// -D DEAL_TILES (Tuning.deal_tiles): how a launch's work-groups are dealt their tiles (tile_of_group).
 
 #ifndef DC4GS_RASTER_H
 #define DC4GS_RASTER_H
@@ -11,7 +10,6 @@
 #include "tiles.h"
 
 REQUIRE_DEFINED(FAST_EXP);
-REQUIRE_DEFINED(DEAL_TILES);
 
 #define TILE_PIXELS (TILE_SIZE * TILE_SIZE)
 #define ITEMS_PER_TILE (TILE_PIXELS / PIXELS_PER_ITEM)
@@ -22,19 +20,6 @@ REQUIRE_DEFINED(DEAL_TILES);
 #ifndef COL_BLOCK
 #define COL_BLOCK (COLS_PER_ITEM < 8 ? COLS_PER_ITEM : 8)
 #endif
-
-// The tile work-group `group` walks, of the tiles_x x tiles_y in the image (a launch holds a group per tile):
-// consecutive groups take tiles a stripe apart, the tiles cut into DEAL_TILES stripes of consecutive tiles (the first
-// ones a tile longer where they do not divide evenly; group % DEAL_TILES picks the stripe, group / DEAL_TILES the
-// tile in it), so that consecutive tiles, such as those of a backward run, spread over the launch: CPU runtimes
-// deal each core a chunk of consecutive groups (PoCL's pthread scheduler: hundreds at a time), which left a run's
-// few hundred tiles to one core. 1 (GPUs): group g walks tile g, neighbours (sharing Gaussians) together.
-ALWAYS_INLINE int tile_of_group(const int group, const int tiles_x, const int tiles_y) {
-    const int tiles = tiles_x * tiles_y, stripe = (tiles + DEAL_TILES - 1) / DEAL_TILES;   // the longer stripes'
-    const int longer = tiles - DEAL_TILES * (stripe - 1);                                   // stripes that long
-    const int s = group % DEAL_TILES, i = group / DEAL_TILES;
-    return s * stripe - max(s - longer, 0) + i;
-}
 
 // exp(x) for x <= 0: ours (FAST_EXP) or the driver's; below -87 it is exp(-87) ~ 1.6e-38, far under any
 // alpha threshold.

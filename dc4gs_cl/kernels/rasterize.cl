@@ -28,8 +28,7 @@ void rasterize(const int width, const int height, const int tiles_x, const float
                __global const float *mean2d, __global const float *conic_opacity, __global const float *rgb,
                __global const float *alpha_extent,
                __global float *image, __global float *final_T, __global int *last_pair) {
-    const int tile = tile_of_group(get_group_id(0), tiles_x, (height + TILE_SIZE - 1) / TILE_SIZE);
-    const int lid = get_local_id(0);
+    const int tile = get_group_id(0), lid = get_local_id(0);
     const int x0 = (tile % tiles_x) * TILE_SIZE, y0 = (tile / tiles_x) * TILE_SIZE;
     const int first = ranges[2 * tile], end = ranges[2 * tile + 1];
 

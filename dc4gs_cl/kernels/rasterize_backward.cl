@@ -62,6 +62,7 @@ REQUIRE_DEFINED(PIXEL_MASK);
 REQUIRE_DEFINED(SPLIT_SUMS_PER_BLOCK);
 REQUIRE_DEFINED(SUBGROUP);
 REQUIRE_DEFINED(PART_CHUNK);
+REQUIRE_DEFINED(DEAL_TILES);
 
 #if SUBGROUP
 REQUIRE_DEFINED(SUBGROUP_SOURCE);   // one of SUBGROUP_KHR, SUBGROUP_PTX (runtime.SUBGROUP_SOURCES)
@@ -377,6 +378,20 @@ ALWAYS_INLINE float part_row_sum(__local const float *row, const int lo, const i
 }
 
 #endif
+
+// The tile work-group `group` walks, of the tiles_x x tiles_y in the image (a launch holds a group per tile).
+// -D DEAL_TILES (Tuning.deal_tiles, in a frame walked in runs; else 1: group g walks tile g, neighbours sharing
+// Gaussians in the cache together): consecutive groups take tiles a stripe apart, the tiles cut into DEAL_TILES
+// stripes of consecutive tiles (the first ones a tile longer where they do not divide evenly; group % DEAL_TILES
+// picks the stripe, group / DEAL_TILES the tile in it), so that a run's consecutive tiles spread over the launch:
+// CPU runtimes deal each core a chunk of consecutive groups (PoCL's pthread scheduler: hundreds at a time), which
+// left a run's few hundred tiles to one core.
+ALWAYS_INLINE int tile_of_group(const int group, const int tiles_x, const int tiles_y) {
+    const int tiles = tiles_x * tiles_y, stripe = (tiles + DEAL_TILES - 1) / DEAL_TILES;   // the longer stripes'
+    const int longer = tiles - DEAL_TILES * (stripe - 1);                                   // stripes that long
+    const int s = group % DEAL_TILES, i = group / DEAL_TILES;
+    return s * stripe - max(s - longer, 0) + i;
+}
 
 __kernel __attribute__((reqd_work_group_size(ITEMS_PER_TILE, 1, 1))) SUBGROUP_SIZE_ATTRIBUTE
 void rasterize_backward(const int width, const int height, const int tiles_x, const uint pair0, const uint pair_end,

@@ -22,8 +22,7 @@ class Raster:
 
 def raster_defines(ctx: StageContext) -> dict:
     """What the rasterizer's forward and backward kernels share: the switches and the tile work shape."""
-    t = ctx.tuning   # group g on tile g (raster.h tile_of_group): the backward deals tiles where walked in runs
-    return {**ctx.options.defines(), "PIXELS_PER_ITEM": t.pixels_per_item, "BATCH": t.batch, "DEAL_TILES": 1}
+    return {**ctx.options.defines(), "PIXELS_PER_ITEM": ctx.tuning.pixels_per_item, "BATCH": ctx.tuning.batch}
 
 
 def background_value(background) -> np.ndarray:

@@ -22,11 +22,11 @@ class Tuning:
     scan_groups: int        # scan: work-groups (upper bound)
     isect_wg: int           # compaction: work-group size
     # rasterizer backward of a frame walked in runs: consecutive work-groups take tiles about tiles / deal_tiles
-    # apart (raster.h tile_of_group), so that a CPU runtime's chunks of consecutive groups each hold some of a run's
-    # consecutive tiles: PoCL dealt a run's few hundred tiles to one core (a million random Gaussians at 1280x720,
-    # AbsGS + DC4GS in 9 runs: ~160 ms a run, whatever its pairs; 1,048 -> 612 ms in all). Not where the whole image
-    # is busy (the forward, a frame in one run: 2-5% slower dealt, neighbouring tiles sharing Gaussians in the cache);
-    # 1 on GPUs
+    # apart (rasterize_backward.cl tile_of_group), so that a CPU runtime's chunks of consecutive groups each hold
+    # some of a run's consecutive tiles: PoCL dealt a run's few hundred tiles to one core (a million random
+    # Gaussians at 1280x720, AbsGS + DC4GS in 9 runs: ~160 ms a run, whatever its pairs; 1,048 -> 612 ms in all).
+    # Not where the whole image is busy (the forward, a frame in one run: 2-5% slower dealt, neighbouring tiles
+    # sharing Gaussians in the cache); 1 on GPUs
     deal_tiles: int = 1
     # sort: 1, each run walked in sequence by a work-item (CPUs); else the work-group size that walks a run in tiles,
     # ranking each tile's keys in local memory (GPUs: coalesced loads and stores, 8-bit digits without a ballot)
