@@ -40,7 +40,8 @@ for spec in "3dgs:" "absgs:--dc4gs"; do s=${spec%%:*}; dc=${spec#*:}
 done
 say wait-gsplat; wait $GB && gs=--gsplat || gs=; tail -2 /tmp/gsplat_build.txt >>"$L"
 say "bench ${gs:-(no gsplat)}"
-timeout "$(left 400)" $PY -m dc4gs_cl bench --garden "$garden" $gs --out "$OUT" >>"$L" 2>&1; say "bench rc $?"
+T=$(left 400); [ "$T" -lt 60 ] && T=60   # never 0: timeout 0 would not limit it
+timeout "$T" $PY -m dc4gs_cl bench --garden "$garden" $gs --out "$OUT" >>"$L" 2>&1; say "bench rc $?"
 xdist=; $PY -c "import xdist" 2>/dev/null && xdist="-n 8"
 T=$(left 560); [ "$T" -lt 30 ] && T=30
 say "pytest (timeout $T)"
