@@ -11,7 +11,7 @@ Configurations: the base; +DCC; +DCS; +DC4GS (view pooling, the default) and wit
 split costs tracked only while the split criterion is at least 0.5 or 0.25 of the threshold
 (--dcs-track, an approximation); split costs from every 2nd or 4th iteration's view only (--dcs-every, an
 approximation); DCS splitting at the middle with no split costs (--split-pick middle, an
-ablation that gains as much on the built-in scene: see the README); and two skips: split costs for every
+ablation that gains as much on the built-in scene: docs/dc4gs/studies.md); and two skips: split costs for every
 visible Gaussian (instead of only those large enough to be split), and no statistics at all (what an
 iteration costs once the densification window has closed). The trained state is reached without DC4GS,
 so the tracking rows start a window with every Gaussian tracked, as every window does.

@@ -44,9 +44,9 @@ Protocol per case:
    (the trainer's NDC scaling is isotropic on a square image and changes no position).
 3. Split positions from dc4gs_cl.densify.dc4gs.split_positions: "dense" with 59 candidates (our dense pick
    takes an odd count; the paper says 60), "poly" and "argmin" with 5. References: the middle x = 0.5,
-   the true crossing x = x*, the unsplit parent, and the random 3DGS split (host.ops.split_random: two
+   the true crossing x = x*, the unsplit parent, and the random 3DGS split (densify.ops.split_random: two
    children at mu + R S eps, scales / 1.6, opacity copied).
-4. Children from host.dc4gs.split_at (the paper's algorithm 4), then every child colour refitted to the
+4. Children from densify.ops.split_at (the paper's algorithm 4), then every child colour refitted to the
    ground truth by least squares (the image is linear in the colours for fixed geometry and order;
    colours unconstrained), so the score measures placement alone. No gradient-descent refinement.
 5. Score: SSIM (dc4gs_cl.reference.loss.ssim_map: 11 x 11 Gaussian window, sigma 1.5, zero padding)

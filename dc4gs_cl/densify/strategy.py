@@ -196,7 +196,7 @@ class Strategy:
         """Queued after iteration it's optimiser step (lrs: its learning rates): nothing here (MCMC's noise)."""
 
     def apply(self, actions: Actions, it: int, model, rng: np.random.Generator) -> DensifyReport | None:
-        """Densify (on the device model: host.trainable.TrainableGaussians) and limit the opacities as the
+        """Densify (on the device model: optim.trainable.TrainableGaussians) and limit the opacities as the
         actions say; the report of a densification step, else None."""
         report = None
         if actions.densify:
