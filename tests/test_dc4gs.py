@@ -178,9 +178,9 @@ def test_split_sums_of_candidates_out_of_order(rt, rng, shape):
 def test_split_sums_of_the_subgroup_reduction_are_its_twins(rt, rng, candidates):
     """DC4GS' split sums in the GPU shape: reduced over 32-lane subgroups (KHR or PTX), each lane
     testing its own pixel against the candidates crossing the subgroup's two rows after the walk (only those
-    reduced, the others zeros or the pair's totals), they are the bits of the portable twin (32 pixels per work-item, the same two rows
-    in 16-column blocks), split sums and all; and the same bits again when the frame is
-    walked in runs (other launches, tiles cut between them)."""
+    reduced, the others zeros or the pair's totals), they are the bits of the portable twin (32 pixels per
+    work-item, the same two rows in 16-column blocks), split sums and all; and the same bits again when the frame
+    is walked in runs (other launches, tiles cut between them)."""
     if rt.caps.subgroups is None:
         pytest.skip("needs subgroups: cl_khr_subgroup_shuffle with Intel's required subgroup size (Intel's CPU "
                     'runtime: DC4GS_DEVICE="Intel(R) OpenCL") or NVIDIA\'s inline PTX')
@@ -227,8 +227,9 @@ def spanning_runs(rt, res, tuning, n: int, width: int) -> tuple[int, int, np.nda
 def test_sum_pairs_folds_the_window_as_the_window_kernel_does(rt, rng, base, pooling):
     """sum_pairs folds a view's statistics into the window (window_fold.h) and only its gradients reach memory,
     for a frame walked in one run and in runs (a Gaussian whose pairs span runs carries its partial sums from run
-    to run; run_spans' record of each one's runs and its count of them against the host's). Over two views (the second adds to a window holding the first), both give the same window
-    and gradients, bit for bit, as the full sums folded by the window's own kernel."""
+    to run; run_spans' record of each one's runs and its count of them against the host's). Over two views (the
+    second adds to a window holding the first), both give the same window and gradients, bit for bit, as the full
+    sums folded by the window's own kernel."""
     from dc4gs_cl.densify import STRATEGIES
     from dc4gs_cl.statistics import GRADIENTS
     model = random_model(rng, 700, spread=1.0, scale_range=(0.01, 0.12))

@@ -59,9 +59,9 @@ def test_a_training_step_fits_a_small_device_and_matches_the_full_shape(scene_an
     got_params, got_stats = steps(small, scene, state, CONFIGS[config])
     want_params, want_stats = steps(Runtime(), scene, state, CONFIGS[config])
 
-    sized = [(s, k, l) for s, k, l, _ in launches if l is not None]
+    sized = [(s, k, group) for s, k, group, _ in launches if group is not None]
     assert {k for _, k, _ in sized} >= {"project", "rasterize", "loss_ssim", "rasterize_backward", "project_backward"}
-    assert all(int(np.prod(l)) <= SMALL.max_work_group_size for _, _, l in sized), sized
+    assert all(int(np.prod(group)) <= SMALL.max_work_group_size for _, _, group in sized), sized
     assert all(local <= SMALL.local_mem_size for *_, local in launches)
     for key, want in want_params.items():
         got = got_params[key]

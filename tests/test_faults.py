@@ -239,7 +239,7 @@ def test_sigterm_while_the_scene_loads_is_a_clean_exit(tmp_path, command):
         "import os, signal, sys, time\n"
         "import dc4gs_cl.scene as scenes\n"
         "def loading(*a, **k):\n"
-        f"    if os.path.isdir({str(out)!r}):   # train's own folder: what undistortion would have cached so far\n"
+        f"    if os.path.isdir({str(out)!r}):   # train's own folder: what undistortion would have cached\n"
         f"        os.makedirs(os.path.join({str(out)!r}, 'undistorted'))\n"
         f"        open(os.path.join({str(out)!r}, 'undistorted', 'a.png'), 'wb').close()\n"
         "    os.kill(os.getpid(), signal.SIGTERM)\n"

@@ -533,5 +533,5 @@ def test_the_scene_line_states_mixed_view_sizes(tmp_path, capsys):
                size=(16, 12))
     assert main(["train", "--scene", str(root), "--iterations", "1", "--test-every", "0", "--out", str(tmp_path / "out"),
                  "--no-progress"]) == 0
-    line = next(l for l in capsys.readouterr().err.splitlines() if l.startswith("scene:"))
+    line = next(entry for entry in capsys.readouterr().err.splitlines() if entry.startswith("scene:"))
     assert "16x12 x 3, 1x1 x 1" in line, line

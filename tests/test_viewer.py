@@ -25,8 +25,8 @@ from dc4gs_cl.scene.images import read_image
 from dc4gs_cl.testing import random_camera, random_model
 
 viser = pytest.importorskip("viser", reason='viser is not installed (pip install "dc4gs-cl[viewer]")')
-from dc4gs_cl.apps.viewer import (MOVING_SCALE, Viewer, add_arguments, cmd_view, frame_size,  # noqa: E402
-                                  view_camera, viser_pose)
+from dc4gs_cl.apps.viewer import (  # noqa: E402 (after the importorskip above)
+    MOVING_SCALE, Viewer, add_arguments, cmd_view, frame_size, view_camera, viser_pose)
 
 WIDTH, HEIGHT = 128, 96
 

@@ -5,8 +5,8 @@ dominate.
 
 The built-in scene's trainer (its views rendered at --size) gets N random Gaussians (SH degree 3) in place
 of its initial model and runs --iterations training steps with the densification statistics on (the most
-memory an iteration uses), for the base strategy and with DC4GS (view and window pooling), and the base and DC4GS again with
---low-memory (float-atomic backward, no per-pair slots); the peak of the bytes held in device buffers
+memory an iteration uses), for the base strategy and with DC4GS (view and window pooling), and the base and DC4GS
+again with --low-memory (float-atomic backward, no per-pair slots); the peak of the bytes held in device buffers
 (Runtime.memory_peak) is divided by N. What is held per Gaussian is listed below the table.
 """
 from __future__ import annotations

@@ -5,7 +5,8 @@ tilted and sunk into the ground; stripes, diagonal stripes or checker per face),
 longitude stripes; the large one has a mild specular highlight, the only view-dependent term), and a capped
 cylinder (angular stripes, rings on the cap), lit by a directional light plus ambient, with a plain sky
 of the scene's background colour for rays that miss (as a masked capture would have: no SfM point can
-explain a sky, and a gradient there only grows floaters). Each pixel averages a regular 3 x 3 grid of rays, so edges are antialiased.
+explain a sky, and a gradient there only grows floaters). Each pixel averages a regular 3 x 3 grid of rays, so
+edges are antialiased.
 Cameras: n_views cameras on a ring around the objects (one every 360/n_views degrees), cycling through three
 elevations, all looking at the scene centre with a 55 degree horizontal field of view; "view_000"... so
 that every test_every-th view (the test set) is spread around the ring.
@@ -62,8 +63,8 @@ def _parity(*coords: np.ndarray) -> np.ndarray:
 
 
 # Vectors are (3, N) arrays (one row per axis: NumPy is fast on rows); the ray origin is (3, 1): all rays
-# of a call come from one camera. Each solid: intersect(o, d) -> distance along the unit rays (inf on a miss), and surface(p) ->
-# (normal, albedo) at hit points. Rays start outside every solid, so only the entry hit matters.
+# of a call come from one camera. Each solid: intersect(o, d) -> distance along the unit rays (inf on a miss), and
+# surface(p) -> (normal, albedo) at hit points. Rays start outside every solid, so only the entry hit matters.
 
 class Ground:
     def __init__(self, half: float, tile: float, colors):
