@@ -43,7 +43,8 @@ def class_members() -> dict[str, set[str]]:
 
 
 def documented_texts() -> dict[str, str]:
-    texts = {str(p.relative_to(REPO)): p.read_text() for p in (REPO / "docs" / "architecture.md", REPO / "README.md")}
+    texts = {str(p.relative_to(REPO)): p.read_text()
+             for p in (REPO / "docs" / "architecture.md", REPO / "docs" / "dc4gs" / "studies.md", REPO / "README.md")}
     for path in PACKAGE.rglob("*.py"):   # docstrings and comments
         source = path.read_text()
         docs = [ast.get_docstring(n) or "" for n in ast.walk(ast.parse(source))
