@@ -1,20 +1,27 @@
 """A training run's settings: one frozen value, validated once, written to the run folder's config.json and
 read back by --resume and eval (run_folder.py); with the densification settings it holds (DC4GSConfig) or a
-strategy takes (DensifyConfig), and the `train` flag that gives each setting (FLAGS).
+strategy takes (DensifyConfig), and the `train` flags, each declared once with the setting it gives (TRAIN_FLAGS:
+the command line is built from them, and every check names a setting by its flag).
 
 Device-free (no OpenCL, no strategy classes), so that `report` and `export` import without a device
 (tests/test_structure.py)."""
 from __future__ import annotations
 
+import argparse
 import json
 import math
-from dataclasses import asdict, dataclass, fields
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, fields, is_dataclass
+from functools import reduce
+from pathlib import Path
 
 from .constants import LAMBDA_DSSIM, SH_MAX_DEGREE
 from .errors import InputError
+from .scene.builtin import BUILTIN_SCENE
 from .scene.camera import TEST_SPLITS
 
 RECIPE_ITERATIONS = 30_000   # the 3DGS schedule is written for this many iterations; shorter runs scale it
+BUILTIN_ITERATIONS = 5_000   # the default run on the built-in scene: 5 to 9 minutes on 2 CPU cores
 OUTPUT_SETTINGS = ("save_at", "checkpoint_every", "eval_at")   # settings that do not change the trained model
 DEFAULT_LINE_EVERY = 100     # --log-every: iterations between progress lines when the output is not a terminal
 # The strategies' names, spelled here so that settings are checked without importing the strategies (device
@@ -30,43 +37,6 @@ DENSE_CANDIDATES = 59               # --split-pick dense without --split-candida
 # arrays (kernels/sum_pairs.cl, rasterize_backward.cl); 10,001 crashed PoCL's compiled sum_pairs, 3,001 ran 60x slower
 MAX_CANDIDATES = 99
 MAX_SEED = 2 ** 63 - 1
-
-# `train`'s flags -> the setting each gives: a TrainConfig field, or "dc4gs.<field>" of its DC4GSConfig; in the
-# fields' order, which --resume's list of differing settings follows. cli.py reads the settings given through it,
-# and the checks below name a setting by its flag (FLAG_OF).
-FLAGS = {
-    "--scene": "scene", "--iterations": "iterations", "--strategy": "strategy", "--resolution": "resolution",
-    "--test-every": "test_every", "--test-split": "test_split", "--white-background": "white_background",
-    "--alpha-mask": "alpha_mask", "--seed": "seed", "--sh-degree": "sh_degree", "--save-at": "save_at",
-    "--checkpoint-every": "checkpoint_every", "--eval-at": "eval_at", "--batch": "batch",
-    "--position-lr-init": "lr_means", "--position-lr-final": "lr_means_final", "--feature-lr": "lr_sh_dc",
-    "--feature-rest-lr": "lr_sh_rest", "--opacity-lr": "lr_opacity", "--scaling-lr": "lr_scales",
-    "--rotation-lr": "lr_quats", "--lambda-dssim": "lambda_dssim", "--random-background": "random_background",
-    "--densify-from-iter": "densify_from", "--densification-interval": "densify_every",
-    "--opacity-reset-interval": "opacity_reset_every", "--densify-until": "densify_until",
-    "--antialiased": "antialiased", "--mcmc-noise-lr": "mcmc_noise_lr", "--opacity-reg": "opacity_reg",
-    "--scale-reg": "scale_reg",
-    "--split-threshold": "split_threshold", "--max-gaussians": "max_gaussians", "--low-memory": "low_memory",
-    "--dcc": "dc4gs.dcc", "--dcs": "dc4gs.dcs", "--dc-pooling": "dc4gs.pooling", "--split-pick": "dc4gs.split_pick",
-    "--split-candidates": "dc4gs.candidates", "--dcc-reading": "dc4gs.dcc_reading", "--dcs-track": "dc4gs.track",
-    "--dcs-other-scale": "dc4gs.other_scale", "--dcs-every": "dc4gs.cost_every"}
-FLAG_OF = {setting: flag for flag, setting in FLAGS.items()}
-
-
-def flag_key(flag: str) -> str:
-    """A flag's name as argparse stores it (--dc-pooling: dc_pooling)."""
-    return flag[2:].replace("-", "_")
-
-
-# config.json of runs made before the DC4GS settings were nested held them flat, under their flag's key
-FLAT_DC4GS_KEYS = {flag_key(flag): setting.removeprefix("dc4gs.") for flag, setting in FLAGS.items()
-                   if setting.startswith("dc4gs.")}
-
-
-def flagged_problems(checks: list[tuple[str, bool, str]]) -> list[str]:
-    """The messages of the failed checks, (setting, failed, what is wrong), each naming the setting's flag."""
-    return [f"{FLAG_OF[setting]} {text}" for setting, failed, text in checks if failed]
-
 
 @dataclass(frozen=True)
 class DensifyConfig:
@@ -87,6 +57,173 @@ class DensifyConfig:
     opacity_clamp_every: int | None = None   # AbsGS: clamp opacities to <= opacity_clamp this often
     opacity_clamp: float = 0.8
     max_gaussians: int | None = None   # densification never grows the model past this (cap_growth)
+
+
+# the `train` flags -----------------------------------------------------------------------------------------------
+def downscale_factor(value: str) -> int:
+    """-r's value (train and render)."""
+    r = int(value)
+    if r < 1:
+        raise argparse.ArgumentTypeError("-r must be a positive integer (1, 2, 4, 8, ...)")
+    return r
+
+
+@dataclass(frozen=True)
+class Flag:
+    """A `train` flag, declared once: its argument is built from this (apps/train.py), and the checks name its
+    setting by it (FLAG_OF). Each defaults to None: not given."""
+    name: str                          # "--seed"
+    setting: str | None                # the TrainConfig field it gives, or "<group>.<field>" of a group's (SETTINGS);
+                                       # None: the command's own (its others follow these: apps/train.py)
+    help: str                          # "{default}" in it: the setting's default (DEFAULT_SETTINGS)
+    type: Callable | None = None       # of its value; bool: a switch, no value
+    choices: tuple[str, ...] | None = None
+    nargs: str | None = None           # "*": a list of values
+    short: str | None = None           # "-r"
+
+    @property
+    def text(self) -> str:
+        """The help, with the setting's default."""
+        return self.help.format(default=setting_value(DEFAULT_SETTINGS, self.setting)) if "{default" in self.help \
+            else self.help
+
+
+@dataclass(frozen=True)
+class FlagGroup:
+    """Flags that --help lists together, in their order."""
+    title: str | None                  # None: the command's options (the first section)
+    flags: tuple[Flag, ...]
+    metavars: bool = False             # values shown as N (integers) and X (numbers)
+    inria_spellings: bool = False      # each flag also spelled with underscores, as the Inria code's (--feature_lr)
+
+
+ANTIALIASED_HELP = ("antialiased rasterization (gsplat's rasterize_mode \"antialiased\", Mip-Splatting's 2D filter): "
+                    "each opacity scaled by sqrt(det(Sigma) / det(Sigma + 0.3 I)), so that the 0.3 px^2 dilation "
+                    "keeps a Gaussian's integral; renders at other resolutions than trained alias less")
+TRAIN_FLAGS = (   # in the order `train --help` lists them (the first group's flags are listed before the others')
+    FlagGroup(None, (
+        Flag("--scene", "scene", f'COLMAP or NeRF scene folder, or "{BUILTIN_SCENE}" (the default)'),
+        Flag("--out", None, "output folder (default output/<scene>-<date-time>): point_cloud/iteration_N/"
+                            "point_cloud.ply, cameras.json, config.json, checkpoint.npz, results.json, test/ renders",
+             Path),
+        Flag("--strategy", "strategy", "densification: the 3dgs, absgs or pixelgs criterion (each with DC4GS or "
+                                       "without), or mcmc (relocation and growth up to --max-gaussians, position "
+                                       "noise; see the MCMC options) ({default})",
+             choices=tuple(sorted(STRATEGY_NAMES))),
+        Flag("--iterations", "iterations", f"training iterations (default {RECIPE_ITERATIONS:,}; "
+                                           f"{BUILTIN_ITERATIONS:,} for the built-in scene). Runs shorter than "
+                                           f"{RECIPE_ITERATIONS:,} scale the 3DGS schedule to their length", int),
+        Flag("--resolution", "resolution", "downscale images by this factor (default: widths above 1600 px scaled to "
+                                           "1600)", downscale_factor, short="-r"),
+        Flag("--test-every", "test_every", "every N-th image (by name) is a test image ({default}; 0: none)", int),
+        Flag("--test-split", "test_split", "which images are held out, by name: llff (default) from the first, so "
+                                           "the path's first view is a test view (an extrapolation); interpolated: as "
+                                           "many, spread inside the path, each with training views on both sides",
+             choices=TEST_SPLITS),
+        Flag("--save-at", "save_at", "also write the PLY at these iterations (default: none; the last iteration's "
+                                     "always)", int, nargs="*"),
+        Flag("--eval-at", "eval_at", "evaluate the test views after these iterations too, into metrics.jsonl "
+                                     "(default: 7,000 scaled to the run, as the Inria code; the last iteration always)",
+             int, nargs="*"),
+        Flag("--checkpoint-every", "checkpoint_every", "iterations between checkpoints ({default})", int),
+        Flag("--seed", "seed", "random seed: the same seed gives the same model ({default})", int),
+        Flag("--sh-degree", "sh_degree", f"largest spherical-harmonics degree, 0 to {SH_MAX_DEGREE} ({{default}})",
+             int),
+        Flag("--white-background", "white_background", "white background (Blender scenes)", bool),
+        Flag("--alpha-mask", "alpha_mask", "images' alpha channel masks pixels out (no loss, no densification "
+                                           "statistics) instead of being composited onto the background; a masks/ "
+                                           "folder beside images/ is always used", bool),
+        Flag("--split-threshold", "split_threshold", "split Gaussians whose split criterion reaches this (default: "
+                                                     "the strategy's, 2e-4 for 3dgs and pixelgs, 4e-4 for absgs); a "
+                                                     "higher one splits less. With DCC the criterion is DC-weighted "
+                                                     "and the threshold the same", float),
+        Flag("--batch", "batch", "views per optimiser step (an iteration), their gradients' mean stepping the model; "
+                                 "the learning rates times sqrt(B) and Adam's betas to the power B (Grendel's rule), "
+                                 "so that --iterations N/B sees as many views as N iterations of one (1; under "
+                                 "mpirun: the processes' count, each its share of the views)", int),
+        Flag("--max-gaussians", "max_gaussians", "a cap, not a target: densification never grows the model past N "
+                                                 "Gaussians. A step that would takes its clone and split candidates "
+                                                 "by their criterion over its threshold, highest first; pruning goes "
+                                                 "on as usual (default: no cap)", int),
+        Flag("--antialiased", "antialiased", ANTIALIASED_HELP + " (default off)", bool))),
+    FlagGroup("the 3DGS recipe (the Inria code's names; the schedule's iterations are scaled to runs shorter than "
+              f"{RECIPE_ITERATIONS:,} unless given here)", (
+        Flag("--position-lr-init", "lr_means", "position learning rate at the start, times the scene's extent "
+                                               "({default:g})", float),
+        Flag("--position-lr-final", "lr_means_final", "... at the end, decayed log-linearly ({default:g})", float),
+        Flag("--feature-lr", "lr_sh_dc", "SH DC band's learning rate ({default:g}; the higher bands' 1/20 of it)",
+             float),
+        Flag("--feature-rest-lr", "lr_sh_rest", "the higher SH bands' learning rate ({default:g}, or --feature-lr / "
+                                                "20)", float),
+        Flag("--opacity-lr", "lr_opacity", "opacity learning rate ({default:g})", float),
+        Flag("--scaling-lr", "lr_scales", "log-scale learning rate ({default:g})", float),
+        Flag("--rotation-lr", "lr_quats", "quaternion learning rate ({default:g})", float),
+        Flag("--lambda-dssim", "lambda_dssim", "the SSIM term's weight in the loss, 0 to 1 ({default:g})", float),
+        Flag("--random-background", "random_background", "render onto a random colour each iteration (default: the "
+                                                         "scene's background)", bool),
+        # the strategy's schedule (DensifyConfig), which the run scales to its length unless these are given
+        Flag("--densify-from-iter", "densify_from", f"start of the densification window "
+                                                    f"({DensifyConfig.densify_from:,}, scaled)", int),
+        Flag("--densify-until", "densify_until", f"end of the densification window ({DensifyConfig.densify_until:,}, "
+                                                 "scaled; 0: no densification)", int),
+        Flag("--densification-interval", "densify_every", f"iterations between densification steps "
+                                                          f"({DensifyConfig.densify_every}; fewer where a short run's "
+                                                          "window would hold under 10 steps; --batch B: 100 / B; "
+                                                          "mcmc: scaled)", int),
+        Flag("--opacity-reset-interval", "opacity_reset_every", f"iterations between opacity resets "
+                                                                f"({DensifyConfig.opacity_reset_every:,}, scaled; "
+                                                                "0: none)", int)), metavars=True, inria_spellings=True),
+    FlagGroup(f"MCMC (--strategy mcmc; its cap is --max-gaussians, default {MCMC_DEFAULT_CAP:,})", (
+        Flag("--mcmc-noise-lr", "mcmc_noise_lr", "the position noise's rate, times the position learning rate "
+                                                 "({default:g})", float),
+        Flag("--opacity-reg", "opacity_reg", "the loss term X mean(opacity) ({default:g})", float),
+        Flag("--scale-reg", "scale_reg", "the loss term X mean(scale) ({default:g})", float)), metavars=True),
+    FlagGroup("DC4GS (directional-consistency density control, on any base strategy)", (
+        Flag("--dc4gs", None, "DCC and DCS together", bool),
+        Flag("--dcc", "dc4gs.dcc", "DC-weighted split criterion: a Gaussian is split only where its pixels' gradients "
+                                   "disagree", bool),
+        Flag("--dcs", "dc4gs.dcs", "DC-guided split: children placed on the principal axis where the costs say, not "
+                                   "at random", bool),
+        Flag("--dc-pooling", "dc4gs.pooling", "directional consistency per view (view: the paper; default) or over "
+                                              "the densification window (window: the authors' release)",
+             choices=POOLINGS),
+        Flag("--split-pick", "dc4gs.split_pick", "split position: minimum of the polynomial through the candidates' "
+                                                 "costs (poly, default), the best candidate (argmin), the best of "
+                                                 f"many candidates (dense: {DENSE_CANDIDATES}), or the middle, no "
+                                                 "costs gathered (middle: an ablation, DCS' split without its "
+                                                 "placement)", choices=SPLIT_PICKS),
+        Flag("--split-candidates", "dc4gs.candidates", f"candidate split positions (odd; default {FIVE_CANDIDATES})",
+             int),
+        Flag("--dcs-track", "dc4gs.track", "gather split costs for a Gaussian only in its first views of a window and "
+                                           "while its running split criterion is at least this fraction of the "
+                                           "threshold (0: every Gaussian that can be split, exact; see the README)",
+             float),
+        Flag("--dcs-every", "dc4gs.cost_every", "add to the split costs only every this-many-th iteration's view (1: "
+                                                "every view, exact, default; an approximation that skips the split "
+                                                "sums' cost in the other views: see the README)", int),
+        Flag("--dcs-other-scale", "dc4gs.other_scale", "DCS' children's two other axes times this (1: kept, the "
+                                                       "paper's, default; 0.625 shrinks them as the 3DGS split does: "
+                                                       "see the README on regions of large Gaussians)", float),
+        Flag("--dcc-reading", "dc4gs.dcc_reading", "what DCC weights on the 3DGS and Pixel-GS bases: the base's own "
+                                                   "term (base, the paper's literal reading; default) or the "
+                                                   "homodirectional gradient (abs)", choices=DCC_READINGS))),
+    FlagGroup(None, (
+        Flag("--low-memory", "low_memory", "the backward adds into per-Gaussian sums with float atomics instead of "
+                                           "per-pair slots: about 17%% less device memory, as fast, not "
+                                           "bit-reproducible from run to run", bool),)))
+# a setting -> the flag that gives it: every check names the setting by it
+FLAG_OF = {flag.setting: flag.name for group in TRAIN_FLAGS for flag in group.flags if flag.setting}
+
+
+def flag_key(flag: str) -> str:
+    """A flag's name as argparse stores it (--dc-pooling: dc_pooling)."""
+    return flag[2:].replace("-", "_")
+
+
+def flagged_problems(checks: list[tuple[str, bool, str]]) -> list[str]:
+    """The messages of the failed checks, (setting, failed, what is wrong), each naming the setting's flag
+    (FLAG_OF)."""
+    return [f"{FLAG_OF[setting]} {text}" for setting, failed, text in checks if failed]
 
 
 @dataclass(frozen=True)
@@ -164,7 +301,7 @@ class TrainConfig:
     lr_means: float = 1.6e-4
     lr_means_final: float = 1.6e-6
     lr_sh_dc: float = 2.5e-3
-    lr_sh_rest: float = 2.5e-3 / 20        # the Inria code's feature_lr / 20 (cli.py keeps the ratio for --feature-lr)
+    lr_sh_rest: float = 2.5e-3 / 20        # the Inria code's feature_lr / 20 (kept for --feature-lr: apps/train.py)
     lr_opacity: float = 0.05
     lr_scales: float = 5e-3
     lr_quats: float = 1e-3
@@ -240,6 +377,20 @@ class TrainConfig:
         return d
 
     @staticmethod
+    def from_settings(settings: dict) -> TrainConfig:
+        """The settings named as in FLAGS, a nested group's as "<group>.<field>" (the rest their defaults);
+        InputError naming the flags of those that are wrong."""
+        top, nested = {}, {group: {} for group in SETTING_GROUPS}
+        for setting, value in settings.items():
+            group, _, name = setting.rpartition(".")
+            (nested[group] if group else top)[name] = value
+        try:
+            groups = {group: cls(**nested[group]) for group, cls in SETTING_GROUPS.items()}
+        except ValueError as e:   # a group's settings are checked, the group on or off: a mistyped flag never passes
+            raise InputError(None, str(e)) from None
+        return TrainConfig(**top, **groups)
+
+    @staticmethod
     def from_json(d: dict) -> "TrainConfig":
         """The inverse of to_json (unknown keys ignored); ValueError naming the setting for a value of the
         wrong JSON type, InputError or ValueError for a value out of range."""
@@ -284,3 +435,32 @@ def check_json_types(cls, values: dict, prefix: str = "", skip: tuple[str, ...] 
     for name, value in values.items():
         if name in annotations and name not in skip and not _json_type_ok(annotations[name], value):
             raise ValueError(f"{prefix}{name}: expected {annotations[name]}, got {json.dumps(value)[:40]}")
+
+
+# the settings ----------------------------------------------------------------------------------------------------
+DEFAULT_SETTINGS = TrainConfig(scene=BUILTIN_SCENE)
+# TrainConfig's fields that are groups of settings (dc4gs: DC4GSConfig), whose settings are named "<group>.<field>"
+SETTING_GROUPS = {f.name: type(value) for f in fields(TrainConfig)
+                  if is_dataclass(value := getattr(DEFAULT_SETTINGS, f.name))}
+
+
+def setting_value(cfg: TrainConfig, setting: str):
+    """A setting's value in cfg ("dc4gs.pooling": cfg.dc4gs.pooling)."""
+    return reduce(getattr, setting.split("."), cfg)
+
+
+def _setting_names(settings, prefix: str = ""):
+    """Every setting of a settings value in its fields' order, a group's named "<group>.<field>"."""
+    for f in fields(settings):
+        value = getattr(settings, f.name)
+        yield from _setting_names(value, f"{prefix}{f.name}.") if is_dataclass(value) else (prefix + f.name,)
+
+
+SETTINGS = tuple(_setting_names(DEFAULT_SETTINGS))   # in the fields' order
+# `train`'s flags -> the setting each gives, in the fields' order (SETTINGS), which --resume's list of differing
+# settings follows; the command line reads the settings given through it
+FLAGS = dict(sorted(((flag.name, flag.setting) for group in TRAIN_FLAGS for flag in group.flags if flag.setting),
+                    key=lambda item: SETTINGS.index(item[1])))
+# config.json of runs made before the DC4GS settings were nested held them flat, under their flag's key
+FLAT_DC4GS_KEYS = {flag_key(flag): setting.removeprefix("dc4gs.") for flag, setting in FLAGS.items()
+                   if setting.startswith("dc4gs.")}

@@ -10,6 +10,7 @@ import numpy as np
 from .files import replace_folder, staging_folder
 from .metrics import psnr, ssim
 from .render import DeviceGaussians, Renderer
+from .run_folder import GROUND_TRUTH, RENDERS
 from .runtime import Runtime
 from .scene.camera import Camera, Scene
 from .scene.images import write_png
@@ -34,8 +35,8 @@ def evaluate(rt: Runtime, renderer: Renderer, gaussians: DeviceGaussians, scene:
             if lpips is not None:
                 per_view[lpips.key][name] = lpips.distance(image, target)
             if staging:
-                write_png(staging / "renders" / name, image)
-                write_png(staging / "gt" / name, target)
+                write_png(staging / RENDERS / name, image)
+                write_png(staging / GROUND_TRUTH / name, target)
         if staging:
             replace_folder(staging, render_dir)
     finally:

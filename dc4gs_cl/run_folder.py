@@ -13,6 +13,11 @@ go through this module; every file is written atomically (files.py).
     metrics.jsonl                         the run's metrics over iterations, a JSON object per line, appended
                                           while training (train/log.py); `dc4gs-cl report` draws them
     <split>/ours_N/{renders,gt}/          rendered views beside their ground truth
+    path-KIND/ours_N/                     the frames of a camera path (render --path) and their video beside them
+    undistorted/                          the scene's undistorted images, cached
+
+`render --out` writes the same layout without the iterations (OUT/<split>/renders/, OUT/path-KIND/) and caches its
+scene's images there too.
 """
 from __future__ import annotations
 
@@ -44,6 +49,9 @@ CHECKPOINT, PREVIOUS_CHECKPOINT = "checkpoint.npz", "checkpoint.prev.npz"
 CORRUPT_CHECKPOINT = "checkpoint.corrupt.npz"   # a checkpoint found corrupt, set aside when resuming past it
 LOCK = ".lock"   # held by the run writing the folder (RunFolder.locked), the holder's PID inside
 RESULTS, PER_VIEW = "results.json", "per_view.json"
+ITERATION_KEY = "ours_"   # + N: the results' key and the views' folder of the model at iteration N (the Inria code's)
+RENDERS, GROUND_TRUTH = "renders", "gt"   # a views folder's renders and the images they are compared with
+UNDISTORTED = "undistorted"   # the scene's undistorted images, cached
 METRICS = "metrics.jsonl"
 # The numbers a metrics row may hold (train/log.py writes them; report plots them), and stage_ms: stage -> ms
 METRIC_NUMBERS = ("loss", "train_psnr", "gaussians", "it_per_s", "elapsed_s", "test_psnr", "test_ssim", "test_lpips",
@@ -178,7 +186,23 @@ class RunFolder:
 
     def views_dir(self, split: str, iteration: int) -> Path:
         """Where a split's renders/ and gt/ of the model at `iteration` go."""
-        return self.path / split / f"ours_{iteration}"
+        return self.path / split / f"{ITERATION_KEY}{iteration}"
+
+    def rendered_iterations(self, split: str) -> list[int]:
+        """The iterations whose views of a split were rendered (views_dir), in order."""
+        return sorted(int(m.group(1)) for d in (self.path / split).glob(f"{ITERATION_KEY}*")
+                      if (m := re.fullmatch(rf"{ITERATION_KEY}(\d+)", d.name)) and d.is_dir())
+
+    def path_frames_dir(self, kind: str, iteration: int | None = None) -> Path:
+        """Where render --path writes the frames of a camera path of this KIND: path-KIND/ours_N/ for the model at
+        `iteration`; path-KIND/ in render's --out (no iteration)."""
+        frames = self.path / f"path-{kind}"
+        return frames if iteration is None else frames / f"{ITERATION_KEY}{iteration}"
+
+    @property
+    def images_cache(self) -> Path:
+        """Where the scene's undistorted images are cached."""
+        return self.path / UNDISTORTED
 
     # the folder as a whole -------------------------------------------------------------------------------
     def holds_run(self) -> bool:
@@ -261,7 +285,7 @@ class RunFolder:
         the run's, white_background makes it white (render's --scene, -r, --white-background)."""
         cfg = self.read_config() if cfg is None else cfg
         return scenes.load_scene(scene or cfg.scene, resolution=resolution or cfg.resolution,
-                                 cache_dir=self.path / "undistorted", test_every=cfg.test_every,
+                                 cache_dir=self.images_cache, test_every=cfg.test_every,
                                  test_split=cfg.test_split, white_background=white_background or cfg.white_background,
                                  alpha_mask=cfg.alpha_mask)
 
@@ -373,12 +397,21 @@ class RunFolder:
         return kept
 
     # results ---------------------------------------------------------------------------------------------
+    @property
+    def results_path(self) -> Path:
+        return self.path / RESULTS
+
+    def read_results(self, iteration: int, per_view: bool = False) -> dict:
+        """The evaluation of the model at `iteration` that write_results stored: its means (results.json), or with
+        per_view its metrics per view (per_view.json). OSError, ValueError or KeyError where there is none."""
+        return json.loads((self.path / (PER_VIEW if per_view else RESULTS)).read_text())[f"{ITERATION_KEY}{iteration}"]
+
     def write_results(self, iteration: int, result: dict) -> list[str]:
         """Merge an evaluation (evaluate.evaluate) into results.json and per_view.json under "ours_N"; other
         iterations' entries are kept. A file that is not a JSON object (damaged, edited) is set aside as
         <name>.corrupt.json and started afresh, so that the evaluation's work is not lost: what was set aside
         is returned, a line each, for the command to say."""
-        key, set_aside = f"ours_{iteration}", []
+        key, set_aside = f"{ITERATION_KEY}{iteration}", []
         for name, value in ((RESULTS, result["mean"]), (PER_VIEW, result["per_view"])):
             path = self.path / name
             try:

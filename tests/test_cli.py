@@ -10,7 +10,8 @@ import pytest
 from helpers import load_tool
 
 from dc4gs_cl.apps import viewer
-from dc4gs_cl.cli import build_parser, main, train_config
+from dc4gs_cl.apps.train import train_config
+from dc4gs_cl.cli import build_parser, main
 from dc4gs_cl.config import DC4GSConfig, TrainConfig
 from dc4gs_cl.files import write_json
 from dc4gs_cl.ply import write_ply

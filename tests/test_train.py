@@ -272,7 +272,8 @@ def test_recipe_settings_reach_the_schedule_and_the_loss(rt):
     default = Schedule(replace(cfg, densify_from=None, densify_every=None, opacity_reset_every=None)).strategy().config
     assert (default.densify_from, default.densify_every, default.opacity_reset_every) == (50, 100, 300)   # scaled
     assert Trainer(cfg, load_scene("builtin", resolution=4), rt).loss.lambda_dssim == 0.4
-    from dc4gs_cl.cli import build_parser, train_config
+    from dc4gs_cl.apps.train import train_config
+    from dc4gs_cl.cli import build_parser
     for flags, rest in ((["--feature_lr", "0.004"], 0.004 / 20), (["--feature-lr", "0.004", "--feature-rest-lr", "1e-4"], 1e-4)):
         args = build_parser().parse_args(["train", *flags])
         assert train_config(args, None).lr_sh_rest == rest and train_config(args, None).lr_sh_dc == 0.004

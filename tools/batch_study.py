@@ -21,6 +21,8 @@ import sys
 import time
 from pathlib import Path
 
+from dc4gs_cl.run_folder import RunFolder
+
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
 SUMS_LINE = re.compile(r"gradients summed over \d+ processes: ([\d.]+) MB and ([\d.]+) ms an iteration")
 
@@ -43,7 +45,7 @@ def run(scene: str, resolution: int | None, batch: int, processes: int, iteratio
     seconds = time.perf_counter() - start
     if proc.returncode:
         raise SystemExit(f"{' '.join(train)} failed:\n{proc.stderr[-2000:]}")
-    results = json.loads((folder / "results.json").read_text())[f"ours_{iterations}"]
+    results = RunFolder(folder).read_results(iterations)
     gaussians = int(re.search(r"; ([\d,]+) Gaussians", proc.stdout).group(1).replace(",", ""))
     sums = SUMS_LINE.search(proc.stdout)
     entry = {"batch": batch, "processes": processes, "iterations": iterations, "seed": seed, "psnr": results["PSNR"],

@@ -11,13 +11,12 @@ from __future__ import annotations
 import base64
 import html
 import io
-import json
 from dataclasses import dataclass
 from pathlib import Path
 
 from ..errors import InputError
 from ..files import write_atomic
-from ..run_folder import PER_VIEW, RunFolder
+from ..run_folder import GROUND_TRUTH, RENDERS, RunFolder
 
 REPORT_VIEWS = 4   # test views shown beside their ground truth
 CURVES = (          # (metrics key, axis label, log scale)
@@ -102,34 +101,33 @@ def _img(data: bytes, alt: str) -> str:
 
 def views_html(runs: list[RunMetrics]) -> str:
     """The last evaluated iteration's first REPORT_VIEWS test views: ground truth, then each run's render."""
-    rendered = []
-    for run in runs:
-        folders = sorted(run.run.path.glob("test/ours_*"), key=lambda p: int(p.name.split("_")[1])
-                         if p.name.split("_")[1].isdigit() else -1)
-        rendered.append(folders[-1] if folders else None)
+    # each run's last rendered test views
+    last = [iterations[-1] if (iterations := run.run.rendered_iterations("test")) else None for run in runs]
+    rendered = [run.run.views_dir("test", it) if it is not None else None for run, it in zip(runs, last)]
     first = next((f for f in rendered if f is not None), None)
     if first is None:
         return "<p>No test views were rendered (no test/ours_N/ folder).</p>"
-    names = sorted(p.name for p in (first / "gt").glob("*.png"))[:REPORT_VIEWS]
+    names = sorted(p.name for p in (first / GROUND_TRUTH).glob("*.png"))[:REPORT_VIEWS]
     head = "<tr><th>view</th><th>ground truth</th>" + "".join(
         f"<th>{html.escape(r.label)}<br>{html.escape(f.name) if f else ''}</th>" for r, f in zip(runs, rendered)) + "</tr>"
     rows = []
     for name in names:
-        cells = [f"<td>{html.escape(name)}</td>", f"<td>{_img((first / 'gt' / name).read_bytes(), 'ground truth')}</td>"]
-        for run, folder in zip(runs, rendered):
-            path = folder / "renders" / name if folder else None
+        cells = [f"<td>{html.escape(name)}</td>",
+                 f"<td>{_img((first / GROUND_TRUTH / name).read_bytes(), 'ground truth')}</td>"]
+        for run, folder, iteration in zip(runs, rendered, last):
+            path = folder / RENDERS / name if folder else None
             if path is None or not path.is_file():
                 cells.append("<td>-</td>")
                 continue
-            psnr = _view_psnr(run.run, folder.name, name)
+            psnr = _view_psnr(run.run, iteration, name)
             cells.append(f"<td>{_img(path.read_bytes(), run.label)}<br>{psnr}</td>")
         rows.append("<tr>" + "".join(cells) + "</tr>")
     return f"<table>{head}{''.join(rows)}</table>"
 
 
-def _view_psnr(run: RunFolder, key: str, name: str) -> str:
+def _view_psnr(run: RunFolder, iteration: int, name: str) -> str:
     try:
-        return f"{json.loads((run.path / PER_VIEW).read_text())[key]['PSNR'][name]:.2f} dB"
+        return f"{run.read_results(iteration, per_view=True)['PSNR'][name]:.2f} dB"
     except (OSError, ValueError, KeyError, TypeError):
         return ""
 

@@ -466,7 +466,7 @@ class Viewer:
 # the command ------------------------------------------------------------------------------------------------
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    """The `view` command's arguments (cli.py adds --device)."""
+    """The `view` command's arguments (cli.py adds --antialiased and --device)."""
     p.add_argument("source", type=Path, help="a training output folder (its model and training cameras) or a model "
                                              "file: a 3DGS PLY or any format `export` writes (.splat, .spz, "
                                              ".compressed.ply)")
@@ -485,33 +485,28 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def cmd_view(args) -> int:
     _viser()
     check_address(args.host, args.port)   # before loading: a large model takes a while
-    from .export import read_model_file, recorded_antialiased
     from ..render import DeviceGaussians, Renderer, RenderOptions
-    from ..run_folder import RunFolder
     from ..runtime import Runtime, describe
     from ..scene import load_scene
+    from .model_source import ModelSource
 
-    source = Path(args.source)
-    if not source.exists():
-        raise InputError(source, "not found: expected a training output folder or a model file")
-    cfg = None
-    if source.is_dir():
-        run = RunFolder(source)
-        cfg = run.read_config()
-        iteration, model = run.load_model(args.iteration)
-        scene = run.load_scene(cfg, scene=args.scene, white_background=args.white_background)
+    path = Path(args.source)
+    if not path.exists():
+        raise InputError(path, "not found: expected a training output folder or a model file")
+    if args.iteration is not None and not path.is_dir():
+        raise InputError(None, "--iteration needs a training output folder")
+    source = ModelSource.of_path(path, args.iteration)
+    if source.run is not None:
+        scene = source.run.load_scene(source.cfg, scene=args.scene, white_background=args.white_background)
     else:
-        if args.iteration is not None:
-            raise InputError(None, "--iteration needs a training output folder")
-        iteration, model = None, read_model_file(source)
         scene = load_scene(args.scene, white_background=args.white_background) if args.scene else None
     background = scene.background if scene else np.full(3, 1.0 if args.white_background else 0.0, np.float32)
+    model = source.model
     rt = Runtime(args.device)
-    renderer = Renderer(rt, options=RenderOptions.of_model(args.antialiased, cfg,
-                                                           None if source.is_dir() else recorded_antialiased(source)))
+    renderer = Renderer(rt, options=RenderOptions.of_model(args.antialiased, source.antialiased))
     with Viewer(rt, renderer, scene.train if scene else [], port=args.port, host=args.host,
                 background=background, images=scene.image if scene else None, points=model.means) as viewer:
-        viewer.show(DeviceGaussians(rt, model), model.sh_degree, iteration)
+        viewer.show(DeviceGaussians(rt, model), model.sh_degree, source.iteration)
         print(f"device: {describe(rt.device)}; {len(model):,} Gaussians (SH degree {model.sh_degree})"
               f"{f', {len(scene.train)} training cameras' if scene else ''}\nviewer: {viewer.url} (Ctrl-C to stop)",
               file=sys.stderr)

@@ -18,13 +18,10 @@ class RenderOptions:
     antialiased: bool = False          # opacities times sqrt(det Sigma / det(Sigma + dilation)) (project.h)
 
     @staticmethod
-    def of_model(antialiased: bool | None, cfg=None, recorded: bool | None = None) -> "RenderOptions":
+    def of_model(antialiased: bool | None, trained: bool | None = None) -> "RenderOptions":
         """The options a trained model renders with: antialiased as given (render / view --(no-)antialiased),
-        else as its run trained (cfg: the run's TrainConfig), else as its file records it (a .spz's flag;
-        export.recorded_antialiased), else off."""
-        if antialiased is None:
-            antialiased = cfg.antialiased if cfg is not None else bool(recorded)
-        return RenderOptions(antialiased=antialiased)
+        else as it trained, where that is known (its run's settings, or a .spz's flag), else off."""
+        return RenderOptions(antialiased=bool(trained) if antialiased is None else antialiased)
 
     def defines(self) -> dict[str, int]:
         return {"FAST_EXP": int(self.fast_exp), "ALPHA_CUT": int(self.alpha_cut), "EARLY_STOP": int(self.early_stop),

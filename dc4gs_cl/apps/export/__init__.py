@@ -1,6 +1,6 @@
 """Exports of a model for other viewers (`dc4gs-cl export`), and readers of the compact formats that decode
-as each format's reference reader does (`render` and `view` read every format through read_model_file; the
-tests and tools/bench_export measure what the quantisation costs). Each compact format's layout is in its
+as each format's reference reader does (`render`, `view` and `export` read every format through read_model_file;
+the tests and tools/bench_export measure what the quantisation costs). Each compact format's layout is in its
 module's docstring:
 
     ply             the Inria layout (ply.write_ply): float32, lossless
@@ -25,7 +25,6 @@ import numpy as np
 from ...errors import InputError
 from ...model import GaussianModel
 from ...ply import check_ranges, read_header, read_ply, write_ply
-from ...run_folder import RunFolder
 from .compressed_ply import read_compressed_ply, write_compressed_ply
 from .splat import read_splat, write_splat
 from .spz import read_spz, spz_antialiased, write_spz
@@ -112,18 +111,19 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def cmd_export(args) -> int:
+    # here, not at the top: model_source reads through this package's readers
+    from ..model_source import ModelSource
+
     if args.iteration is not None and args.model is None:
         raise InputError(None, "--iteration needs --model")
     fmt = export_format(args.out, args.format)   # a bad name fails before the model is read
-    antialiased = False
     if args.model is not None:
         if not args.model.is_dir():
             raise InputError(args.model, "no such training output folder")
-        run = RunFolder(args.model)
-        _, model = run.load_model(args.iteration)
-        antialiased = run.config_path.is_file() and run.read_config().antialiased
+        source = ModelSource.of_run(args.model, args.iteration, settings_optional=True)
     else:
-        model = read_ply(args.ply)
+        source = ModelSource.of_file(args.ply)
+    model, antialiased = source.model, bool(source.antialiased)
     export_model(model, args.out, fmt, antialiased)
     print(f"{fmt}: {len(model):,} Gaussians, {args.out.stat().st_size:,} bytes written to {args.out}")
     if antialiased and fmt != "spz":   # the viewers would render it without its compensation
