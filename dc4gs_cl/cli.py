@@ -20,7 +20,7 @@ from .apps import evaluation, export, render, report, train, viewer
 from .config import ANTIALIASED_HELP, BUILTIN_ITERATIONS
 from .errors import DeviceError, InputError, OutputError
 from .finite import NonFiniteError
-from .lpips import DEFAULT_LPIPS, LPIPS_CHOICES
+from .evaluation.lpips import DEFAULT_LPIPS, LPIPS_CHOICES
 
 SCENE_COMMANDS = ("train", "eval", "render", "view")   # they read scenes, through pycolmap where COLMAP
 

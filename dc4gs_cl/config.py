@@ -296,7 +296,7 @@ class TrainConfig:
     save_at: tuple[int, ...] = ()          # PLYs at these iterations (the last one is always saved)
     checkpoint_every: int = 1_000
     eval_at: tuple[int, ...] | None = None  # test views evaluated after these iterations (None: the recipe's)
-    batch: int = 1                         # views per optimiser step (an iteration), over all processes (optim/batch.py)
+    batch: int = 1                         # views per optimiser step (an iteration), over all processes (optim/batch_gradients.py)
     # learning rates (3DGS); the position's decays log-linearly over the run and scales with the extent
     lr_means: float = 1.6e-4
     lr_means_final: float = 1.6e-6

@@ -37,12 +37,12 @@ try:
 except ImportError:   # Windows
     fcntl = None
 
-from . import scene as scenes
 from .config import TrainConfig
 from .errors import InputError, OutputError
 from .files import is_temporary, write_atomic, write_json
 from .model import GaussianModel
 from .ply import read_ply, write_ply
+from .scene.camera import Scene
 
 CONFIG = "config.json"
 CHECKPOINT, PREVIOUS_CHECKPOINT = "checkpoint.npz", "checkpoint.prev.npz"
@@ -279,15 +279,16 @@ class RunFolder:
             raise InputError(self.config_path, f"unreadable run settings ({problem})") from None
 
     def load_scene(self, cfg: TrainConfig | None = None, scene: str | None = None, resolution: int | None = None,
-                   white_background: bool = False) -> scenes.Scene:
+                   white_background: bool = False) -> Scene:
         """The scene as the run's settings load it (cfg, else config.json): its resolution, test views,
         background and alpha masks, the undistorted images cached in the folder. scene and resolution replace
         the run's, white_background makes it white (render's --scene, -r, --white-background)."""
+        from .scene.loader import load_scene   # pycolmap and OpenImageIO: only where a scene is read
         cfg = self.read_config() if cfg is None else cfg
-        return scenes.load_scene(scene or cfg.scene, resolution=resolution or cfg.resolution,
-                                 cache_dir=self.images_cache, test_every=cfg.test_every,
-                                 test_split=cfg.test_split, white_background=white_background or cfg.white_background,
-                                 alpha_mask=cfg.alpha_mask)
+        return load_scene(scene or cfg.scene, resolution=resolution or cfg.resolution,
+                          cache_dir=self.images_cache, test_every=cfg.test_every,
+                          test_split=cfg.test_split, white_background=white_background or cfg.white_background,
+                          alpha_mask=cfg.alpha_mask)
 
     # models ----------------------------------------------------------------------------------------------
     def save_model(self, iteration: int, model: GaussianModel) -> Path:

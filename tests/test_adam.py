@@ -7,7 +7,7 @@ from helpers import random_model
 from dc4gs_cl.backward import ProjectBackward
 from dc4gs_cl.model import group_widths
 from dc4gs_cl.optim.adam import Adam, AdamConfig, exponential_lr
-from dc4gs_cl.optim.batch import BatchGradients, batch_adam_config
+from dc4gs_cl.optim.batch_gradients import BatchGradients, batch_adam_config
 from dc4gs_cl.render import DeviceGaussians, Renderer
 from dc4gs_cl.runtime import DeviceArrays
 from dc4gs_cl.scene.camera import Camera

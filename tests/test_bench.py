@@ -156,7 +156,7 @@ def test_gsplat_gets_our_cameras_in_its_conventions(rng):
     """gsplat projects a point to K (V p) / z (pixel centres at +0.5, as ours): our projection's 2D means."""
     from dc4gs_cl.apps.gsplat_frames import camera_matrices
     from dc4gs_cl.reference.project import project_reference
-    from dc4gs_cl.testing import random_camera, random_model
+    from dc4gs_cl.reference.testing import random_camera, random_model
     cams = [random_camera(rng, 64, 48), random_camera(rng, 40, 30)]
     model = random_model(rng, 200)
     viewmats, ks = camera_matrices(cams)

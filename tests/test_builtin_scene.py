@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from dc4gs_cl.errors import InputError
-from dc4gs_cl.scene import load_scene
+from dc4gs_cl.scene.loader import load_scene
 from dc4gs_cl.scene.builtin import BUILTIN_SCENE, builtin_scene, cast_rays
 from dc4gs_cl.scene.camera import Camera, split_train_test
 

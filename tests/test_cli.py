@@ -16,9 +16,9 @@ from dc4gs_cl.config import DC4GSConfig, TrainConfig
 from dc4gs_cl.files import write_json
 from dc4gs_cl.ply import write_ply
 from dc4gs_cl.run_folder import RunFolder
-from dc4gs_cl.scene import load_scene
+from dc4gs_cl.scene.loader import load_scene
 from dc4gs_cl.scene.images import read_image
-from dc4gs_cl.testing import random_model
+from dc4gs_cl.reference.testing import random_model
 
 
 def run_cli(*args) -> subprocess.CompletedProcess:

@@ -23,7 +23,7 @@ from dc4gs_cl.errors import InputError, OutputError
 from dc4gs_cl.model import GaussianModel
 from dc4gs_cl.ply import read_ply, write_ply
 from dc4gs_cl.run_folder import RunFolder
-from dc4gs_cl.testing import random_model
+from dc4gs_cl.reference.testing import random_model
 
 N = 1500            # Gaussians per model: several compressed-PLY chunks, the last one partial
 F32 = float(np.finfo(np.float32).eps)

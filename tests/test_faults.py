@@ -237,7 +237,7 @@ def test_sigterm_while_the_scene_loads_is_a_clean_exit(tmp_path, command):
             "render": ["render", "--scene", "builtin", "--out", str(out)]}[command]
     done = subprocess.run([sys.executable, "-c", (
         "import os, signal, sys, time\n"
-        "import dc4gs_cl.scene as scenes\n"
+        "import dc4gs_cl.scene.loader as scenes\n"
         "def loading(*a, **k):\n"
         f"    if os.path.isdir({str(out)!r}):   # train's own folder: what undistortion would have cached\n"
         f"        os.makedirs(os.path.join({str(out)!r}, 'undistorted'))\n"

@@ -11,7 +11,7 @@ import pytest
 
 from dc4gs_cl.cli import main
 from dc4gs_cl.errors import InputError
-from dc4gs_cl.scene import load_scene
+from dc4gs_cl.scene.loader import load_scene
 from helpers import load_tool
 
 fuzz_inputs = load_tool("fuzz_inputs")

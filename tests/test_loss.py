@@ -3,7 +3,7 @@ import math
 import numpy as np
 import pytest
 
-from dc4gs_cl import metrics
+from dc4gs_cl.evaluation import metrics
 from dc4gs_cl.backward.loss import Loss
 from dc4gs_cl.constants import LAMBDA_DSSIM
 from dc4gs_cl.reference import loss as ref

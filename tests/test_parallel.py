@@ -20,7 +20,7 @@ from dc4gs_cl.densify import DC4GSConfig
 from dc4gs_cl.errors import InputError
 from dc4gs_cl.parallel import MAX_COLUMNS, SingleProcess
 from dc4gs_cl.run_folder import CHECKPOINT
-from dc4gs_cl.scene import load_scene
+from dc4gs_cl.scene.loader import load_scene
 from dc4gs_cl.train import Trainer
 from dc4gs_cl.train.schedule import Schedule
 

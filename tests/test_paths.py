@@ -8,7 +8,7 @@ import pytest
 from dc4gs_cl import geometry
 from dc4gs_cl.cli import main
 from dc4gs_cl.errors import InputError
-from dc4gs_cl.scene import load_scene
+from dc4gs_cl.scene.loader import load_scene
 from dc4gs_cl.scene.camera import Camera
 from dc4gs_cl.scene.images import read_image
 from dc4gs_cl.scene.paths import camera_path, look_at_point

@@ -6,7 +6,7 @@ import pytest
 from conftest import scene_path
 from dc4gs_cl.reference import render_reference
 from dc4gs_cl.render import DeviceGaussians, Renderer
-from dc4gs_cl.testing import gsplat_test_garden
+from dc4gs_cl.reference.testing import gsplat_test_garden
 
 
 @pytest.mark.parametrize("view,scale", [(0, 1), (2, 2)])

@@ -14,7 +14,7 @@ import pytest
 
 from dc4gs_cl.errors import InputError
 from conftest import DATA_DIR
-from dc4gs_cl.scene import load_scene
+from dc4gs_cl.scene.loader import load_scene
 
 
 
@@ -498,7 +498,7 @@ def test_output_names_stay_inside_the_output_folder_and_clashes_are_refused(tmp_
     """Views named by an absolute path or with ".." write their renders inside the folder given (their names made
     the evaluation write at the filesystem root); an image listed twice, or two names that would write one file,
     are refused naming both."""
-    from dc4gs_cl.evaluate import evaluate
+    from dc4gs_cl.evaluation.evaluate import evaluate
     from dc4gs_cl.model import initial_model
     from dc4gs_cl.render import DeviceGaussians, Renderer
     from dc4gs_cl.scene.builtin import builtin_scene

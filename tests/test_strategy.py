@@ -243,7 +243,7 @@ def test_a_new_base_strategy_is_a_subclass(rng):
 def test_a_new_base_strategy_trains(rt, tmp_path, settings, label):
     """The trainer takes the subclass as it is: its window on the device, its hooks, its densification."""
     from dc4gs_cl.config import TrainConfig
-    from dc4gs_cl.scene import load_scene
+    from dc4gs_cl.scene.loader import load_scene
     from dc4gs_cl.train import Trainer
     scene = load_scene("builtin", resolution=4)
     strategy = ToyBase(dc4gs=settings)

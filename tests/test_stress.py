@@ -13,7 +13,7 @@ from dc4gs_cl.render.workspace import POISON
 from dc4gs_cl.runtime import DeviceArrays
 from dc4gs_cl.scene.camera import Camera
 from dc4gs_cl.statistics import SumsLayout
-from dc4gs_cl.testing import random_model
+from dc4gs_cl.reference.testing import random_model
 
 CASES = ["zero scales", "huge scales", "needles", "near plane", "behind camera", "coincident", "opacity +30",
          "opacity -30", "zero quaternions", "one-colour image", "all at once"]

@@ -66,12 +66,16 @@ def test_the_import_reader_sees_imports():
 
 DEVICE_FREE = ("dc4gs_cl.config", "dc4gs_cl.statistics", "dc4gs_cl.run_folder", "dc4gs_cl.apps.report",
                "dc4gs_cl.apps.export", "dc4gs_cl.cli")
+# what those must not reach: the OpenCL runtime, and the scene readers' libraries (the names the settings and the
+# command line take from scene/: test splits, the built-in scene's name, path kinds, live in modules without them)
+HEAVY = ("pyopencl", "pycolmap", "OpenImageIO")
 
 
-def test_settings_run_folder_report_and_export_import_without_opencl():
-    """`report` and `export` need no device: what they import, the command line's included, must not reach
-    pyopencl (here made unimportable)."""
-    code = f"import sys; sys.modules['pyopencl'] = None\nfor name in {DEVICE_FREE!r}: __import__(name)"
+@pytest.mark.parametrize("library", HEAVY)
+def test_settings_run_folder_report_and_export_import_without_opencl_or_the_scene_readers(library):
+    """`report` and `export` need no device, and the command line and the settings no scene reader: what they
+    import must not reach these libraries (here made unimportable, one at a time)."""
+    code = f"import sys; sys.modules[{library!r}] = None\nfor name in {DEVICE_FREE!r}: __import__(name)"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert out.returncode == 0, out.stderr
 

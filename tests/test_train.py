@@ -16,9 +16,9 @@ from dc4gs_cl.cli import main
 from dc4gs_cl.config import TrainConfig
 from dc4gs_cl.constants import CARRY_OVERFLOWED, PAIRS_OVERFLOWED
 from dc4gs_cl.densify import DC4GSConfig
-from dc4gs_cl.metrics import psnr
+from dc4gs_cl.evaluation.metrics import psnr
 from dc4gs_cl.run_folder import CHECKPOINT, LOCK, RunFolder
-from dc4gs_cl.scene import load_scene
+from dc4gs_cl.scene.loader import load_scene
 from dc4gs_cl.train import Trainer
 from dc4gs_cl.train.schedule import Schedule
 

@@ -18,11 +18,11 @@ import numpy as np
 import pytest
 
 from dc4gs_cl.errors import InputError
-from dc4gs_cl.metrics import psnr
+from dc4gs_cl.evaluation.metrics import psnr
 from dc4gs_cl.render import DeviceGaussians, Renderer
 from dc4gs_cl.scene.camera import Camera
 from dc4gs_cl.scene.images import read_image
-from dc4gs_cl.testing import random_camera, random_model
+from dc4gs_cl.reference.testing import random_camera, random_model
 
 viser = pytest.importorskip("viser", reason='viser is not installed (pip install "dc4gs-cl[viewer]")')
 from dc4gs_cl.apps.viewer import (  # noqa: E402 (after the importorskip above)

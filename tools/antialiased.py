@@ -6,7 +6,7 @@ below a pixel, and the fixed 0.3 px^2 dilation widens them into bright blobs), o
 
 -r is the training resolution (the CLI's -r); each factor f evaluates at -r K*f (1: as trained). Both runs
 train with the same seed and recipe in this process (library calls, no run folders) and are evaluated with the
-mode they trained in (PSNR and SSIM of dc4gs_cl.evaluate; ground truth resized by the scene loader, the built-in
+mode they trained in (PSNR and SSIM of dc4gs_cl.evaluation.evaluate; ground truth resized by the scene loader, the built-in
 scene's rendered at each size).
 """
 from __future__ import annotations
@@ -16,10 +16,10 @@ import sys
 import time
 
 from dc4gs_cl.config import TrainConfig
-from dc4gs_cl.evaluate import evaluate
+from dc4gs_cl.evaluation.evaluate import evaluate
 from dc4gs_cl.render import Renderer, RenderOptions
 from dc4gs_cl.runtime import Runtime, describe
-from dc4gs_cl.scene import load_scene
+from dc4gs_cl.scene.loader import load_scene
 from dc4gs_cl.scene.builtin import BUILTIN_SCENE
 from dc4gs_cl.train import Trainer
 

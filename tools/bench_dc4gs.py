@@ -27,7 +27,7 @@ from dc4gs_cl.apps.bench import frozen_trainer
 from dc4gs_cl.config import TrainConfig
 from dc4gs_cl.densify import DC4GSConfig
 from dc4gs_cl.runtime import Runtime, describe
-from dc4gs_cl.scene import load_scene
+from dc4gs_cl.scene.loader import load_scene
 from dc4gs_cl.train import Trainer
 
 CONFIGURATIONS = {   # name -> DC4GSConfig settings; "_" keys are the benchmark's own switches

@@ -21,12 +21,12 @@ from pathlib import Path
 import numpy as np
 
 from dc4gs_cl.apps.export import FORMATS, READERS, export_model
-from dc4gs_cl.metrics import psnr
+from dc4gs_cl.evaluation.metrics import psnr
 from dc4gs_cl.ply import read_ply
 from dc4gs_cl.render import DeviceGaussians, Renderer
 from dc4gs_cl.run_folder import RunFolder
 from dc4gs_cl.runtime import Runtime, describe
-from dc4gs_cl.scene import load_scene
+from dc4gs_cl.scene.loader import load_scene
 from dc4gs_cl.scene.builtin import BUILTIN_SCENE
 
 

@@ -22,7 +22,7 @@ from dc4gs_cl.densify import DC4GSConfig
 from dc4gs_cl.model import GaussianSet
 from dc4gs_cl.runtime import Runtime, describe
 from dc4gs_cl.scene.builtin import builtin_scene
-from dc4gs_cl.testing import random_model
+from dc4gs_cl.reference.testing import random_model
 from dc4gs_cl.train import Trainer
 
 DC4GS = DC4GSConfig(dcc=True, dcs=True)

@@ -23,7 +23,7 @@ from dc4gs_cl.render import DeviceGaussians, RenderOptions, Renderer
 from dc4gs_cl.render.sort import RadixSort
 from dc4gs_cl.runtime import Runtime, describe
 from dc4gs_cl.scene.camera import Camera
-from dc4gs_cl.testing import gsplat_test_garden, random_model
+from dc4gs_cl.reference.testing import gsplat_test_garden, random_model
 
 GARDEN = DATA / "gsplat_test_garden" / "test_garden.npz"
 

@@ -17,7 +17,7 @@ that a slower or busier stretch of the machine falls on every run alike and the 
 no result, only when each iteration runs (tests/test_bench_train.py).
 
 Per run, measured in this process through the library (each run its own Runtime, profiling on):
-- test-view PSNR and SSIM (dc4gs_cl.evaluate; every 8th image by name is a test view);
+- test-view PSNR and SSIM (dc4gs_cl.evaluation.evaluate; every 8th image by name is a test view);
 - Gaussians at the start, at the end and at their peak;
 - wall time per iteration: Trainer.step() in a loop, from the first step until the queue is done after
   the last (densification included; evaluation, model saving and image decoding not);
@@ -51,11 +51,12 @@ from dc4gs_cl.config import TrainConfig
 from dc4gs_cl.densify import STRATEGIES, DC4GSConfig
 from dc4gs_cl.densify.ops import SPLIT_SCALE_DIVISOR
 from dc4gs_cl.errors import InputError
-from dc4gs_cl.evaluate import evaluate
+from dc4gs_cl.evaluation.evaluate import evaluate
 from dc4gs_cl.files import write_json
 from dc4gs_cl.run_folder import RunFolder
 from dc4gs_cl.runtime import Runtime, choose_device, describe
-from dc4gs_cl.scene import Scene, load_scene
+from dc4gs_cl.scene.camera import Scene
+from dc4gs_cl.scene.loader import load_scene
 from dc4gs_cl.scene.builtin import BUILTIN_SCENE
 from dc4gs_cl.scene.colmap import model_dir
 from dc4gs_cl.train import Trainer

@@ -37,7 +37,8 @@ from dc4gs_cl.geometry import principal_axis
 from dc4gs_cl.model import GaussianModel
 from dc4gs_cl.render import DeviceGaussians
 from dc4gs_cl.runtime import Runtime, describe
-from dc4gs_cl.scene import builtin, load_scene
+from dc4gs_cl.scene import builtin
+from dc4gs_cl.scene.loader import load_scene
 from dc4gs_cl.scene.camera import TEST_SPLITS
 from dc4gs_cl.statistics import SPLIT_COSTS
 from dc4gs_cl.train import Trainer

@@ -46,8 +46,8 @@ from dc4gs_cl.errors import InputError
 from dc4gs_cl.files import write_json
 from dc4gs_cl.ply import read_ply, write_ply
 from dc4gs_cl.run_folder import RunFolder
-from dc4gs_cl.scene import load_scene
-from dc4gs_cl.testing import random_model
+from dc4gs_cl.scene.loader import load_scene
+from dc4gs_cl.reference.testing import random_model
 
 FOLDER = "fuzz scène ü"     # every input lives under a name with a space and non-ASCII letters
 W, H = 24, 16               # image size

@@ -46,12 +46,12 @@ from dc4gs_cl.config import TrainConfig
 from dc4gs_cl.densify import MCMC, AbsGS, DC4GSConfig, PixelGS, Strategy
 from dc4gs_cl.errors import DeviceError
 from dc4gs_cl.model import group_widths
-from dc4gs_cl.optim.batch import BatchGradients
+from dc4gs_cl.optim.batch_gradients import BatchGradients
 from dc4gs_cl.optim.trainable import TrainableGaussians
 from dc4gs_cl.render import DeviceGaussians, Renderer, RenderOptions
 from dc4gs_cl.render.stage import StageContext
 from dc4gs_cl.runtime import Runtime, list_devices
-from dc4gs_cl.testing import random_camera, random_model
+from dc4gs_cl.reference.testing import random_camera, random_model
 from dc4gs_cl.train.schedule import Schedule
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -247,7 +247,7 @@ class Backward:
     worth of pairs at a time (the backward walked in runs of consecutive pairs, most tiles cut between two, the
     view folded in sum_pairs, Gaussians spanning runs carried between them), and the split sums added per column
     block (Tuning.split_sums_per_block); batch: the view's gradients added to a batch's, then Adam's step on
-    their mean (optim/batch.py), rather than the fused step."""
+    their mean (optim/batch_gradients.py), rather than the fused step."""
     pair_sums: bool
     masked: bool
     strategy: str | None

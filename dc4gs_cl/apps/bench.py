@@ -57,7 +57,7 @@ from ..runtime import Capabilities, Runtime, describe
 from ..scene.builtin import builtin_scene
 from ..scene.camera import Camera, Scene
 from ..statistics import GRADIENTS
-from ..testing import gsplat_test_garden, random_camera, random_model
+from ..reference.testing import gsplat_test_garden, random_camera, random_model
 from ..train import Trainer
 from ..train.schedule import Schedule
 

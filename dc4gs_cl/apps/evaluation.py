@@ -18,8 +18,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def cmd_eval(args) -> int:
-    from ..evaluate import evaluate, per_view_lines, summary
-    from ..metrics import lpips_metric
+    from ..evaluation.evaluate import evaluate, per_view_lines, summary
+    from ..evaluation.metrics import lpips_metric
     from ..render import DeviceGaussians, Renderer, RenderOptions
     from ..runtime import Runtime
 

@@ -60,7 +60,7 @@ def cmd_render(args) -> int:
     from ..model import initial_model
     from ..render import DeviceGaussians, Renderer, RenderOptions
     from ..runtime import Runtime, describe
-    from ..scene import load_scene
+    from ..scene.loader import load_scene
     from ..scene.images import write_png
 
     if args.model is None and args.out is None:

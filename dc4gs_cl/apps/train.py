@@ -102,8 +102,8 @@ def cmd_train(args) -> int:
 def _train_locked(args, run: RunFolder, group) -> int:
     """cmd_train in its run folder, which it holds (process 0 of a parallel run; the others follow it, writing
     nothing)."""
-    from ..evaluate import per_view_lines, summary
-    from ..metrics import lpips_metric
+    from ..evaluation.evaluate import per_view_lines, summary
+    from ..evaluation.metrics import lpips_metric
     from ..parallel import device_of_process
     from ..runtime import Runtime, describe
     from ..train import Stopped, Trainer

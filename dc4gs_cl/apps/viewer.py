@@ -36,7 +36,6 @@ import numpy as np
 from ..constants import MAX_ABS_MEAN
 from ..errors import InputError
 from ..scene.camera import Camera, scene_extent
-from ..scene.images import resize
 
 if TYPE_CHECKING:
     import viser
@@ -342,6 +341,7 @@ class Viewer:
                 frustum.visible = shown.value
         if images is None:
             return
+        from ..scene.images import resize   # OpenImageIO: only where a scene's images are shown
         pictures = self.server.gui.add_checkbox("Training images", initial_value=False)
 
         @pictures.on_update
@@ -487,7 +487,7 @@ def cmd_view(args) -> int:
     check_address(args.host, args.port)   # before loading: a large model takes a while
     from ..render import DeviceGaussians, Renderer, RenderOptions
     from ..runtime import Runtime, describe
-    from ..scene import load_scene
+    from ..scene.loader import load_scene
     from .model_source import ModelSource
 
     path = Path(args.source)

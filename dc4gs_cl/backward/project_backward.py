@@ -1,5 +1,5 @@
 """Projection backward stage (kernels/project_backward.cl): from this view's per-Gaussian sums to the
-parameters' gradients (stored, or added to a batch's: optim/batch.py), or, in training one view at a time,
+parameters' gradients (stored, or added to a batch's: optim/batch_gradients.py), or, in training one view at a time,
 straight to Adam's step on the parameters (the gradients never stored; the step's record is records.ADAM_STEP,
 filled by optim/adam.py)."""
 from __future__ import annotations

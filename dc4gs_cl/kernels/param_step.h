@@ -1,5 +1,5 @@
 // param_step.h: what becomes of a Gaussian's parameter gradients, chosen by -D options; shared by
-// project_backward.cl (the gradients of one view) and apply_gradients.cl (the gradients of a batch of views).
+// project_backward.cl (the gradients of one view) and batch_gradients.cl (the gradients of a batch of views).
 //   FUSED_ADAM=1:  Adam's step on the parameters (adam.h), with the AdamStep `step` and the moments m_<group>,
 //                  v_<group> in scope
 //   FUSED_ADAM=0:  stored to d_<group>, or with ACCUMULATE=1 added to it (a batch's views summed in launch order)

@@ -11,7 +11,7 @@
 //              SUM_OPACITY (ANTIALIASED: of the opacity times its compensation, as project.cl wrote it), dL/drgb at
 //              SUM_RGB
 //   FUSED_ADAM=0:  out d_means [N*3], d_log_scales [N*3], d_quats [N*4], d_opacity_logits [N], d_sh [N*SH_COEFFS*3]
-//                  (ACCUMULATE=1: in/out, this view's gradients added: a batch's views, optim/batch.py)
+//                  (ACCUMULATE=1: in/out, this view's gradients added: a batch's views, optim/batch_gradients.py)
 //   FUSED_ADAM=1:  in step (AdamStep); in/out m_<group>, v_<group>: Adam's moments, shaped like the parameters
 //   REGULARIZED=1: reg_opacity, reg_scale: MCMC's loss terms opacity_reg mean(opacity) + scale_reg mean(scale) as
 //                  opacity_reg / N and scale_reg / 3N; their gradients reach every Gaussian, seen in the view or not

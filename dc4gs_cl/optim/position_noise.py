@@ -1,4 +1,4 @@
-"""MCMC's position noise (kernels/mcmc_noise.cl): once an iteration after Adam's step, each Gaussian's mean moves
+"""MCMC's position noise (kernels/position_noise.cl): once an iteration after Adam's step, each Gaussian's mean moves
 by its covariance times standard normals, gated to the nearly transparent ones; the normals come from a counter-
 based generator keyed by the run's seed and counted by the iteration, so a run resumed or a view run again draws
 the same. Its float64 reference is reference/mcmc.py."""
@@ -17,7 +17,7 @@ def seed_words(seed: int) -> tuple[int, int]:
 
 
 class PositionNoise(Stage):
-    FILE, KERNELS = "mcmc_noise.cl", ("mcmc_noise",)
+    FILE, KERNELS = "position_noise.cl", ("position_noise",)
 
     def defines(self) -> dict:
         return {"NOISE_K": MCMC_NOISE_K, "NOISE_X0": MCMC_NOISE_X0}
@@ -27,7 +27,7 @@ class PositionNoise(Stage):
         if g.n == 0:
             return
         lo, hi = seed_words(seed)
-        self.rt.launch_items("mcmc_noise", self.kernels()["mcmc_noise"], g.n, PER_GAUSSIAN_WG, self.ctx.frame,
+        self.rt.launch_items("position_noise", self.kernels()["position_noise"], g.n, PER_GAUSSIAN_WG, self.ctx.frame,
                              np.uint32(g.n), np.uint32(iteration), np.uint32(lo), np.uint32(hi), np.float32(scaler),
                              *g.ordered()[:4])
         self.check(lambda: {"means": g.download_group("means")})

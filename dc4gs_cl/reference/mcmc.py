@@ -1,4 +1,4 @@
-"""Float64 reference of kernels/mcmc_noise.cl and its random numbers (kernels/philox.h), computed in NumPy."""
+"""Float64 reference of kernels/position_noise.cl and its random numbers (kernels/philox.h), computed in NumPy."""
 from __future__ import annotations
 
 import numpy as np
@@ -38,9 +38,9 @@ def noise_counters(n: int, iteration: int) -> np.ndarray:
     return np.stack([np.arange(n), np.full(n, iteration), np.zeros(n), np.zeros(n)], axis=1).astype(np.uint32)
 
 
-def mcmc_noise_reference(means, log_scales, quats, opacity_logits, iteration: int, seed: tuple[int, int],
+def position_noise_reference(means, log_scales, quats, opacity_logits, iteration: int, seed: tuple[int, int],
                          scaler: float, k: float, x0: float) -> np.ndarray:
-    """The means after mcmc_noise.cl's step: means + Sigma z f scaler (the kernel's docstring; a step beyond
+    """The means after position_noise.cl's step: means + Sigma z f scaler (the kernel's docstring; a step beyond
     float32's range not taken, the means clamped to +-MAX_ABS_MEAN)."""
     means = np.asarray(means, np.float64)
     opacity = 1 / (1 + np.exp(-np.asarray(opacity_logits, np.float64).reshape(-1)))

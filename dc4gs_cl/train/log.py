@@ -105,7 +105,7 @@ class TrainingLog:
         if self.run_folder is not None:
             self.run_folder.append_metrics(row)
         if self.mode != "none":
-            from ..evaluate import summary   # unrounded, as the final line of `train` prints it
+            from ..evaluation.evaluate import summary   # unrounded, as the final line of `train` prints it
             line = f"iteration {iteration:,}: test views {summary(result)}, {result['views']} views"
             if self.bar is not None:
                 self.bar.write(line, file=self.stream)

@@ -7,7 +7,7 @@ from dataclasses import replace
 from ..config import MCMC_DEFAULT_CAP, RECIPE_ITERATIONS, TrainConfig
 from ..densify import STRATEGIES, Strategy
 from ..optim.adam import exponential_lr
-from ..optim.batch import batch_rate_factor
+from ..optim.batch_gradients import batch_rate_factor
 
 MIN_DENSIFY_STEPS = 10   # a short run still densifies about this often
 SH_DEGREE_EVERY = 1_000  # one more SH degree every this many (scaled) iterations

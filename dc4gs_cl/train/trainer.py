@@ -29,7 +29,7 @@ from ..config import DEFAULT_LINE_EVERY, TrainConfig
 from ..densify import Actions, Strategy
 from ..errors import DeviceError, InputError
 from ..model import GaussianSet, initial_model
-from ..optim.batch import BatchGradients, batch_adam_config
+from ..optim.batch_gradients import BatchGradients, batch_adam_config
 from ..optim.trainable import TrainableGaussians
 from ..parallel import SingleProcess
 from ..render import DeviceGaussians, Renderer, RenderOptions, Tuning
@@ -120,7 +120,7 @@ class Trainer:
     # one iteration ------------------------------------------------------------------------------------
     def step(self) -> None:
         """One iteration: one view (the model stepped by its gradients, fused into their computation), or with
-        --batch B, B views (the model stepped by their mean; optim/batch.py)."""
+        --batch B, B views (the model stepped by their mean; optim/batch_gradients.py)."""
         if self.batch is None:
             self._step_view()
         else:
@@ -326,7 +326,7 @@ class Trainer:
     def evaluate_test(self, render_dir: Path | None = None) -> dict:
         """Evaluate the test views now (evaluate.evaluate; with render_dir, their PNGs too) and log it; the
         training clock and the per-stage times leave the evaluation out."""
-        from ..evaluate import evaluate
+        from ..evaluation.evaluate import evaluate
         log = self.log
         if log is not None:
             log.pause()

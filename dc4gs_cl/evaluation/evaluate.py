@@ -7,13 +7,13 @@ from pathlib import Path
 
 import numpy as np
 
-from .files import replace_folder, staging_folder
+from ..files import replace_folder, staging_folder
+from ..render import DeviceGaussians, Renderer
+from ..run_folder import GROUND_TRUTH, RENDERS
+from ..runtime import Runtime
+from ..scene.camera import Camera, Scene
+from ..scene.images import write_png
 from .metrics import psnr, ssim
-from .render import DeviceGaussians, Renderer
-from .run_folder import GROUND_TRUTH, RENDERS
-from .runtime import Runtime
-from .scene.camera import Camera, Scene
-from .scene.images import write_png
 
 
 def evaluate(rt: Runtime, renderer: Renderer, gaussians: DeviceGaussians, scene: Scene, cams: list[Camera],

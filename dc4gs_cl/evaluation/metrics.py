@@ -5,11 +5,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from .backward.loss import Loss
-from .errors import InputError
+from ..backward.loss import Loss
+from ..errors import InputError
+from ..render.stage import StageContext
+from ..runtime import Runtime
 from .lpips import DEFAULT_LPIPS, Lpips, LpipsUnavailable
-from .render.stage import StageContext
-from .runtime import Runtime
 
 
 def _clamped(image) -> np.ndarray:

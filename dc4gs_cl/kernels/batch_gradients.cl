@@ -1,4 +1,4 @@
-// apply_gradients.cl: Adam's step on the parameters from gradients gathered over a batch of views (optim/batch.py):
+// batch_gradients.cl: Adam's step on the parameters from gradients gathered over a batch of views (optim/batch_gradients.py):
 // each view's project_backward.cl added its gradients (FUSED_ADAM=0, ACCUMULATE=1), the processes' sums were
 // added where several train together (parallel.py), and this steps every Gaussian by their mean. Built with
 // FUSED_ADAM=1, ACCUMULATE=0.
@@ -17,7 +17,7 @@
 REQUIRE_DEFINED(REGULARIZED);
 
 __kernel UNPACKED_WORK_ITEMS
-void apply_gradients(__global const uint *frame, const int n,
+void batch_gradients(__global const uint *frame, const int n,
                      PARAM *means, PARAM *log_scales, PARAM *quats, PARAM *opacity_logits, PARAM *sh,
                      __global const float *d_means, __global const float *d_log_scales,
                      __global const float *d_quats, __global const float *d_opacity_logits,

@@ -1,4 +1,4 @@
-// mcmc_noise.cl: MCMC densification's position noise (Kheradmand et al. 2024, the SGLD step; gsplat's
+// position_noise.cl: MCMC densification's position noise (Kheradmand et al. 2024, the SGLD step; gsplat's
 // inject_noise_to_position), once an iteration after Adam's step:
 //     means += Sigma (z f scaler),   z ~ N(0, I),   f = 1 / (1 + exp(-NOISE_K ((1 - opacity) - NOISE_X0)))
 // f is ~1 only for nearly transparent Gaussians (opacity below ~0.005) and ~0 for the rest; Sigma = R diag(s^2)
@@ -16,7 +16,7 @@
 #include "project.h"
 
 __kernel UNPACKED_WORK_ITEMS
-void mcmc_noise(__global const uint *frame, const uint n, const uint iteration, const uint seed_lo,
+void position_noise(__global const uint *frame, const uint n, const uint iteration, const uint seed_lo,
                 const uint seed_hi, const float scaler, __global float *means, __global const float *log_scales,
                 __global const float *quats, __global const float *opacity_logits) {
     uint i = get_global_id(0);

@@ -6,9 +6,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .constants import sh_coeffs
-from .model import GaussianModel, logit, rgb_to_sh_dc
-from .scene.camera import Camera
+from ..constants import sh_coeffs
+from ..model import GaussianModel, logit, rgb_to_sh_dc
+from ..scene.camera import Camera
 
 
 def random_model(rng: np.random.Generator, n: int, sh_degree: int = 3, spread: float = 1.0,
