@@ -185,7 +185,7 @@ def test_a_subgroup_path_that_does_not_build_falls_back_to_the_twin(rt, rng):
 @pytest.mark.parametrize("pixels_per_item", [2, 4])
 def test_rasterize_backward_with_narrow_column_blocks_matches_reference(rt, rng, pixels_per_item):
     """Work-items of 2 or 4 pixels (devices with small work-groups) sum their pixels in column blocks of that
-    many lanes (rasterize_backward.cl's lane_total at its other widths)."""
+    many lanes (raster.h's lane_total at its other widths)."""
     from dataclasses import replace
     renderer, res, cam, bg, dL_dimage = backward_case(
         rt, rng, replace(SHAPES["mid"], pixels_per_item=pixels_per_item, pair_sums=True), opaque=300)

@@ -33,7 +33,7 @@ TWIN = {"PIXELS_PER_ITEM": SUBGROUP, "COL_BLOCK": TILE_SIZE, "SUBGROUP": 0}   # 
 # The cooperative shapes' partial sums: PART_CHUNK pairs' worth at a time, in at most PART_BYTES of local memory
 # and at most PART_CHUNK_MAX pairs (a barrier per chunk). In the GPU shape at its batch of 256 a work-group holds
 # 25.6 KB for 3DGS' sums with statistics and 37.1 KB with DC4GS'. Registers, not local memory, bound the work-groups
-# an NVIDIA multiprocessor holds (tools/ptx_occupancy.py, clang + ptxas for sm_86): 56 per item for AbsGS, 72 for
+# an NVIDIA multiprocessor holds (tools/ptx_occupancy.py, clang + ptxas for sm_86): 56 per item for AbsGS, 71 for
 # AbsGS + DC4GS, 4 and 3 work-groups of 256 (91 and 255 with 600 bytes spilled before the split sums were reduced
 # candidate by candidate after the walk and the reduction held no select between two of its array's elements: 2, 1).
 PART_BYTES, PART_CHUNK_MAX = 16 * 1024, 32

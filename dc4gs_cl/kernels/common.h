@@ -103,33 +103,15 @@ inline float ceil_nonnegative(float x) {
 // The first compare-and-swap guesses 0.0f rather than reading *addr: a plain read there races with other
 // work-items' compare-and-swap under the memory model (Oclgrind reports it); a wrong guess costs one more
 // compare-and-swap, which then holds the value seen.
-#define DEFINE_ATOMIC_ADD_FLOAT(name, space)                                                       \
-    inline void name(volatile space float *addr, float v) {                                         \
-        union { unsigned int u; float f; } old, upd;                                               \
-        old.u = 0u;                                                                                \
-        do {                                                                                       \
-            upd.f = old.f + v;                                                                     \
-            unsigned int seen = atomic_cmpxchg((volatile space unsigned int *)addr, old.u, upd.u); \
-            if (seen == old.u) break;                                                              \
-            old.u = seen;                                                                          \
-        } while (1);                                                                               \
-    }
-DEFINE_ATOMIC_ADD_FLOAT(atomic_add_float, __global)
-DEFINE_ATOMIC_ADD_FLOAT(local_add_float, __local)
-
-// A split-geometry row (statistics.geometry_record, GEO_*) whose view gives the Gaussian a split line.
-#define HAS_SPLIT_LINE(geo) ((geo)[GEO_DIR] != 0.f || (geo)[GEO_DIR + 1] != 0.f)
-
-// SPLIT_TOTAL_AT(v): the SUM field holding split lane v's total over all the pair's (or view's) pixels, from its dc
-// sums (u_x, u_y, count) and abs sums; SPLIT_TOTALS: total[SPLIT_WIDTH], a SUM row's totals in the split lanes'
-// order (SPLIT_<LANE>, statistics.SPLIT_LANES): a side's sums are a candidate's left sums or these totals minus them.
-#define SPLIT_TOTAL_AT(v) ((v) == SPLIT_UX ? SUM_DC : (v) == SPLIT_UY ? SUM_DC + 1 : (v) == SPLIT_COUNT ? SUM_DC + 2 \
-                           : (v) == SPLIT_ABS_X ? SUM_ABS : SUM_ABS + 1)
-#define SPLIT_TOTALS(total, row)                                                                   \
-    float total[SPLIT_WIDTH];                                                                      \
-    total[SPLIT_UX] = (row)[SPLIT_TOTAL_AT(SPLIT_UX)]; total[SPLIT_UY] = (row)[SPLIT_TOTAL_AT(SPLIT_UY)];      \
-    total[SPLIT_COUNT] = (row)[SPLIT_TOTAL_AT(SPLIT_COUNT)];                                        \
-    total[SPLIT_ABS_X] = (row)[SPLIT_TOTAL_AT(SPLIT_ABS_X)];                                        \
-    total[SPLIT_ABS_Y] = (row)[SPLIT_TOTAL_AT(SPLIT_ABS_Y)]   /* constant indices (a loop here: 13% slower) */
+inline void atomic_add_float(volatile __global float *addr, float v) {
+    union { unsigned int u; float f; } old, upd;
+    old.u = 0u;
+    do {
+        upd.f = old.f + v;
+        unsigned int seen = atomic_cmpxchg((volatile __global unsigned int *)addr, old.u, upd.u);
+        if (seen == old.u) break;
+        old.u = seen;
+    } while (1);
+}
 
 #endif

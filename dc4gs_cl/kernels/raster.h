@@ -1,5 +1,6 @@
 // raster.h: what the rasterizer's forward and backward kernels share: the tile shape, the Gaussian's
-// value at a pixel, and the walk over the pixels within a Gaussian's reach.
+// value at a pixel, and the walk over the pixels within a Gaussian's reach in column blocks (with the backward's
+// helpers for a column block's values: floatB, lane_total).
 // -D PIXELS_PER_ITEM: pixels one work-item owns: 1, 2, 4, 8, or whole rows (a multiple of TILE_SIZE
 // dividing TILE_SIZE^2); the work-group has TILE_SIZE^2 / PIXELS_PER_ITEM items. -D BATCH: Gaussians
 // loaded into local memory at a time (both from render/tuning.py). -D FAST_EXP, ALPHA_CUT (RenderOptions).
@@ -20,6 +21,54 @@ REQUIRE_DEFINED(FAST_EXP);
 #ifndef COL_BLOCK
 #define COL_BLOCK (COLS_PER_ITEM < 8 ? COLS_PER_ITEM : 8)
 #endif
+
+// A column block's values as one vector (floatB), for the backward's explicit vector adds.
+#if COL_BLOCK == 16
+typedef float16 floatB;
+#define LOADB(a) vload16(0, a)
+#define STOREB(v, a) vstore16(v, 0, a)
+#elif COL_BLOCK == 8
+typedef float8 floatB;
+#define LOADB(a) vload8(0, a)
+#define STOREB(v, a) vstore8(v, 0, a)
+#elif COL_BLOCK == 4
+typedef float4 floatB;
+#define LOADB(a) vload4(0, a)
+#define STOREB(v, a) vstore4(v, 0, a)
+#elif COL_BLOCK == 2
+typedef float2 floatB;
+#define LOADB(a) vload2(0, a)
+#define STOREB(v, a) vstore2(v, 0, a)
+#else
+typedef float floatB;
+#define LOADB(a) ((a)[0])
+#define STOREB(v, a) ((a)[0] = (v))
+#endif
+
+// A sum's COL_BLOCK lanes (the backward's per-column-block sums) added pairwise, halves at a time, in vector adds:
+// added lane by lane, once per sum and pair, they cost 10-20% of DC4GS' backward on PoCL (bench_dc4gs, 48k
+// Gaussians: 20.0 -> 18.0 ms). Halves first (lane c with c + COL_BLOCK / 2): the subgroup butterfly's order
+// (rasterize_backward.cl, subgroups.h).
+ALWAYS_INLINE float lane_total(const float *lane) {
+#if COL_BLOCK == 16
+    const float16 w = vload16(0, lane);
+    const float8 v = w.lo + w.hi;
+    const float4 h = v.lo + v.hi;
+#elif COL_BLOCK == 8
+    const float8 v = vload8(0, lane);
+    const float4 h = v.lo + v.hi;
+#elif COL_BLOCK == 4
+    const float4 h = vload4(0, lane);
+#endif
+#if COL_BLOCK >= 4
+    const float2 q = h.lo + h.hi;
+    return q.x + q.y;
+#elif COL_BLOCK == 2
+    return lane[0] + lane[1];
+#else
+    return lane[0];
+#endif
+}
 
 // exp(x) for x <= 0: ours (FAST_EXP) or the driver's; below -87 it is exp(-87) ~ 1.6e-38, far under any
 // alpha threshold.

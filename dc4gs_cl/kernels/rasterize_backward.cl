@@ -35,9 +35,8 @@
 // Gaussian) pair. With several items per tile (-D ITEMS_PER_TILE > 1, the cooperative shapes), the pair's sums
 // are combined in a fixed order whatever the schedule, with no float atomics (bit-reproducible):
 //   -D SUBGROUP=32: the 32 items of a subgroup (one pixel each) reduce each sum by a butterfly over the lanes,
-//      xor masks 16, 8, 4, 2, 1 (pixel index bits 4..0); -D SUBGROUP_SOURCE says how the lanes exchange values:
-//      SUBGROUP_PTX (NVIDIA's inline PTX shfl.sync, vote.sync) or SUBGROUP_KHR (cl_khr_subgroup_shuffle, in
-//      subgroups of a multiple of 32: the xor masks stay within 32 lanes).
+//      xor masks 16, 8, 4, 2, 1 (pixel index bits 4..0); -D SUBGROUP_SOURCE says how the lanes exchange values
+//      (subgroups.h: NVIDIA's inline PTX or cl_khr_subgroup_shuffle).
 //   -D SUBGROUP=0: each item sums its own pixels (its lanes: rows added in order, then a column block's lanes
 //      pairwise by halves), which for 32 pixels per item in 16-column blocks is the same tree as the butterfly:
 //      the portable twin, computing the subgroup path's bits.
@@ -53,118 +52,31 @@
 #endif
 
 #include "raster.h"
+#include "split.h"
+#include "split_walk.h"
+#include "subgroups.h"
 
+// (-D SUBGROUP: subgroups.h; SPLIT_CANDIDATES, SPLIT_SUMS_PER_BLOCK: split_walk.h)
 REQUIRE_DEFINED(STATS);
 REQUIRE_DEFINED(DC_STATS);
-REQUIRE_DEFINED(SPLIT_CANDIDATES);
 REQUIRE_DEFINED(PAIR_SUMS);
 REQUIRE_DEFINED(PIXEL_MASK);
-REQUIRE_DEFINED(SPLIT_SUMS_PER_BLOCK);
-REQUIRE_DEFINED(SUBGROUP);
 REQUIRE_DEFINED(PART_CHUNK);
 REQUIRE_DEFINED(DEAL_TILES);
 
-#if SUBGROUP
-REQUIRE_DEFINED(SUBGROUP_SOURCE);   // one of SUBGROUP_KHR, SUBGROUP_PTX (runtime.SUBGROUP_SOURCES)
-REQUIRE_DEFINED(SUBGROUP_KHR);
-REQUIRE_DEFINED(SUBGROUP_PTX);
-#if SUBGROUP != 32 || PIXELS_PER_ITEM != 1
-#error "the subgroup reduction takes 32 lanes of one pixel each (the twin's tree)"
-#endif
-#define SUBGROUP_MASK_BITS 5
-#if SUBGROUP_SOURCE == SUBGROUP_PTX
-// NVIDIA's OpenCL has no subgroup functions; its inline PTX has the warp's (32 lanes, all active here).
-inline float shuffle_xor(const float v, const int mask) {
-    float out;
-    asm volatile("shfl.sync.bfly.b32 %0, %1, %2, 0x1f, 0xffffffff;" : "=f"(out) : "f"(v), "r"(mask));
-    return out;
-}
-inline int subgroup_any(const int predicate) {
-    int out;
-    asm volatile("{\n\t.reg .pred p_in, p_any;\n\tsetp.ne.s32 p_in, %1, 0;\n\t"
-                 "vote.sync.any.pred p_any, p_in, 0xffffffff;\n\tselp.s32 %0, 1, 0, p_any;\n\t}"
-                 : "=r"(out) : "r"(predicate));
-    return out;
-}
-#define SUBGROUP_SIZE_ATTRIBUTE
-#elif SUBGROUP_SOURCE == SUBGROUP_KHR
-#pragma OPENCL EXTENSION cl_khr_subgroups : enable
-#pragma OPENCL EXTENSION cl_khr_subgroup_shuffle : enable
-#define shuffle_xor(v, mask) sub_group_shuffle_xor((v), (uint)(mask))
-#define subgroup_any(predicate) sub_group_any(predicate)
-#ifdef cl_intel_required_subgroup_size
-#define SUBGROUP_SIZE_ATTRIBUTE __attribute__((intel_reqd_sub_group_size(SUBGROUP)))
-#else
-#define SUBGROUP_SIZE_ATTRIBUTE   // the device's own size: a multiple of SUBGROUP (the host checks)
-#endif
-#else
-#error "SUBGROUP_SOURCE must be SUBGROUP_KHR or SUBGROUP_PTX"
-#endif
-#define PART_OWNERS (ITEMS_PER_TILE / SUBGROUP)
-
-// A pair's sums acc[0 .. used - 1] (used <= PAD, a power of two <= SUBGROUP) over the subgroup's lanes into
-// part[0 .. used - 1], each sum by the butterfly's tree (xor masks 16 .. 1), in PAD - 1 + log2(SUBGROUP / PAD)
-// shuffles (31 for 32 sums), not 5 per sum: at each step a lane keeps half of its values (the upper half where its
-// lane bit is set), sends the other half to its partner and adds what it receives to what it keeps (the same two
-// partial sums the plain butterfly adds); once it holds one value the remaining steps reduce that one. Lane l ends
-// with sum `base`, which SUBGROUP / PAD lanes hold. One function per PAD, so that every loop has a literal trip
-// count: a pad passed in left the compiler's unrolling to after inlining, too late (values held in memory).
-#define DEFINE_SUBGROUP_SUMS(name, PAD)                                                                     \
-    ALWAYS_INLINE void name(const float *acc, const int used, const int lane, __local float *part) {         \
-        float v[PAD];                                                                                      \
-        _Pragma("unroll") for (int k = 0; k < PAD; ++k) v[k] = k < used ? acc[k] : 0.f;                    \
-        int base = 0;                                                                                      \
-        _Pragma("unroll") for (int step = 0; step < SUBGROUP_MASK_BITS; ++step) {                          \
-            const int mask = (SUBGROUP / 2) >> step, kept = (PAD >> step) / 2;                             \
-            if (kept >= 1) {                                                                               \
-                const int upper = (lane & mask) != 0;                                                      \
-                _Pragma("unroll") for (int i = 0; i < kept; ++i) {                                         \
-                    const float lo = v[i], hi = v[i + kept];                                               \
-                    const float keep = upper ? hi : lo, send = upper ? lo : hi;                            \
-                    v[i] = keep + shuffle_xor(send, mask);                                                 \
-                }                                                                                          \
-                base += upper ? kept : 0;                                                                  \
-            } else {                                                                                       \
-                v[0] += shuffle_xor(v[0], mask);                                                           \
-            }                                                                                              \
-        }                                                                                                  \
-        if (lane % (SUBGROUP / PAD) == 0 && base < used) part[base] = v[0];                                \
-    }
-DEFINE_SUBGROUP_SUMS(subgroup_sums_8, 8)     // a crossing candidate's SPLIT_WIDTH split sums
-DEFINE_SUBGROUP_SUMS(subgroup_sums_16, 16)   // the sums the walk adds in place (LANE_SUMS, below)
-
-#else
-#define SUBGROUP_SIZE_ATTRIBUTE
-#define PART_OWNERS ITEMS_PER_TILE
-#endif
-
-// A column block's values as one vector (floatB), for the split sums' explicit vector adds.
-#if COL_BLOCK == 16
-typedef float16 floatB;
-#define LOADB(a) vload16(0, a)
-#define STOREB(v, a) vstore16(v, 0, a)
-#elif COL_BLOCK == 8
-typedef float8 floatB;
-#define LOADB(a) vload8(0, a)
-#define STOREB(v, a) vstore8(v, 0, a)
-#elif COL_BLOCK == 4
-typedef float4 floatB;
-#define LOADB(a) vload4(0, a)
-#define STOREB(v, a) vstore4(v, 0, a)
-#elif COL_BLOCK == 2
-typedef float2 floatB;
-#define LOADB(a) vload2(0, a)
-#define STOREB(v, a) vstore2(v, 0, a)
-#else
-typedef float floatB;
-#define LOADB(a) ((a)[0])
-#define STOREB(v, a) ((a)[0] = (v))
-#endif
+// The cooperative shapes' partial rows (l_part): one per owner, the OWNER_ITEMS work-items that share one (a
+// subgroup, or one work-item); lane: an item's place among them. CHUNK: the pairs walked before the owners' rows are
+// added, as many as the rows hold (PART_CHUNK); the CPU shape's one chunk is the batch.
+#define OWNER_ITEMS (SUBGROUP ? SUBGROUP : 1)
+#define PART_OWNERS (ITEMS_PER_TILE / OWNER_ITEMS)
+#define CHUNK (ITEMS_PER_TILE > 1 ? PART_CHUNK : BATCH)
 
 // Sums whose lanes the pixel walk adds to in place: all but the split sums, whose lanes (split_lanes, from
-// SUM_SPLIT on) hold only the candidates crossing the pair's pixels (crossing_range).
+// SUM_SPLIT on) hold only the candidates crossing the pair's pixels (crossing_range). ROW_SUMS: the sums of a
+// pair's row held compactly (the split sums of its crossing candidates alone).
 #if SPLIT_CANDIDATES
 #define LANE_SUMS SUM_SPLIT
+#define ROW_SUMS(cross) (SUM_SPLIT + SPLIT_WIDTH * ((cross).y - (cross).x))
 // Crossing counts with a walk of their own (each a copy of the walk); more take the walk over all candidates.
 // Up to 4 measured no faster than up to 2 on PoCL (the built-in scene, where 30% of the walked pixels have 3 or 4).
 #define MAX_FEW_CROSSING (SPLIT_CANDIDATES < 2 ? SPLIT_CANDIDATES : 2)
@@ -177,22 +89,32 @@ typedef float floatB;
 #define PIXEL_RECORD (PIXEL_VALUE + SPLIT_WIDTH)
 #else
 #define LANE_SUMS SUM_WIDTH
+#define ROW_SUMS(cross) SUM_WIDTH
 #endif
 #if SUBGROUP && (LANE_SUMS > 16 || SPLIT_WIDTH > 8)
 #error "the subgroup reduction takes at most 16 sums in place and 8 per split candidate (subgroup_sums_16, _8)"
 #endif
 
+// The parameters every pair's walk takes: the pair's Gaussian (mean, conic and opacity, colour; its pair index and
+// reach in the tile: l_* in local memory); the work-item's place (its first pixel's tile row and column, the tile's
+// corner, the NDC scale of g); its pixels (load_pixels), whose T and behind each walk updates (backward_pair).
+#define PAIR_PARAMS const float2 m, const float4 co, const float3 c, const int idx, const int4 span
+#define PAIR_ARGS m, co, c, idx, span
+#define ITEM_PARAMS const int row0, const int col0, const int x0, const int y0, const float ndc_x, const float ndc_y
+#define ITEM_ARGS row0, col0, x0, y0, ndc_x, ndc_y
+#define PIXEL_PARAMS const float *px, const float *py, const float *dr, const float *dg, const float *db, \
+                     const float *bg_term, const int *last, float *T, float *behind
+#define PIXEL_ARGS px, py, dr, dg, db, bg_term, last, T, behind
+
 // One pair: this work-item's pixels within the Gaussian's reach, walked back past the Gaussian; its terms
-// summed per lane of a column block into lanes. n_split, a constant at each call, adds the split terms of that
-// many candidates, at t_split[0 .. n_split - 1], into split_lanes (SPLIT_WIDTH per candidate): each call then
-// compiles to its own vectorised loop (a run-time test or trip count inside the loop stops vectorisation: 6x
-// slower). With subgroups (one pixel) it records the pixel's split inputs in `pixel` (PIXEL_RECORD) instead.
-ALWAYS_INLINE void backward_pair(const float2 m, const float4 co, const float3 c, const int idx, const int4 span,
-                                 const int row0, const int col0, const float ndc_x, const float ndc_y,
-                                 const float4 line, const float *t_split, const int n_split,
-                                 const float *px, const float *py, const float *dr, const float *dg, const float *db,
-                                 const float *bg_term, const int *last, float *T, float *behind,
-                                 float lanes[][COL_BLOCK], float split_lanes[][COL_BLOCK], float *pixel) {
+// summed per lane of a column block into lanes (every block of a row adds into the same COL_BLOCK lanes, so the
+// pixel loop carries no dependency and vectorises; lanes per column instead cost twice the zeroing and summing per
+// pair: DC4GS' backward 17% slower). n_split, a constant at each call, adds the split terms of that many
+// candidates, at t_split[0 .. n_split - 1], into split_lanes (SPLIT_WIDTH per candidate): each call then compiles
+// to its own vectorised loop (a run-time test or trip count inside the loop stops vectorisation: 6x slower). With
+// subgroups (one pixel) it records the pixel's split inputs in `pixel` (PIXEL_RECORD) instead.
+ALWAYS_INLINE void backward_pair(PAIR_PARAMS, ITEM_PARAMS, const float4 line, const float *t_split, const int n_split,
+                                 PIXEL_PARAMS, float lanes[][COL_BLOCK], float split_lanes[][COL_BLOCK], float *pixel) {
     FOR_BLOCKS_IN_REACH(span, row0, col0)
 #if SPLIT_CANDIDATES && SPLIT_SUMS_PER_BLOCK
     float sv[1 + SPLIT_WIDTH][COL_BLOCK];   // the block's pixels: t along the candidate line, then the split lanes
@@ -223,160 +145,168 @@ ALWAYS_INLINE void backward_pair(const float2 m, const float4 co, const float3 c
         lanes[SUM_RGB][cc - c0] += wb * dr[p];
         lanes[SUM_RGB + 1][cc - c0] += wb * dg[p];
         lanes[SUM_RGB + 2][cc - c0] += wb * db[p];
+        // (DC_STATS comes with STATS, split sums with DC_STATS: statistics.SumsLayout)
 #if STATS
         float gx = gmx * ndc_x, gy = gmy * ndc_y;
         lanes[SUM_ABS][cc - c0] += ABSF(gx);
         lanes[SUM_ABS + 1][cc - c0] += ABSF(gy);
         lanes[SUM_PIXELS][cc - c0] += blend ? 1.f : 0.f;
+#endif
 #if DC_STATS
         float g2 = gx * gx + gy * gy;
         float inv = g2 > 0.f ? rsqrt_nocall(g2) : 0.f;   // pairs with g = 0 add nothing
         lanes[SUM_DC][cc - c0] += gx * inv;
         lanes[SUM_DC + 1][cc - c0] += gy * inv;
         lanes[SUM_DC + 2][cc - c0] += g2 > 0.f ? 1.f : 0.f;
-#if SPLIT_CANDIDATES && SUBGROUP
-        // The item's one pixel: what its split terms are made of, each candidate's reduced after the walk
-        // (PIXEL_RECORD); the walk holds no split lanes.
-        pixel[PIXEL_T] = (px[p] - line.x) * line.z + (py[p] - line.y) * line.w;
-        pixel[PIXEL_HAS_G] = g2 > 0.f ? 1.f : 0.f;
-        pixel[PIXEL_VALUE + SPLIT_UX] = gx * inv; pixel[PIXEL_VALUE + SPLIT_UY] = gy * inv;
-        pixel[PIXEL_VALUE + SPLIT_COUNT] = 1.f;
-        pixel[PIXEL_VALUE + SPLIT_ABS_X] = ABSF(gx); pixel[PIXEL_VALUE + SPLIT_ABS_Y] = ABSF(gy);
-#elif SPLIT_CANDIDATES
-        if (n_split) {
+#endif
+#if SPLIT_CANDIDATES
+        // The pixel's split inputs: t along the candidate line, whether g != 0, the split lanes' values.
         float t_q = (px[p] - line.x) * line.z + (py[p] - line.y) * line.w;
         float has_g = g2 > 0.f ? 1.f : 0.f;
         float ux = gx * inv, uy = gy * inv, ax = ABSF(gx), ay = ABSF(gy);
-#if SPLIT_SUMS_PER_BLOCK
-        sv[0][cc - c0] = t_q;
-        sv[1 + SPLIT_UX][cc - c0] = has_g * ux; sv[1 + SPLIT_UY][cc - c0] = has_g * uy;
-        sv[1 + SPLIT_COUNT][cc - c0] = has_g;
-        sv[1 + SPLIT_ABS_X][cc - c0] = has_g * ax; sv[1 + SPLIT_ABS_Y][cc - c0] = has_g * ay;
-#else
-        // Fully unrolled: a loop here keeps the compiler from vectorising the pixel loop (11x slower).
-        // A literal trip count, unrolled before the call is inlined; the candidates past n_split then fold away.
-        #pragma unroll
-        for (int k = 0; k < SPLIT_CANDIDATES; ++k) {
-            if (k >= n_split) break;
-            float left = t_q < t_split[k] ? has_g : 0.f;
-            split_lanes[SPLIT_WIDTH * k + SPLIT_UX][cc - c0] += left * ux;
-            split_lanes[SPLIT_WIDTH * k + SPLIT_UY][cc - c0] += left * uy;
-            split_lanes[SPLIT_WIDTH * k + SPLIT_COUNT][cc - c0] += left;
-            split_lanes[SPLIT_WIDTH * k + SPLIT_ABS_X][cc - c0] += left * ax;
-            split_lanes[SPLIT_WIDTH * k + SPLIT_ABS_Y][cc - c0] += left * ay;
+#endif
+#if SPLIT_CANDIDATES && SUBGROUP
+        // The item's one pixel, each candidate's terms reduced after the walk; the walk holds no split lanes.
+        pixel[PIXEL_T] = t_q;
+        pixel[PIXEL_HAS_G] = has_g;
+        pixel[PIXEL_VALUE + SPLIT_UX] = ux; pixel[PIXEL_VALUE + SPLIT_UY] = uy;
+        pixel[PIXEL_VALUE + SPLIT_COUNT] = 1.f;
+        pixel[PIXEL_VALUE + SPLIT_ABS_X] = ax; pixel[PIXEL_VALUE + SPLIT_ABS_Y] = ay;
+#elif SPLIT_CANDIDATES && SPLIT_SUMS_PER_BLOCK
+        if (n_split) {
+            sv[0][cc - c0] = t_q;
+            sv[1 + SPLIT_UX][cc - c0] = has_g * ux; sv[1 + SPLIT_UY][cc - c0] = has_g * uy;
+            sv[1 + SPLIT_COUNT][cc - c0] = has_g;
+            sv[1 + SPLIT_ABS_X][cc - c0] = has_g * ax; sv[1 + SPLIT_ABS_Y][cc - c0] = has_g * ay;
         }
-#endif
-        }
-#endif
-#endif
+#elif SPLIT_CANDIDATES
+        if (n_split) add_split_terms(split_lanes, cc - c0, t_split, n_split, t_q, has_g, ux, uy, ax, ay);
 #endif
         T[p] = t;
         behind[p] += blend ? w * c_dot : 0.f;
     END_PIXELS_IN_BLOCK
 #if SPLIT_CANDIDATES && SPLIT_SUMS_PER_BLOCK
-    if (n_split) {      // the block's split terms, in explicit vector adds (Tuning.split_sums_per_block)
-        const floatB t_q = LOADB(sv[0]), zero = (floatB)(0.f);
-        #pragma unroll
-        for (int k = 0; k < SPLIT_CANDIDATES; ++k) {
-            if (k >= n_split) break;
-            #pragma unroll
-            for (int v = 0; v < SPLIT_WIDTH; ++v) {
-                float *lane = split_lanes[SPLIT_WIDTH * k + v];
-                STOREB(LOADB(lane) + (t_q < t_split[k] ? LOADB(sv[1 + v]) : zero), lane);
-            }
-        }
-    }
+    if (n_split) add_block_split_terms(split_lanes, sv, t_split, n_split);
 #endif
     END_BLOCKS_IN_REACH
 }
 
-// A sum's COL_BLOCK lanes added pairwise, halves at a time, in vector adds: added lane by lane, once per sum and
-// pair, they cost 10-20% of DC4GS' backward on PoCL (bench_dc4gs, 48k Gaussians: 20.0 -> 18.0 ms). Halves first
-// (lane c with c + COL_BLOCK / 2): the butterfly's order (see the top).
-ALWAYS_INLINE float lane_total(const float *lane) {
-#if COL_BLOCK == 16
-    const float16 w = vload16(0, lane);
-    const float8 v = w.lo + w.hi;
-    const float4 h = v.lo + v.hi;
-#elif COL_BLOCK == 8
-    const float8 v = vload8(0, lane);
-    const float4 h = v.lo + v.hi;
-#elif COL_BLOCK == 4
-    const float4 h = vload4(0, lane);
-#endif
-#if COL_BLOCK >= 4
-    const float2 q = h.lo + h.hi;
-    return q.x + q.y;
-#elif COL_BLOCK == 2
-    return lane[0] + lane[1];
-#else
-    return lane[0];
-#endif
+// The first `sums` sums' lanes, zeroed before a walk adds to them.
+ALWAYS_INLINE void zero_lanes(float lanes[][COL_BLOCK], const int sums) {
+    for (int k = 0; k < sums; ++k)
+        for (int cc = 0; cc < COL_BLOCK; ++cc) lanes[k][cc] = 0.f;
+}
+
+// A pair's sums over this work-item's pixels into acc, without split sums.
+ALWAYS_INLINE void pair_sums(PAIR_PARAMS, ITEM_PARAMS, PIXEL_PARAMS, float *acc) {
+    float lanes[SUM_WIDTH][COL_BLOCK];
+    zero_lanes(lanes, LANE_SUMS);
+    const float no_split[1] = {0.f};
+    backward_pair(PAIR_ARGS, ITEM_ARGS, (float4)(0.f), no_split, 0, PIXEL_ARGS, lanes, lanes, NULL);
+    for (int k = 0; k < SUM_WIDTH; ++k) acc[k] = lane_total(lanes[k]);
 }
 
 #if SPLIT_CANDIDATES
-// The rectangle of pixels a crossing range covers (item-relative rows and columns from its first, row0 and col0):
-// with subgroups, the subgroup's (whole rows), so that its lanes walk alike and reduce the same candidates; else
-// the work-item's pixels.
-#if SUBGROUP
-#define CROSS_ROWS (SUBGROUP / TILE_SIZE)
-#define CROSS_COLS TILE_SIZE
-#else
-#define CROSS_ROWS ROWS_PER_ITEM
-#define CROSS_COLS COLS_PER_ITEM
+// A pair's sums over this work-item's pixels into acc, with split sums (sg: its split-geometry row): its row,
+// ROW_SUMS(cross) sums held compactly; returns the crossing range. Only the candidates whose line crosses the
+// pixels walked take split terms (none where the view gave no line: then the row holds no split sums), in one walk
+// per crossing count (see backward_pair). The full row: a candidate with every walked pixel on its left has the
+// pair's totals as its left sums (the same terms in the same order; in the CPU shape the walk's contracted mul-adds
+// may round the total's u terms one ulp apart), one with none zeros; its rows of partial sums: all crossing.
+ALWAYS_INLINE int2 split_pair_sums(PAIR_PARAMS, ITEM_PARAMS, PIXEL_PARAMS, __local const float *sg, float *acc) {
+    float lanes[SUM_WIDTH][COL_BLOCK];
+    zero_lanes(lanes, LANE_SUMS);
+    float tk[SPLIT_CANDIDATES];
+    const float4 line = candidate_line(sg, tk);
+    const int split_ok = HAS_SPLIT_LINE(sg);
+    int2 cross = split_ok ? crossing_range(line, tk, span, x0, y0, row0, col0)
+                          : (int2)(SPLIT_CANDIDATES, SPLIT_CANDIDATES);
+    if (cross.y - cross.x > MAX_FEW_CROSSING) cross = (int2)(0, SPLIT_CANDIDATES);   // the walk over all
+    const int n_cross = cross.y - cross.x;
+    __private float (*split_lanes)[COL_BLOCK] = lanes + SUM_SPLIT;   // private, not generic (CL3.0)
+    zero_lanes(split_lanes, SPLIT_WIDTH * n_cross);
+#define WALK(n_split) \
+    backward_pair(PAIR_ARGS, ITEM_ARGS, line, tk + cross.x, n_split, PIXEL_ARGS, lanes, split_lanes, NULL)
+    if (n_cross == 0) WALK(0);
+    else if (n_cross == 1) WALK(1);
+    else if (MAX_FEW_CROSSING >= 2 && n_cross == 2) WALK(2);
+    else WALK(SPLIT_CANDIDATES);
+#undef WALK
+    for (int k = 0; k < LANE_SUMS; ++k) acc[k] = lane_total(lanes[k]);
+    if (!split_ok) return cross;
+    SPLIT_TOTALS(total, acc);
+    for (int k = 0; k < SPLIT_CANDIDATES; ++k)
+        for (int v = 0; v < SPLIT_WIDTH; ++v)
+            acc[SUM_SPLIT + SPLIT_WIDTH * k + v] = k < cross.x ? 0.f : total[v];
+    for (int k = 0; k < n_cross; ++k)
+        for (int v = 0; v < SPLIT_WIDTH; ++v)
+            acc[SUM_SPLIT + SPLIT_WIDTH * (cross.x + k) + v] = lane_total(split_lanes[SPLIT_WIDTH * k + v]);
+    return (int2)(0, SPLIT_CANDIDATES);
+}
 #endif
 
-// The split candidates a pair's walk must test per pixel: (lo, hi), candidates lo .. hi - 1. t(q) rounds
-// monotonically in each pixel coordinate, so over the pixels the walk visits in the rectangle at (row0, col0) (its
-// rows within the span, its column blocks that meet the span) t lies within its values at the 4 corners: a
-// candidate above them all has every walked pixel on its left (its left sums are the pair's totals), one at or
-// below them none (zeros); only those in between, "crossing", are tested per pixel. A margin far above float
-// rounding around t_k keeps pixels the walk might round across t_k tested: exact. The t_k increase with k (the
-// candidates' order along the projected axis), so those with none left come first, those with all left last; were
-// they out of order, every candidate counts as crossing. Large Gaussians span several tiles, each crossed by one
-// or two candidates' lines. (Ternaries, not the integer min and max builtins, which PoCL calls rather than
-// inlines: once per pair.)
-ALWAYS_INLINE int2 crossing_range(const float4 line, const float *tk, const int4 span, const int x0, const int y0,
-                                  const int row0, const int col0) {
-    const int a = span.x - col0, b = span.y - col0;                   // the span, rectangle-relative
-    const int r_lo = span.z > row0 ? span.z - row0 : 0;
-    const int r_hi = span.w - row0 < CROSS_ROWS - 1 ? span.w - row0 : CROSS_ROWS - 1;
-    if (b < 0 || a > CROSS_COLS - 1 || a > b || r_lo > r_hi)          // no pixel walked: none left of any
-        return (int2)(SPLIT_CANDIDATES, SPLIT_CANDIDATES);
-    const int c_lo = (a > 0 ? a : 0) / COL_BLOCK * COL_BLOCK;
-    const int c_hi = (b < CROSS_COLS - 1 ? b : CROSS_COLS - 1) / COL_BLOCK * COL_BLOCK + COL_BLOCK - 1;
-    float t_min = 0.f, t_max = 0.f, extent = 0.f;
-    for (int corner = 0; corner < 4; ++corner) {
-        // the pixel centres as the kernel sets px and py
-        const float ex = ((float)(x0 + col0 + (corner & 1 ? c_hi : c_lo)) + 0.5f) - line.x;
-        const float ey = ((float)(y0 + row0 + (corner & 2 ? r_hi : r_lo)) + 0.5f) - line.y;
-        const float t = ex * line.z + ey * line.w;                    // as the walk computes t(q)
-        t_min = corner ? MINF(t_min, t) : t;
-        t_max = corner ? MAXF(t_max, t) : t;
-        extent = MAXF(extent, ABSF(ex) + ABSF(ey));
-    }
-    const float margin = 1e-5f * (1.f + extent);
-    int none_left = 0, all_left = 0, in_order = 1;
+#if SUBGROUP && SPLIT_CANDIDATES
+// With subgroups: a pair's walk of this lane's pixel with no split lanes (sums in place into acc, the pixel's split
+// inputs recorded in `pixel`, zeros out of the pair's reach), and tk, the candidates' positions; returns the crossing
+// range, the subgroup's (crossing_range).
+ALWAYS_INLINE int2 subgroup_split_walk(PAIR_PARAMS, ITEM_PARAMS, PIXEL_PARAMS, __local const float *sg, float *acc,
+                                       float *tk, float *pixel) {
+    float lanes[SUM_WIDTH][COL_BLOCK];
+    zero_lanes(lanes, LANE_SUMS);
+    const float4 line = candidate_line(sg, tk);
+    const int2 cross = HAS_SPLIT_LINE(sg) ? crossing_range(line, tk, span, x0, y0, row0, col0)
+                                          : (int2)(SPLIT_CANDIDATES, SPLIT_CANDIDATES);
+    for (int k = 0; k < PIXEL_RECORD; ++k) pixel[k] = 0.f;   // out of the pair's reach: no split term
+    backward_pair(PAIR_ARGS, ITEM_ARGS, line, tk, 0, PIXEL_ARGS, lanes, lanes, pixel);
+    for (int k = 0; k < SUM_SPLIT; ++k) acc[k] = lane_total(lanes[k]);
+    return cross;
+}
+
+// Each crossing candidate's split sums over the subgroup into part (after the sums in place, compactly), from each
+// lane's pixel record (the terms the twin's walk adds to zero lanes): 5 values held at a time, not 25 through the
+// walk. The crossing range is the subgroup's, and a vote makes the candidates reduced the same across a wider
+// hardware subgroup.
+ALWAYS_INLINE void subgroup_split_sums(const float *pixel, const float *tk, const int2 cross, const int lane,
+                                       __local float *part) {
+    #pragma unroll
     for (int k = 0; k < SPLIT_CANDIDATES; ++k) {
-        const int none = t_min > tk[k] + margin, all = t_max < tk[k] - margin;
-        in_order &= (!none | (none_left == k)) & (all | (all_left == 0));
-        none_left += none;
-        all_left += all;
+        const int crossing = k >= cross.x && k < cross.y;
+        if (!subgroup_any(crossing)) continue;
+        const float left = pixel[PIXEL_T] < tk[k] ? pixel[PIXEL_HAS_G] : 0.f;
+        float terms[SPLIT_WIDTH];
+        for (int v = 0; v < SPLIT_WIDTH; ++v) terms[v] = 0.f + left * pixel[PIXEL_VALUE + v];
+        subgroup_sums_8(terms, crossing ? SPLIT_WIDTH : 0, lane,
+                        part + SUM_SPLIT + SPLIT_WIDTH * (crossing ? k - cross.x : 0));
     }
-    return in_order ? (int2)(none_left, SPLIT_CANDIDATES - all_left) : (int2)(0, SPLIT_CANDIDATES);
 }
+#endif
 
-// Sum k (< SUM_WIDTH) of a pair's row held compactly (row: its sums before SUM_SPLIT, then the split sums of the
-// crossing candidates lo .. hi - 1 alone, crossing_range): a candidate below lo has none of the pixels on its left
-// (zeros), one at or past hi all of them (the row's totals).
-ALWAYS_INLINE float part_row_sum(__local const float *row, const int lo, const int hi, const int k) {
-    if (k < SUM_SPLIT) return row[k];
-    const int candidate = (k - SUM_SPLIT) / SPLIT_WIDTH, v = (k - SUM_SPLIT) % SPLIT_WIDTH;
-    if (candidate < lo) return 0.f;
-    if (candidate < hi) return row[SUM_SPLIT + SPLIT_WIDTH * (candidate - lo) + v];
-    return row[SPLIT_TOTAL_AT(v)];
+#if SUBGROUP
+// The subgroup's sums of a pair (this lane's pixel: row0, col0) into its owner's partial row `part`, each reduced
+// over the 32 lanes by the butterfly (subgroup_sums_16, _8); a pair that none of their pixels took part in adds
+// zeros. Returns the row's crossing range (split sums: its sums, ROW_SUMS, held compactly; else unused).
+ALWAYS_INLINE int2 subgroup_pair_row(PAIR_PARAMS, ITEM_PARAMS, PIXEL_PARAMS, __local const float *l_split, const int j,
+                                     const int lane, __local float *part) {
+    // Whether this lane's pixel takes part in the pair (within its reach, not past its last contributor).
+    const int touched = row0 >= span.z && row0 <= span.w && col0 >= span.x && col0 <= span.y && idx <= last[0];
+    float acc[SUM_WIDTH];
+#if SPLIT_CANDIDATES
+    float tk[SPLIT_CANDIDATES], pixel[PIXEL_RECORD];
+    const int2 cross = subgroup_split_walk(PAIR_ARGS, ITEM_ARGS, PIXEL_ARGS, l_split + j * GEO_WIDTH, acc, tk, pixel);
+#else
+    const int2 cross = (int2)(0);   // no split sums: no crossing range
+    pair_sums(PAIR_ARGS, ITEM_ARGS, PIXEL_ARGS, acc);
+#endif
+    if (subgroup_any(touched)) {
+        subgroup_sums_16(acc, LANE_SUMS, lane, part);
+#if SPLIT_CANDIDATES
+        subgroup_split_sums(pixel, tk, cross, lane, part);
+#endif
+    } else {
+        for (int k = lane; k < ROW_SUMS(cross); k += SUBGROUP) part[k] = 0.f;
+    }
+    return cross;
 }
-
 #endif
 
 // The tile work-group `group` walks, of the tiles_x x tiles_y in the image (a launch holds a group per tile).
@@ -391,6 +321,156 @@ ALWAYS_INLINE int tile_of_group(const int group, const int tiles_x, const int ti
     const int longer = tiles - DEAL_TILES * (stripe - 1);                                   // stripes that long
     const int s = group % DEAL_TILES, i = group / DEAL_TILES;
     return s * stripe - max(s - longer, 0) + i;
+}
+
+// This work-item's pixels, PIXELS_PER_ITEM from tile pixel lid * PIXELS_PER_ITEM on, of the tile at (x0, y0): their
+// centres (px, py), T after the tile's last pair (the forward's final_T; 1 outside the image), dL/dpixel colour (dr,
+// dg, db), bg_term = T_final background . dL/dpixel, behind = 0 (the colour behind: sum over the Gaussians already
+// visited, those behind, of w c . dL/dpixel, the only way it enters the gradient) and the last pair each blended
+// (first - 1 outside the image or masked out: keep, -D PIXEL_MASK). Returns one past the last pair any of them blended.
+ALWAYS_INLINE int load_pixels(const int lid, const int x0, const int y0, const int width, const int height,
+                              const int first, const float4 background, __global const float *final_T,
+                              __global const int *last_pair, __global const float *dL_dimage,
+                              __global const uchar *keep, float *px, float *py, float *T, float *dr, float *dg,
+                              float *db, float *bg_term, float *behind, int *last) {
+    int my_end = first;
+    for (int p = 0; p < PIXELS_PER_ITEM; ++p) {
+        int q = lid * PIXELS_PER_ITEM + p;
+        int x = x0 + q % TILE_SIZE, y = y0 + q / TILE_SIZE;
+        int inside = x < width && y < height;
+        int pix = inside ? y * width + x : 0;
+        if (PIXEL_MASK) inside = inside && keep[pix];
+        px[p] = (float)x + 0.5f;
+        py[p] = (float)y + 0.5f;
+        T[p] = inside ? final_T[pix] : 1.f;
+        dr[p] = inside ? dL_dimage[3 * pix] : 0.f;
+        dg[p] = inside ? dL_dimage[3 * pix + 1] : 0.f;
+        db[p] = inside ? dL_dimage[3 * pix + 2] : 0.f;
+        bg_term[p] = T[p] * (background.x * dr[p] + background.y * dg[p] + background.z * db[p]);
+        behind[p] = 0.f;
+        last[p] = inside ? last_pair[pix] : first - 1;
+        my_end = max(my_end, last[p] + 1);
+    }
+    return my_end;
+}
+
+// The end of the tile's walk: one past the last pair any of its pixels blended (the items' largest my_end).
+ALWAYS_INLINE int tile_end(const int my_end, const int first, const int lid, __local int *l_end) {
+#if ITEMS_PER_TILE > 1
+    if (lid == 0) *l_end = first;
+    barrier(CLK_LOCAL_MEM_FENCE);
+    atomic_max(l_end, my_end);
+    barrier(CLK_LOCAL_MEM_FENCE);
+    return *l_end;
+#else
+    return my_end;
+#endif
+}
+
+// The run's pairs no pixel of the tile reached (end .. hi - 1) still own a slot (-D PAIR_SUMS=1): zeros.
+ALWAYS_INLINE void zero_unreached_slots(const int end, const int lo, const int hi, const uint pair0, const int lid,
+                                        __global float *sums) {
+    const int unreached = max(end, lo);
+    for (int k = lid; k < (hi - unreached) * SUM_WIDTH; k += ITEMS_PER_TILE)
+        sums[(size_t)(unreached - pair0) * SUM_WIDTH + k] = 0.f;
+}
+
+// The batch of the tile's pairs base .. base + count - 1 into local memory: each pair's Gaussian, its values, its
+// reach in the tile at (x0, y0) and, with split sums, its split-geometry row; between barriers (the last batch's
+// pairs done, this one's loaded).
+ALWAYS_INLINE void load_batch(const int base, const int count, const int lid, const int x0, const int y0,
+                              __global const uint *gaussian_of_pair, __global const float *mean2d,
+                              __global const float *conic_opacity, __global const float *rgb,
+                              __global const float *alpha_extent, __global const float *split_geometry,
+                              __local uint *l_gaussian, __local float2 *l_mean, __local float4 *l_conic_opacity,
+                              __local float *l_rgb, __local int4 *l_reach, __local float *l_split) {
+    barrier(CLK_LOCAL_MEM_FENCE);
+    for (int j = lid; j < count; j += ITEMS_PER_TILE) {
+        uint g = gaussian_of_pair[base + j];
+        l_gaussian[j] = g;
+        l_mean[j] = vload2(g, mean2d);
+        l_conic_opacity[j] = vload4(g, conic_opacity);
+        l_rgb[3 * j] = rgb[3 * g]; l_rgb[3 * j + 1] = rgb[3 * g + 1]; l_rgb[3 * j + 2] = rgb[3 * g + 2];
+        l_reach[j] = reach(l_mean[j], vload2(g, alpha_extent), x0, y0);
+#if SPLIT_CANDIDATES
+        for (int k = 0; k < GEO_WIDTH; ++k) l_split[j * GEO_WIDTH + k] = split_geometry[(size_t)g * GEO_WIDTH + k];
+#endif
+    }
+    barrier(CLK_LOCAL_MEM_FENCE);
+}
+
+// A pair's row acc[0 .. used - 1] where its sums go: in the cooperative shapes (the twin) the owner's partial row
+// `row` of l_part; with one work-item per tile the pair's slot (-D PAIR_SUMS=1, where the pair is in the run: idx <
+// hi; a Gaussian with no split line leaves its split sums unwritten, as sum_pairs skips them) or, with float
+// atomics, its Gaussian g's sums.
+ALWAYS_INLINE void write_pair_row(const float *acc, const int used, const int idx, const int hi, const uint pair0,
+                                  const uint g, __local float *l_part, const int row, __global float *sums) {
+#if ITEMS_PER_TILE > 1
+    for (int k = 0; k < used; ++k) l_part[row * SUM_WIDTH + k] = acc[k];
+#elif PAIR_SUMS
+    if (idx < hi)
+        for (int k = 0; k < used; ++k) sums[(size_t)(idx - pair0) * SUM_WIDTH + k] = acc[k];
+#else
+    __global float *dst = sums + (size_t)g * SUM_WIDTH;
+    for (int k = 0; k < used; ++k)
+        if (acc[k] != 0.f) atomic_add_float(dst + k, acc[k]);
+#endif
+}
+
+// Pair idx (entry j of the batch): its sums over this work-item's pixels into their place (write_pair_row, or with
+// subgroups subgroup_pair_row; the owner's partial row `row` in the cooperative shapes, with split sums its crossing
+// range beside it in l_cross). Null pointers for the local arrays a variant has none of.
+ALWAYS_INLINE void pair_row(PAIR_PARAMS, ITEM_PARAMS, PIXEL_PARAMS, __local const float *l_split, const int j,
+                            const int row, const int lane, __local float *l_part, __local uchar2 *l_cross,
+                            const int hi, const uint pair0, const uint g, __global float *sums) {
+#if SUBGROUP
+    const int2 cross = subgroup_pair_row(PAIR_ARGS, ITEM_ARGS, PIXEL_ARGS, l_split, j, lane, l_part + row * SUM_WIDTH);
+#else
+    float acc[SUM_WIDTH];
+#if SPLIT_CANDIDATES
+    const int2 cross = split_pair_sums(PAIR_ARGS, ITEM_ARGS, PIXEL_ARGS, l_split + j * GEO_WIDTH, acc);
+#else
+    const int2 cross = (int2)(0);   // no split sums: no crossing range
+    pair_sums(PAIR_ARGS, ITEM_ARGS, PIXEL_ARGS, acc);
+#endif
+    write_pair_row(acc, ROW_SUMS(cross), idx, hi, pair0, g, l_part, row, sums);
+#endif
+#if ITEMS_PER_TILE > 1 && SPLIT_CANDIDATES
+    if (lane == 0) l_cross[row] = convert_uchar2(cross);
+#endif
+}
+
+// The cooperative shapes' chunk of pairs chunk_base .. chunk_top - 1 of the batch at pair `base`: their owners'
+// partial rows added in owner order, into the slots of the run's pairs (idx < hi), or with float atomics onto their
+// Gaussians' sums; between barriers (the rows written, then read).
+ALWAYS_INLINE void add_chunk_rows(const int chunk_base, const int chunk_top, const int base, const int hi,
+                                  const uint pair0, const int lid, __local const float *l_part,
+                                  __local const uchar2 *l_cross, __local const uint *l_gaussian,
+                                  __global float *sums) {
+    barrier(CLK_LOCAL_MEM_FENCE);
+    const int in_run = min(chunk_top, hi - base) - chunk_base;
+    for (int k = lid; k < in_run * SUM_WIDTH; k += ITEMS_PER_TILE) {
+#if SPLIT_CANDIDATES
+        const int pair = k / SUM_WIDTH, sum = k - pair * SUM_WIDTH;
+        float v = 0.f;
+        for (int o = 0; o < PART_OWNERS; ++o) {
+            const int row = o * PART_CHUNK + pair;
+            const int2 cross = convert_int2(l_cross[row]);
+            const float x = part_row_sum(l_part + row * SUM_WIDTH, cross.x, cross.y, sum);
+            v = o ? v + x : x;
+        }
+#else
+        float v = l_part[k];
+        for (int o = 1; o < PART_OWNERS; ++o) v += l_part[o * PART_CHUNK * SUM_WIDTH + k];
+#endif
+#if PAIR_SUMS
+        sums[(size_t)(base + chunk_base - pair0) * SUM_WIDTH + k] = v;
+#else
+        if (v != 0.f) atomic_add_float(sums + (size_t)l_gaussian[chunk_base + k / SUM_WIDTH] * SUM_WIDTH
+                                       + k % SUM_WIDTH, v);
+#endif
+    }
+    barrier(CLK_LOCAL_MEM_FENCE);
 }
 
 __kernel __attribute__((reqd_work_group_size(ITEMS_PER_TILE, 1, 1))) SUBGROUP_SIZE_ATTRIBUTE
@@ -412,7 +492,13 @@ void rasterize_backward(const int width, const int height, const int tiles_x, co
     if (range_end <= (int)pair0 || first >= (int)pair_end) return;     // none of the run's pairs: the whole group
     const int lo = max(first, (int)pair0), hi = min(range_end, (int)pair_end);   // the run's pairs in this tile
     const float ndc_x = 0.5f * (float)width, ndc_y = 0.5f * (float)height;
+    const int row0 = (lid * PIXELS_PER_ITEM) / TILE_SIZE;            // first tile row this item owns
+    const int col0 = (lid * PIXELS_PER_ITEM) % TILE_SIZE;            // and first column (0 for whole rows)
+    const int owner = lid / OWNER_ITEMS, lane = lid % OWNER_ITEMS;   // its partial rows (cooperative shapes)
 
+    // The batch (load_batch); in the cooperative shapes the chunk's partial rows (l_part: [owner][pair of the
+    // chunk][sum]; l_cross, with split sums: each row's crossing range, its split sums kept compactly) and the
+    // tile's walk end. Null pointers for what a variant has none of.
     __local float2 l_mean[BATCH];
     __local float4 l_conic_opacity[BATCH];
     __local float l_rgb[BATCH * 3];
@@ -420,241 +506,46 @@ void rasterize_backward(const int width, const int height, const int tiles_x, co
     __local uint l_gaussian[BATCH];
 #if SPLIT_CANDIDATES
     __local float l_split[BATCH * GEO_WIDTH];
+#else
+    __local float *const l_split = 0;
 #endif
 #if ITEMS_PER_TILE > 1
-    __local float l_part[PART_OWNERS * PART_CHUNK * SUM_WIDTH];   // [owner][pair of the chunk][sum]
-#if SPLIT_CANDIDATES
-    __local uchar2 l_cross[PART_OWNERS * PART_CHUNK];   // each row's crossing range: its split sums kept compactly
-#endif
-    __local int l_end;
-#if SUBGROUP
-    const int owner = lid / SUBGROUP, lane = lid % SUBGROUP, owner_lane = lane;
+    __local float l_part[PART_OWNERS * PART_CHUNK * SUM_WIDTH];
+    __local int l_end[1];
 #else
-    const int owner = lid, owner_lane = 0;
+    __local float *const l_part = 0;
+    __local int *const l_end = 0;
 #endif
+#if ITEMS_PER_TILE > 1 && SPLIT_CANDIDATES
+    __local uchar2 l_cross[PART_OWNERS * PART_CHUNK];
+#else
+    __local uchar2 *const l_cross = 0;
+#endif
+#if !PIXEL_MASK
+    __global const uchar *const keep = 0;   // every pixel kept
 #endif
 
-    const int row0 = (lid * PIXELS_PER_ITEM) / TILE_SIZE;            // first tile row this item owns
-    const int col0 = (lid * PIXELS_PER_ITEM) % TILE_SIZE;            // and first column (0 for whole rows)
-#if SPLIT_CANDIDATES && SUBGROUP
-    const int cross_row0 = lid / SUBGROUP * CROSS_ROWS, cross_col0 = 0;   // the subgroup's rows (crossing_range)
-#elif SPLIT_CANDIDATES
-    const int cross_row0 = row0, cross_col0 = col0;
-#endif
-    // Per pixel: T (after the Gaussian being visited), dL/dpixel colour (dr, dg, db), and
-    // behind = sum over the Gaussians already visited (those behind) of w c . dL/dpixel, the only way the
-    // colour behind enters the gradient; bg_term = T_final background . dL/dpixel.
     float px[PIXELS_PER_ITEM], py[PIXELS_PER_ITEM], T[PIXELS_PER_ITEM], bg_term[PIXELS_PER_ITEM];
     float dr[PIXELS_PER_ITEM], dg[PIXELS_PER_ITEM], db[PIXELS_PER_ITEM], behind[PIXELS_PER_ITEM];
     int last[PIXELS_PER_ITEM];
-    int my_end = first;
-    for (int p = 0; p < PIXELS_PER_ITEM; ++p) {
-        int q = lid * PIXELS_PER_ITEM + p;
-        int x = x0 + q % TILE_SIZE, y = y0 + q / TILE_SIZE;
-        int inside = x < width && y < height;
-        int pix = inside ? y * width + x : 0;
-#if PIXEL_MASK
-        inside = inside && keep[pix];
-#endif
-        px[p] = (float)x + 0.5f;
-        py[p] = (float)y + 0.5f;
-        T[p] = inside ? final_T[pix] : 1.f;
-        dr[p] = inside ? dL_dimage[3 * pix] : 0.f;
-        dg[p] = inside ? dL_dimage[3 * pix + 1] : 0.f;
-        db[p] = inside ? dL_dimage[3 * pix + 2] : 0.f;
-        bg_term[p] = T[p] * (background.x * dr[p] + background.y * dg[p] + background.z * db[p]);
-        behind[p] = 0.f;
-        last[p] = inside ? last_pair[pix] : first - 1;
-        my_end = max(my_end, last[p] + 1);
-    }
-#if ITEMS_PER_TILE > 1
-    if (lid == 0) l_end = first;
-    barrier(CLK_LOCAL_MEM_FENCE);
-    atomic_max(&l_end, my_end);
-    barrier(CLK_LOCAL_MEM_FENCE);
-    const int end = l_end;
-#else
-    const int end = my_end;
-#endif
-#if PAIR_SUMS
-    // The run's pairs no pixel reached still own a slot: zero it.
-    const int unreached = max(end, lo);
-    for (int k = lid; k < (hi - unreached) * SUM_WIDTH; k += ITEMS_PER_TILE)
-        sums[(size_t)(unreached - pair0) * SUM_WIDTH + k] = 0.f;
-#endif
+    const int end = tile_end(load_pixels(lid, x0, y0, width, height, first, background, final_T, last_pair, dL_dimage,
+                                         keep, px, py, T, dr, dg, db, bg_term, behind, last), first, lid, l_end);
+    if (PAIR_SUMS) zero_unreached_slots(end, lo, hi, pair0, lid, sums);
 
     for (int top = end; top > lo; top -= BATCH) {
         const int base = max(lo, top - BATCH), count = top - base;
-        barrier(CLK_LOCAL_MEM_FENCE);
-        for (int j = lid; j < count; j += ITEMS_PER_TILE) {
-            uint g = gaussian_of_pair[base + j];
-            l_gaussian[j] = g;
-            l_mean[j] = vload2(g, mean2d);
-            l_conic_opacity[j] = vload4(g, conic_opacity);
-            l_rgb[3 * j] = rgb[3 * g]; l_rgb[3 * j + 1] = rgb[3 * g + 1]; l_rgb[3 * j + 2] = rgb[3 * g + 2];
-            l_reach[j] = reach(l_mean[j], vload2(g, alpha_extent), x0, y0);
-#if SPLIT_CANDIDATES
-            for (int k = 0; k < GEO_WIDTH; ++k) l_split[j * GEO_WIDTH + k] = split_geometry[(size_t)g * GEO_WIDTH + k];
-#endif
-        }
-        barrier(CLK_LOCAL_MEM_FENCE);
-
-        // Pairs back to front, in the cooperative shapes in chunks of PART_CHUNK (their partial rows hold that
-        // many); the CPU shape's one chunk is the batch.
-#if ITEMS_PER_TILE > 1
-        for (int chunk_top = count; chunk_top > 0; chunk_top -= PART_CHUNK) {
-            const int chunk_base = max(0, chunk_top - PART_CHUNK);
-#else
-        {
-            const int chunk_top = count, chunk_base = 0;
-#endif
-            for (int j = chunk_top - 1; j >= chunk_base; --j) {
-                const float2 m = l_mean[j];
-                const float4 co = l_conic_opacity[j];
-                const float3 c = (float3)(l_rgb[3 * j], l_rgb[3 * j + 1], l_rgb[3 * j + 2]);
-                const int idx = base + j;
-                const int4 span = l_reach[j];
-#if SUBGROUP
-                // Whether this lane's pixel takes part in the pair (within its reach, not past its last contributor).
-                const int touched = row0 >= span.z && row0 <= span.w && col0 >= span.x && col0 <= span.y
-                                    && idx <= last[0];
-#endif
-                // Per lane of a column block (every block of a row adds into the same COL_BLOCK lanes), so the pixel
-                // loop carries no dependency and vectorises; lanes are summed once per pair below. (Lanes per
-                // column instead cost twice the zeroing and summing per pair: DC4GS' backward 17% slower.)
-                float lanes[SUM_WIDTH][COL_BLOCK];
-                for (int k = 0; k < LANE_SUMS; ++k)
-                    for (int cc = 0; cc < COL_BLOCK; ++cc) lanes[k][cc] = 0.f;
-                float acc[SUM_WIDTH];
-#if SPLIT_CANDIDATES
-                // This pair's candidate line (c0.x, c0.y, dir.x, dir.y): pixel q is left of candidate k when
-                // t(q) = (q - c0) . dir < t_k (t_0 = 0); no split terms where the view gave no line (dir = 0).
-                __local const float *sg = l_split + j * GEO_WIDTH;
-                const float4 line = (float4)(sg[GEO_ORIGIN], sg[GEO_ORIGIN + 1], sg[GEO_DIR], sg[GEO_DIR + 1]);
-                float tk[SPLIT_CANDIDATES];
-                tk[0] = 0.f;
-                for (int k = 1; k < SPLIT_CANDIDATES; ++k) tk[k] = sg[GEO_T + k - 1];
-                // Only the candidates whose line crosses the pixels walked take split terms: lo .. hi - 1 (none where the
-                // view gave no line).
-                const int split_ok = HAS_SPLIT_LINE(sg);
-                int2 cross = split_ok ? crossing_range(line, tk, span, x0, y0, cross_row0, cross_col0)
-                                                : (int2)(SPLIT_CANDIDATES, SPLIT_CANDIDATES);
-#if SUBGROUP
-                // One walk, with no split lanes: the crossing candidates' terms come from the pixel after it.
-                float pixel[PIXEL_RECORD];
-                for (int k = 0; k < PIXEL_RECORD; ++k) pixel[k] = 0.f;   // out of the pair's reach: no split term
-                backward_pair(m, co, c, idx, span, row0, col0, ndc_x, ndc_y, line, tk, 0, px, py, dr, dg, db, bg_term,
-                              last, T, behind, lanes, lanes, pixel);
-                for (int k = 0; k < SUM_SPLIT; ++k) acc[k] = lane_total(lanes[k]);
-#else
-                if (cross.y - cross.x > MAX_FEW_CROSSING) cross = (int2)(0, SPLIT_CANDIDATES);   // the walk over all
-                const int n_cross = cross.y - cross.x;
-                __private float (*split_lanes)[COL_BLOCK] = lanes + SUM_SPLIT;   // private, not generic (CL3.0)
-                for (int k = 0; k < SPLIT_WIDTH * n_cross; ++k)
-                    for (int cc = 0; cc < COL_BLOCK; ++cc) split_lanes[k][cc] = 0.f;
-                // One call per crossing count, each its own vectorised loop (see backward_pair).
-#define WALK(n_split) backward_pair(m, co, c, idx, span, row0, col0, ndc_x, ndc_y, line, tk + cross.x, n_split, \
-                                    px, py, dr, dg, db, bg_term, last, T, behind, lanes, split_lanes, NULL)
-                if (n_cross == 0) WALK(0);
-                else if (n_cross == 1) WALK(1);
-#if MAX_FEW_CROSSING >= 2
-                else if (n_cross == 2) WALK(2);
-#endif
-                else WALK(SPLIT_CANDIDATES);
-#undef WALK
-                for (int k = 0; k < LANE_SUMS; ++k) acc[k] = lane_total(lanes[k]);
-                // The full row: a candidate with every walked pixel on its left has the pair's totals as its left
-                // sums (the same terms in the same order; in the CPU shape the walk's contracted mul-adds may round
-                // the total's u terms one ulp apart), one with none zeros. (Its rows of partial sums: all crossing.)
-                if (split_ok) {
-                    SPLIT_TOTALS(total, acc);
-                    for (int k = 0; k < SPLIT_CANDIDATES; ++k)
-                        for (int v = 0; v < SPLIT_WIDTH; ++v)
-                            acc[SUM_SPLIT + SPLIT_WIDTH * k + v] = k < cross.x ? 0.f : total[v];
-                    for (int k = 0; k < n_cross; ++k)
-                        for (int v = 0; v < SPLIT_WIDTH; ++v)
-                            acc[SUM_SPLIT + SPLIT_WIDTH * (cross.x + k) + v] = lane_total(split_lanes[SPLIT_WIDTH * k + v]);
-                    cross = (int2)(0, SPLIT_CANDIDATES);
-                }
-#endif
-                const int used = SUM_SPLIT + SPLIT_WIDTH * (cross.y - cross.x);   // the row's sums, held compactly
-#else
-                const float no_split[1] = {0.f};
-                backward_pair(m, co, c, idx, span, row0, col0, ndc_x, ndc_y, (float4)(0.f), no_split, 0, px, py, dr,
-                              dg, db, bg_term, last, T, behind, lanes, lanes, NULL);
-                for (int k = 0; k < SUM_WIDTH; ++k) acc[k] = lane_total(lanes[k]);
-                const int used = SUM_WIDTH;
-#endif
-#if ITEMS_PER_TILE > 1
-                // The pair's row, compact, into this owner's partial row (the chunk's end adds the owners' rows).
-                __local float *part = l_part + (owner * PART_CHUNK + j - chunk_base) * SUM_WIDTH;
-#if SPLIT_CANDIDATES
-                if (owner_lane == 0) l_cross[owner * PART_CHUNK + j - chunk_base] = convert_uchar2(cross);
-#endif
-#if SUBGROUP
-                // The subgroup's sums of the pair; a pair that none of its pixels took part in adds zeros.
-                if (subgroup_any(touched)) {
-#if SPLIT_CANDIDATES
-                    subgroup_sums_16(acc, SUM_SPLIT, lane, part);
-                    // Then each crossing candidate's split sums, from each lane's pixel (the terms the twin's walk
-                    // adds to zero lanes): 5 values held at a time, not 25 through the walk. The crossing range is the
-                    // subgroup's, and a vote makes the candidates reduced the same across a wider hardware subgroup.
-                    #pragma unroll
-                    for (int k = 0; k < SPLIT_CANDIDATES; ++k) {
-                        const int crossing = k >= cross.x && k < cross.y;
-                        if (!subgroup_any(crossing)) continue;
-                        const float left = pixel[PIXEL_T] < tk[k] ? pixel[PIXEL_HAS_G] : 0.f;
-                        float terms[SPLIT_WIDTH];
-                        for (int v = 0; v < SPLIT_WIDTH; ++v) terms[v] = 0.f + left * pixel[PIXEL_VALUE + v];
-                        subgroup_sums_8(terms, crossing ? SPLIT_WIDTH : 0, lane,
-                                        part + SUM_SPLIT + SPLIT_WIDTH * (crossing ? k - cross.x : 0));
-                    }
-#else
-                    subgroup_sums_16(acc, SUM_WIDTH, lane, part);
-#endif
-                } else {
-                    for (int k = lane; k < used; k += SUBGROUP) part[k] = 0.f;
-                }
-#else
-                for (int k = 0; k < used; ++k) part[k] = acc[k];
-#endif
-#elif PAIR_SUMS
-                // (a Gaussian with no split line: its split sums left unwritten, as sum_pairs skips them)
-                if (idx < hi)
-                    for (int k = 0; k < used; ++k) sums[(size_t)(idx - pair0) * SUM_WIDTH + k] = acc[k];
-#else
-                __global float *dst = sums + (size_t)l_gaussian[j] * SUM_WIDTH;
-                for (int k = 0; k < used; ++k)
-                    if (acc[k] != 0.f) atomic_add_float(dst + k, acc[k]);
-#endif
-            }
-#if ITEMS_PER_TILE > 1
-            // The chunk's sums: the owners' rows added in owner order, into the slots of the run's pairs.
-            barrier(CLK_LOCAL_MEM_FENCE);
-            const int in_run = min(chunk_top, hi - base) - chunk_base;
-            for (int k = lid; k < in_run * SUM_WIDTH; k += ITEMS_PER_TILE) {
-#if SPLIT_CANDIDATES
-                const int pair = k / SUM_WIDTH, sum = k - pair * SUM_WIDTH;
-                float v = 0.f;
-                for (int o = 0; o < PART_OWNERS; ++o) {
-                    const int row = o * PART_CHUNK + pair;
-                    const int2 cross = convert_int2(l_cross[row]);
-                    const float x = part_row_sum(l_part + row * SUM_WIDTH, cross.x, cross.y, sum);
-                    v = o ? v + x : x;
-                }
-#else
-                float v = l_part[k];
-                for (int o = 1; o < PART_OWNERS; ++o) v += l_part[o * PART_CHUNK * SUM_WIDTH + k];
-#endif
-#if PAIR_SUMS
-                sums[(size_t)(base + chunk_base - pair0) * SUM_WIDTH + k] = v;
-#else
-                if (v != 0.f) atomic_add_float(sums + (size_t)l_gaussian[chunk_base + k / SUM_WIDTH] * SUM_WIDTH
-                                               + k % SUM_WIDTH, v);
-#endif
-            }
-            barrier(CLK_LOCAL_MEM_FENCE);
-#endif
+        load_batch(base, count, lid, x0, y0, gaussian_of_pair, mean2d, conic_opacity, rgb, alpha_extent,
+                   split_geometry, l_gaussian, l_mean, l_conic_opacity, l_rgb, l_reach, l_split);
+        // Pairs back to front, a chunk at a time; the CPU shape's one chunk from pair 0, a constant: its base computed
+        // made Intel's CPU compiler compare the pair index with last[] in 64-bit lanes, the walk 60% slower.
+        for (int chunk_top = count; chunk_top > 0; chunk_top -= CHUNK) {
+            const int chunk_base = ITEMS_PER_TILE > 1 ? max(0, chunk_top - CHUNK) : 0;
+            for (int j = chunk_top - 1; j >= chunk_base; --j)
+                pair_row(l_mean[j], l_conic_opacity[j], LOAD3(l_rgb, j), base + j, l_reach[j], ITEM_ARGS, PIXEL_ARGS,
+                         l_split, j, owner * PART_CHUNK + j - chunk_base, lane, l_part, l_cross, hi, pair0,
+                         l_gaussian[j], sums);
+            if (ITEMS_PER_TILE > 1)
+                add_chunk_rows(chunk_base, chunk_top, base, hi, pair0, lid, l_part, l_cross, l_gaussian, sums);
         }
     }
 }

@@ -3,6 +3,7 @@
 // offsets are -D options from dc4gs_cl/statistics.py), in a fixed order: the deterministic design.
 
 #include "common.h"
+#include "split.h"
 
 REQUIRE_DEFINED(FOLD_WINDOW);
 #if FOLD_WINDOW

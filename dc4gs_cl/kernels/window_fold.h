@@ -7,6 +7,7 @@
 #define DC4GS_WINDOW_FOLD_H
 
 #include "common.h"
+#include "split.h"
 
 REQUIRE_DEFINED(DC_STATS);
 REQUIRE_DEFINED(DC_WINDOW);
