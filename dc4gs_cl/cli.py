@@ -22,7 +22,7 @@ import numpy as np
 from .apps import export, report, viewer
 from .apps.viewer import DEFAULT_PORT
 from .config import (DCC_READINGS, DEFAULT_LINE_EVERY, DENSE_CANDIDATES, FIVE_CANDIDATES, FLAGS, MCMC_DEFAULT_CAP,
-                     POOLINGS, RECIPE_ITERATIONS, SPLIT_PICKS, STRATEGY_NAMES, DC4GSConfig, DensifyConfig, TrainConfig,
+                     POOLINGS, RECIPE_ITERATIONS, SPLIT_PICKS, STRATEGY_NAMES, DensifyConfig, MCMCConfig, TrainConfig,
                      flag_key)
 from .constants import SH_MAX_DEGREE
 from .errors import DeviceError, InputError, OutputError
@@ -285,9 +285,9 @@ def _add_recipe(p: argparse.ArgumentParser) -> None:
 
 def _add_mcmc(p: argparse.ArgumentParser) -> None:
     g = p.add_argument_group(f"MCMC (--strategy mcmc; its cap is --max-gaussians, default {MCMC_DEFAULT_CAP:,})")
-    c = TrainConfig
+    c = MCMCConfig
     g.add_argument("--mcmc-noise-lr", type=float, default=None, metavar="X",
-                   help=f"the position noise's rate, times the position learning rate ({c.mcmc_noise_lr:g})")
+                   help=f"the position noise's rate, times the position learning rate ({c.noise_lr:g})")
     g.add_argument("--opacity-reg", type=float, default=None, metavar="X",
                    help=f"the loss term X mean(opacity) ({c.opacity_reg:g})")
     g.add_argument("--scale-reg", type=float, default=None, metavar="X",
@@ -488,12 +488,7 @@ def train_config(args, run, processes: int = 1) -> TrainConfig:
     given.setdefault("scene", BUILTIN_SCENE)
     given.setdefault("batch", processes)
     given.setdefault("iterations", BUILTIN_ITERATIONS if given["scene"] == BUILTIN_SCENE else RECIPE_ITERATIONS)
-    dc4gs_given = {k.removeprefix("dc4gs."): given.pop(k) for k in list(given) if k.startswith("dc4gs.")}
-    try:
-        dc4gs = DC4GSConfig(**dc4gs_given)
-    except ValueError as e:   # every DC4GS setting is checked, DC4GS on or off: a mistyped flag never passes
-        raise InputError(None, str(e)) from None
-    return TrainConfig(**given, dc4gs=dc4gs)
+    return TrainConfig.from_settings(given)
 
 
 def cmd_train(args) -> int:

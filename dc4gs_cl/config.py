@@ -1,6 +1,6 @@
 """A training run's settings: one frozen value, validated once, written to the run folder's config.json and
-read back by --resume and eval (run_folder.py); with the densification settings it holds (DC4GSConfig) or a
-strategy takes (DensifyConfig), and the `train` flag that gives each setting (FLAGS).
+read back by --resume and eval (run_folder.py); with the densification settings it holds (DC4GSConfig, MCMC's
+MCMCConfig) or a strategy takes (DensifyConfig), and the `train` flag that gives each setting (FLAGS).
 
 Device-free (no OpenCL, no strategy classes), so that `report` and `export` import without a device
 (tests/test_structure.py)."""
@@ -20,7 +20,7 @@ DEFAULT_LINE_EVERY = 100     # --log-every: iterations between progress lines wh
 # The strategies' names, spelled here so that settings are checked without importing the strategies (device
 # code); densify.STRATEGIES holds a class for each, in this order (tests/test_structure.py checks)
 STRATEGY_NAMES = ("3dgs", "absgs", "pixelgs", "mcmc")
-MCMC_DEFAULT_CAP = 1_000_000                 # MCMC's --max-gaussians when none is given: gsplat's cap_max
+MCMC_DEFAULT_CAP = 1_000_000                 # MCMC's max_gaussians when --max-gaussians is not given: gsplat's cap_max
 POOLINGS = ("view", "window")       # per view (the paper) or over the window (the authors' release)
 SPLIT_PICKS = ("poly", "argmin", "dense", "middle")   # middle: DCS' split at x = 0.5, no costs (an ablation)
 DCC_READINGS = ("abs", "base")
@@ -31,9 +31,10 @@ DENSE_CANDIDATES = 59               # --split-pick dense without --split-candida
 MAX_CANDIDATES = 99
 MAX_SEED = 2 ** 63 - 1
 
-# `train`'s flags -> the setting each gives: a TrainConfig field, or "dc4gs.<field>" of its DC4GSConfig; in the
-# fields' order, which --resume's list of differing settings follows. cli.py reads the settings given through it,
-# and the checks below name a setting by its flag (FLAG_OF).
+# `train`'s flags -> the setting each gives: a TrainConfig field, or "<group>.<field>" of one of its nested settings
+# (NESTED: "dc4gs.<field>" of its DC4GSConfig, "mcmc.<field>" of its MCMCConfig); in the fields' order, which
+# --resume's list of differing settings follows. cli.py reads the settings given through it, and the checks below
+# name a setting by its flag (FLAG_OF).
 FLAGS = {
     "--scene": "scene", "--iterations": "iterations", "--strategy": "strategy", "--resolution": "resolution",
     "--test-every": "test_every", "--test-split": "test_split", "--white-background": "white_background",
@@ -44,8 +45,8 @@ FLAGS = {
     "--rotation-lr": "lr_quats", "--lambda-dssim": "lambda_dssim", "--random-background": "random_background",
     "--densify-from-iter": "densify_from", "--densification-interval": "densify_every",
     "--opacity-reset-interval": "opacity_reset_every", "--densify-until": "densify_until",
-    "--antialiased": "antialiased", "--mcmc-noise-lr": "mcmc_noise_lr", "--opacity-reg": "opacity_reg",
-    "--scale-reg": "scale_reg",
+    "--antialiased": "antialiased", "--mcmc-noise-lr": "mcmc.noise_lr", "--opacity-reg": "mcmc.opacity_reg",
+    "--scale-reg": "mcmc.scale_reg",
     "--split-threshold": "split_threshold", "--max-gaussians": "max_gaussians", "--low-memory": "low_memory",
     "--dcc": "dc4gs.dcc", "--dcs": "dc4gs.dcs", "--dc-pooling": "dc4gs.pooling", "--split-pick": "dc4gs.split_pick",
     "--split-candidates": "dc4gs.candidates", "--dcc-reading": "dc4gs.dcc_reading", "--dcs-track": "dc4gs.track",
@@ -56,11 +57,6 @@ FLAG_OF = {setting: flag for flag, setting in FLAGS.items()}
 def flag_key(flag: str) -> str:
     """A flag's name as argparse stores it (--dc-pooling: dc_pooling)."""
     return flag[2:].replace("-", "_")
-
-
-# config.json of runs made before the DC4GS settings were nested held them flat, under their flag's key
-FLAT_DC4GS_KEYS = {flag_key(flag): setting.removeprefix("dc4gs.") for flag, setting in FLAGS.items()
-                   if setting.startswith("dc4gs.")}
 
 
 def flagged_problems(checks: list[tuple[str, bool, str]]) -> list[str]:
@@ -145,6 +141,31 @@ class DC4GSConfig:
 
 
 @dataclass(frozen=True)
+class MCMCConfig:
+    """MCMC's own settings (densify/mcmc.py; --strategy mcmc only): the position noise's rate (times the position
+    learning rate) and the loss' regularisers opacity_reg mean(opacity) + scale_reg mean(scale), gsplat's defaults.
+    TrainConfig checks them (checks), as they apply to its strategy."""
+    noise_lr: float = 5e5
+    opacity_reg: float = 0.01
+    scale_reg: float = 0.01
+
+    def checks(self, strategy: str) -> list[tuple[str, bool, str]]:
+        """The checks of these settings in a run of this strategy, as flagged_problems takes them."""
+        values = [(f"mcmc.{f.name}", getattr(self, f.name), f.default) for f in fields(self)]
+        return [*((name, not (math.isfinite(value) and value >= 0), f"{value} must be a finite number >= 0")
+                  for name, value, _ in values),
+                *((name, strategy != "mcmc" and value != default, "applies to --strategy mcmc only")
+                  for name, value, default in values)]
+
+
+# TrainConfig's nested settings, by field; config.json of runs made before they were nested held them flat, under
+# their flag's key (FLAT_KEYS: group -> {key: field})
+NESTED = {"dc4gs": DC4GSConfig, "mcmc": MCMCConfig}
+FLAT_KEYS = {group: {flag_key(flag): setting.removeprefix(f"{group}.") for flag, setting in FLAGS.items()
+                     if setting.startswith(f"{group}.")} for group in NESTED}
+
+
+@dataclass(frozen=True)
 class TrainConfig:
     scene: str
     iterations: int = RECIPE_ITERATIONS
@@ -176,11 +197,7 @@ class TrainConfig:
     opacity_reset_every: int | None = None # 0: no opacity resets
     densify_until: int | None = None       # the window's end; 0 disables densification
     antialiased: bool = False              # opacities times their 2D filter's compensation (gsplat's antialiased)
-    # MCMC (--strategy mcmc only): the position noise's rate (times the position learning rate) and the loss'
-    # regularisers opacity_reg mean(opacity) + scale_reg mean(scale), gsplat's defaults
-    mcmc_noise_lr: float = 5e5
-    opacity_reg: float = 0.01
-    scale_reg: float = 0.01
+    mcmc: MCMCConfig = MCMCConfig()        # --strategy mcmc only
     split_threshold: float | None = None   # override the strategy's split threshold (its criterion's units)
     max_gaussians: int | None = None       # densification never grows the model past this many Gaussians
     low_memory: bool = False               # backward sums with float atomics, no per-pair slots (not bit-reproducible)
@@ -208,11 +225,7 @@ class TrainConfig:
                                          ("densify_every", self.densify_every, 1),
                                          ("opacity_reset_every", self.opacity_reset_every, 0))),
             ("lambda_dssim", not 0 <= self.lambda_dssim <= 1, f"{self.lambda_dssim} must lie in [0, 1]"),
-            *((name, not (math.isfinite(value) and value >= 0), f"{value} must be a finite number >= 0")
-              for name, value in (("mcmc_noise_lr", self.mcmc_noise_lr), ("opacity_reg", self.opacity_reg),
-                                  ("scale_reg", self.scale_reg))),
-            *((name, self.strategy != "mcmc" and getattr(self, name) != getattr(TrainConfig, name),
-               "applies to --strategy mcmc only") for name in ("mcmc_noise_lr", "opacity_reg", "scale_reg")),
+            *self.mcmc.checks(self.strategy),
             ("strategy", self.strategy == "mcmc" and self.dc4gs.dcc,
              "mcmc: of DC4GS only --dcs applies (DCC weights a split criterion; MCMC splits nothing, it places "
              "copies)"),
@@ -247,18 +260,33 @@ class TrainConfig:
             raise ValueError(f"expected a JSON object, got {type(d).__name__}")
         known = {f.name for f in fields(TrainConfig)}
         out = {k: v for k, v in d.items() if k in known}
-        flat = {field: d[key] for key, field in FLAT_DC4GS_KEYS.items() if key in d}
-        nested = out.get("dc4gs", {})
-        if not isinstance(nested, dict):
-            raise ValueError(f"dc4gs: expected a JSON object, got {nested!r}")
-        dc4gs = {**flat, **nested}
-        check_json_types(TrainConfig, out, skip=("dc4gs",))
-        check_json_types(DC4GSConfig, dc4gs, prefix="dc4gs.")
+        nested = {}
+        for group in NESTED:
+            values = out.get(group, {})
+            if not isinstance(values, dict):
+                raise ValueError(f"{group}: expected a JSON object, got {values!r}")
+            nested[group] = {**{field: d[key] for key, field in FLAT_KEYS[group].items() if key in d}, **values}
+        check_json_types(TrainConfig, out, skip=tuple(NESTED))
+        for group, values in nested.items():
+            check_json_types(NESTED[group], values, prefix=f"{group}.")
         out["save_at"] = tuple(out.get("save_at", ()))
         if out.get("eval_at") is not None:
             out["eval_at"] = tuple(out["eval_at"])
-        out["dc4gs"] = DC4GSConfig(**dc4gs)
+        out.update({group: NESTED[group](**values) for group, values in nested.items()})
         return TrainConfig(**out)
+
+    @staticmethod
+    def from_settings(settings: dict) -> TrainConfig:
+        """A run's settings named as FLAGS names them ("dc4gs.dcc": the nested DC4GSConfig's dcc); InputError for
+        a wrong one (every nested setting is checked, whatever the strategy and DC4GS on or off: a mistyped flag
+        never passes)."""
+        nested = {group: {k.removeprefix(f"{group}."): v for k, v in settings.items() if k.startswith(f"{group}.")}
+                  for group in NESTED}
+        try:
+            groups = {group: NESTED[group](**values) for group, values in nested.items()}
+        except ValueError as e:   # DC4GSConfig checks itself
+            raise InputError(None, str(e)) from None
+        return TrainConfig(**{k: v for k, v in settings.items() if "." not in k}, **groups)
 
 
 def _json_type_ok(annotation: str, value) -> bool:
