@@ -1,6 +1,6 @@
 """A training run's settings: one frozen value, validated once, written to the run folder's config.json and
-read back by --resume and eval (run_folder.py); with the densification settings it holds (DC4GSConfig) or a
-strategy takes (DensifyConfig), and the `train` flags, each declared once with the setting it gives (TRAIN_FLAGS:
+read back by --resume and eval (run_folder.py); with the densification settings it holds (DC4GSConfig, MCMC's
+MCMCConfig) or a strategy takes (DensifyConfig), and the `train` flags, each declared once with the setting it gives (TRAIN_FLAGS:
 the command line is built from them, and every check names a setting by its flag).
 
 Device-free (no OpenCL, no strategy classes), so that `report` and `export` import without a device
@@ -27,7 +27,7 @@ DEFAULT_LINE_EVERY = 100     # --log-every: iterations between progress lines wh
 # The strategies' names, spelled here so that settings are checked without importing the strategies (device
 # code); densify.STRATEGIES holds a class for each, in this order (tests/test_structure.py checks)
 STRATEGY_NAMES = ("3dgs", "absgs", "pixelgs", "mcmc")
-MCMC_DEFAULT_CAP = 1_000_000                 # MCMC's --max-gaussians when none is given: gsplat's cap_max
+MCMC_DEFAULT_CAP = 1_000_000                 # MCMC's max_gaussians when --max-gaussians is not given: gsplat's cap_max
 POOLINGS = ("view", "window")       # per view (the paper) or over the window (the authors' release)
 SPLIT_PICKS = ("poly", "argmin", "dense", "middle")   # middle: DCS' split at x = 0.5, no costs (an ablation)
 DCC_READINGS = ("abs", "base")
@@ -174,10 +174,10 @@ TRAIN_FLAGS = (   # in the order `train --help` lists them (the first group's fl
                                                                 f"({DensifyConfig.opacity_reset_every:,}, scaled; "
                                                                 "0: none)", int)), metavars=True, inria_spellings=True),
     FlagGroup(f"MCMC (--strategy mcmc; its cap is --max-gaussians, default {MCMC_DEFAULT_CAP:,})", (
-        Flag("--mcmc-noise-lr", "mcmc_noise_lr", "the position noise's rate, times the position learning rate "
+        Flag("--mcmc-noise-lr", "mcmc.noise_lr", "the position noise's rate, times the position learning rate "
                                                  "({default:g})", float),
-        Flag("--opacity-reg", "opacity_reg", "the loss term X mean(opacity) ({default:g})", float),
-        Flag("--scale-reg", "scale_reg", "the loss term X mean(scale) ({default:g})", float)), metavars=True),
+        Flag("--opacity-reg", "mcmc.opacity_reg", "the loss term X mean(opacity) ({default:g})", float),
+        Flag("--scale-reg", "mcmc.scale_reg", "the loss term X mean(scale) ({default:g})", float)), metavars=True),
     FlagGroup("DC4GS (directional-consistency density control, on any base strategy)", (
         Flag("--dc4gs", None, "DCC and DCS together", bool),
         Flag("--dcc", "dc4gs.dcc", "DC-weighted split criterion: a Gaussian is split only where its pixels' gradients "
@@ -282,6 +282,24 @@ class DC4GSConfig:
 
 
 @dataclass(frozen=True)
+class MCMCConfig:
+    """MCMC's own settings (densify/mcmc.py; --strategy mcmc only): the position noise's rate (times the position
+    learning rate) and the loss' regularisers opacity_reg mean(opacity) + scale_reg mean(scale), gsplat's defaults.
+    TrainConfig checks them (checks), as they apply to its strategy."""
+    noise_lr: float = 5e5
+    opacity_reg: float = 0.01
+    scale_reg: float = 0.01
+
+    def checks(self, strategy: str) -> list[tuple[str, bool, str]]:
+        """The checks of these settings in a run of this strategy, as flagged_problems takes them."""
+        values = [(f"mcmc.{f.name}", getattr(self, f.name), f.default) for f in fields(self)]
+        return [*((name, not (math.isfinite(value) and value >= 0), f"{value} must be a finite number >= 0")
+                  for name, value, _ in values),
+                *((name, strategy != "mcmc" and value != default, "applies to --strategy mcmc only")
+                  for name, value, default in values)]
+
+
+@dataclass(frozen=True)
 class TrainConfig:
     scene: str
     iterations: int = RECIPE_ITERATIONS
@@ -313,11 +331,7 @@ class TrainConfig:
     opacity_reset_every: int | None = None # 0: no opacity resets
     densify_until: int | None = None       # the window's end; 0 disables densification
     antialiased: bool = False              # opacities times their 2D filter's compensation (gsplat's antialiased)
-    # MCMC (--strategy mcmc only): the position noise's rate (times the position learning rate) and the loss'
-    # regularisers opacity_reg mean(opacity) + scale_reg mean(scale), gsplat's defaults
-    mcmc_noise_lr: float = 5e5
-    opacity_reg: float = 0.01
-    scale_reg: float = 0.01
+    mcmc: MCMCConfig = MCMCConfig()        # --strategy mcmc only
     split_threshold: float | None = None   # override the strategy's split threshold (its criterion's units)
     max_gaussians: int | None = None       # densification never grows the model past this many Gaussians
     low_memory: bool = False               # backward sums with float atomics, no per-pair slots (not bit-reproducible)
@@ -345,11 +359,7 @@ class TrainConfig:
                                          ("densify_every", self.densify_every, 1),
                                          ("opacity_reset_every", self.opacity_reset_every, 0))),
             ("lambda_dssim", not 0 <= self.lambda_dssim <= 1, f"{self.lambda_dssim} must lie in [0, 1]"),
-            *((name, not (math.isfinite(value) and value >= 0), f"{value} must be a finite number >= 0")
-              for name, value in (("mcmc_noise_lr", self.mcmc_noise_lr), ("opacity_reg", self.opacity_reg),
-                                  ("scale_reg", self.scale_reg))),
-            *((name, self.strategy != "mcmc" and getattr(self, name) != getattr(TrainConfig, name),
-               "applies to --strategy mcmc only") for name in ("mcmc_noise_lr", "opacity_reg", "scale_reg")),
+            *self.mcmc.checks(self.strategy),
             ("strategy", self.strategy == "mcmc" and self.dc4gs.dcc,
              "mcmc: of DC4GS only --dcs applies (DCC weights a split criterion; MCMC splits nothing, it places "
              "copies)"),
@@ -398,17 +408,19 @@ class TrainConfig:
             raise ValueError(f"expected a JSON object, got {type(d).__name__}")
         known = {f.name for f in fields(TrainConfig)}
         out = {k: v for k, v in d.items() if k in known}
-        flat = {field: d[key] for key, field in FLAT_DC4GS_KEYS.items() if key in d}
-        nested = out.get("dc4gs", {})
-        if not isinstance(nested, dict):
-            raise ValueError(f"dc4gs: expected a JSON object, got {nested!r}")
-        dc4gs = {**flat, **nested}
-        check_json_types(TrainConfig, out, skip=("dc4gs",))
-        check_json_types(DC4GSConfig, dc4gs, prefix="dc4gs.")
+        nested = {}
+        for group in SETTING_GROUPS:
+            values = out.get(group, {})
+            if not isinstance(values, dict):
+                raise ValueError(f"{group}: expected a JSON object, got {values!r}")
+            nested[group] = {**{field: d[key] for key, field in FLAT_KEYS[group].items() if key in d}, **values}
+        check_json_types(TrainConfig, out, skip=tuple(SETTING_GROUPS))
+        for group, values in nested.items():
+            check_json_types(SETTING_GROUPS[group], values, prefix=f"{group}.")
         out["save_at"] = tuple(out.get("save_at", ()))
         if out.get("eval_at") is not None:
             out["eval_at"] = tuple(out["eval_at"])
-        out["dc4gs"] = DC4GSConfig(**dc4gs)
+        out.update({group: SETTING_GROUPS[group](**values) for group, values in nested.items()})
         return TrainConfig(**out)
 
 
@@ -461,6 +473,7 @@ SETTINGS = tuple(_setting_names(DEFAULT_SETTINGS))   # in the fields' order
 # settings follows; the command line reads the settings given through it
 FLAGS = dict(sorted(((flag.name, flag.setting) for group in TRAIN_FLAGS for flag in group.flags if flag.setting),
                     key=lambda item: SETTINGS.index(item[1])))
-# config.json of runs made before the DC4GS settings were nested held them flat, under their flag's key
-FLAT_DC4GS_KEYS = {flag_key(flag): setting.removeprefix("dc4gs.") for flag, setting in FLAGS.items()
-                   if setting.startswith("dc4gs.")}
+# config.json of runs made before a group's settings were nested (DC4GS', MCMC's) held them flat, under their flag's
+# key: group -> {key: field}
+FLAT_KEYS = {group: {flag_key(flag): setting.removeprefix(f"{group}.") for flag, setting in FLAGS.items()
+                     if setting.startswith(f"{group}.")} for group in SETTING_GROUPS}

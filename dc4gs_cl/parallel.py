@@ -18,11 +18,10 @@ import numpy as np
 
 from .errors import DeviceError, InputError
 from .runtime import DeviceArrays
-from .statistics import MAX_RADIUS, SKIP_SPLIT
+from .statistics import MAX_COLUMNS
 
 # what MPI launchers set in each process they start: the world's size (Open MPI, MPICH's Hydra, PMIx, MVAPICH)
 SIZE_VARIABLES = ("OMPI_COMM_WORLD_SIZE", "PMI_SIZE", "PMIX_SIZE", "MV2_COMM_WORLD_SIZE")
-MAX_COLUMNS = (MAX_RADIUS, SKIP_SPLIT)   # window columns that take the processes' maximum (the others their sum)
 MPI_HINT = "pip install 'dc4gs-cl[mpi]' (mpi4py and Open MPI's wheel)"
 
 

@@ -12,7 +12,7 @@ from helpers import load_tool
 from dc4gs_cl.apps import viewer
 from dc4gs_cl.apps.train import train_config
 from dc4gs_cl.cli import build_parser, main
-from dc4gs_cl.config import DC4GSConfig, TrainConfig
+from dc4gs_cl.config import DC4GSConfig, MCMCConfig, TrainConfig
 from dc4gs_cl.files import write_json
 from dc4gs_cl.ply import write_ply
 from dc4gs_cl.run_folder import RunFolder
@@ -180,6 +180,21 @@ def test_resume_takes_the_flags_the_run_was_started_with(tmp_path):
     cfg = TrainConfig(scene="builtin", iterations=100, dc4gs=DC4GSConfig(dcc=True, dcs=True))
     write_json(run.config_path, cfg.to_json())
     args = build_parser().parse_args(["train", "--out", str(tmp_path), "--resume", "--dc4gs", "--iterations", "100"])
+    assert train_config(args, run) == cfg
+
+
+def test_settings_an_older_run_saved_flat_still_load(tmp_path):
+    """config.json of runs made before DC4GS' and MCMC's settings were nested (TrainConfig.dc4gs, .mcmc) holds them
+    flat, under their flag's key: --resume (with flags that agree) and eval read them as they were."""
+    cfg = TrainConfig(scene="builtin", iterations=100, strategy="mcmc", dc4gs=DC4GSConfig(dcs=True, split_pick="dense"),
+                      mcmc=MCMCConfig(noise_lr=1e4, opacity_reg=0.02, scale_reg=0.0))
+    flat = {k: v for k, v in cfg.to_json().items() if k not in ("dc4gs", "mcmc")}
+    flat |= {"dcs": True, "split_pick": "dense", "mcmc_noise_lr": 1e4, "opacity_reg": 0.02, "scale_reg": 0.0}
+    run = RunFolder(tmp_path)
+    write_json(run.config_path, flat)
+    assert run.read_config() == cfg
+    args = build_parser().parse_args(["train", "--out", str(tmp_path), "--resume", "--mcmc-noise-lr", "10000",
+                                      "--scale-reg", "0"])
     assert train_config(args, run) == cfg
 
 

@@ -18,9 +18,10 @@ from helpers import straight_and_resumed
 from dc4gs_cl.config import TrainConfig
 from dc4gs_cl.densify import DC4GSConfig
 from dc4gs_cl.errors import InputError
-from dc4gs_cl.parallel import MAX_COLUMNS, SingleProcess
+from dc4gs_cl.parallel import SingleProcess
 from dc4gs_cl.run_folder import CHECKPOINT
 from dc4gs_cl.scene.loader import load_scene
+from dc4gs_cl.statistics import MAX_COLUMNS, StatisticsSpec
 from dc4gs_cl.train import Trainer
 from dc4gs_cl.train.schedule import Schedule
 
@@ -182,7 +183,6 @@ def test_processes_whose_models_differ_stop_with_one_line():
 
 
 def test_the_window_columns_that_take_a_maximum_exist():
-    """parallel.MAX_COLUMNS names window columns (a renamed column would be summed silently)."""
-    from dc4gs_cl.statistics import StatisticsSpec
+    """statistics.MAX_COLUMNS names window columns (a renamed column would be summed silently)."""
     columns = {f.name for f in StatisticsSpec(dc=True, split_candidates=5).window.fields}
     assert set(MAX_COLUMNS) <= columns

@@ -317,7 +317,7 @@ def workload(shape: str) -> dict:
                 sums, layout = RasterizeBackward(ctx).folding(res, dL_dimage, background, gathering.layout,
                                                               gathering.geometry, keep_buf, gathering.window)
                 project_backward = ProjectBackward(ctx)
-                regularizers = (0.01 / gaussians.n, 0.01 / (3 * gaussians.n)) if b.strategy == "mcmc" else None
+                regularizers = strategy.regularizers(gaussians.n)
                 if b.batch:
                     batch = BatchGradients(ctx, gaussians.widths)
                     summed = batch.start(gaussians.n)
@@ -326,12 +326,12 @@ def workload(shape: str) -> dict:
                                                    accumulate=True)
                     batch.step(gaussians.params, 2, gaussians.adam.step_value(lrs), gaussians.adam.m,
                                gaussians.adam.v, regularizers)
-                    strategy.after_step(iteration, gaussians.params, lrs, SEED, 5e5)
+                    strategy.after_step(iteration, gaussians.params, lrs, SEED)
                 elif b.strategy:
                     project_backward.step(gaussians.params, cam, model.sh_degree, res, sums, layout,
                                           gaussians.adam.step_value(lrs), gaussians.adam.m, gaussians.adam.v,
                                           regularizers)
-                    strategy.after_step(iteration, gaussians.params, lrs, SEED, 5e5)
+                    strategy.after_step(iteration, gaussians.params, lrs, SEED)
                 else:
                     widths = group_widths(gaussians.params.sh_coeffs)
                     grads = {k: rt.buffer(4 * w * gaussians.n) for k, w in widths.items()}

@@ -107,8 +107,8 @@ def frozen_trainer(cfg: TrainConfig, scene: Scene, rt: Runtime, state: GaussianS
     Gaussian, not only those large enough to split."""
     scaled = Schedule(cfg).strategy()
     c = scaled.config
-    strategy = type(scaled)(replace(c, densify_until=0 if closed else c.densify_until,
-                                    percent_dense=0.0 if split_costs_for_all else c.percent_dense), cfg.dc4gs)
+    strategy = type(scaled).for_run(replace(c, densify_until=0 if closed else c.densify_until,
+                                            percent_dense=0.0 if split_costs_for_all else c.percent_dense), cfg)
     trainer = Trainer(cfg, scene, rt, strategy=strategy, frozen=True)
     trainer.start_from(state, iteration)
     return trainer

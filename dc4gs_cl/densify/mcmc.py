@@ -2,11 +2,12 @@
 gsplat's MCMCStrategy runs it: no gradient statistics, no clone, split or opacity reset. At each refinement step
 (every densify_every iterations inside the window; a shorter run's steps come as often relative to its length,
 as gsplat's steps_scaler makes them) the dead Gaussians (opacity <= prune_opacity) are relocated
-onto live ones drawn by opacity, then the model grows by GROWTH_RATE up to the cap (--max-gaussians), new ones
-again drawn by opacity; a Gaussian drawn N - 1 times shares its opacity and scale with its N - 1 copies by the
-paper's equation (9) (relocated_opacity_scale). Every iteration, after Adam's step, the positions get noise
-(optim/position_noise.py, the SGLD step), and the loss carries the regularisers opacity_reg mean(opacity) +
-scale_reg mean(scale) (project_backward.cl, REGULARIZED).
+onto live ones drawn by opacity, then the model grows by GROWTH_RATE up to the cap (--max-gaussians, else
+MCMC_DEFAULT_CAP), new ones again drawn by opacity; a Gaussian drawn N - 1 times shares its opacity and scale with
+its N - 1 copies by the paper's equation (9) (relocated_opacity_scale). Every iteration, after Adam's step, the
+positions get noise (optim/position_noise.py, the SGLD step), and the loss carries the regularisers
+opacity_reg mean(opacity) + scale_reg mean(scale) (project_backward.cl, REGULARIZED); their rates are MCMC's own
+settings (config.MCMCConfig).
 
 With DCS (--strategy mcmc --dcs; DC4GS' split placement, our addition) the window gathers every Gaussian's split
 costs, and a Gaussian drawn exactly once in a step becomes, with its copy, DCS' two children (cut where its costs
@@ -21,7 +22,7 @@ import math
 
 import numpy as np
 
-from ..config import DensifyConfig
+from ..config import MCMC_DEFAULT_CAP, DC4GSConfig, DensifyConfig, MCMCConfig, TrainConfig
 from ..model import GaussianSet, logit
 from ..optim.position_noise import PositionNoise
 from ..render.gaussians import DeviceGaussians
@@ -58,12 +59,21 @@ class MCMC(Strategy):
     initial = {"opacity": INIT_OPACITY, "scale_factor": INIT_SCALE_FACTOR}
     scaled_interval = True
 
+    def __init__(self, config: DensifyConfig | None = None, dc4gs: DC4GSConfig | None = None,
+                 settings: MCMCConfig | None = None):
+        super().__init__(config, dc4gs)
+        self.settings = settings or MCMCConfig()
+
+    @classmethod
+    def for_run(cls, config: DensifyConfig, run: TrainConfig) -> MCMC:
+        return cls(config, run.dc4gs, run.mcmc)
+
     @staticmethod
     def default_config() -> DensifyConfig:
         # refine from 500 to 25,000 of 30,000 every 100; dead below opacity 0.005; no opacity resets; with DCS,
         # every Gaussian may be placed, so every one gathers split costs (percent_dense 0: no size rule)
         return DensifyConfig(densify_from=500, densify_until=25_000, densify_every=100, prune_opacity=0.005,
-                             opacity_reset_every=0, percent_dense=0.0)
+                             opacity_reset_every=0, percent_dense=0.0, max_gaussians=MCMC_DEFAULT_CAP)
 
     def collecting(self, it: int) -> bool:
         return self.dc4gs is not None and it <= self.last_densify_step   # DCS' split costs; else nothing
@@ -75,9 +85,13 @@ class MCMC(Strategy):
         super().attach(ctx, extent, n, white_background)
         self.noise = PositionNoise(ctx)
 
-    def after_step(self, it: int, params: DeviceGaussians, lrs: dict, seed: int, noise_lr: float) -> None:
+    def regularizers(self, n: int) -> tuple[float, float]:
+        """opacity_reg mean(opacity) + scale_reg mean(scale)."""
+        return self.settings.opacity_reg / n, self.settings.scale_reg / (3 * n)
+
+    def after_step(self, it: int, params: DeviceGaussians, lrs: dict, seed: int) -> None:
         """The position noise of iteration it, after Adam's step (lrs: its learning rates)."""
-        self.noise(params, it, seed, lrs["means"] * noise_lr)
+        self.noise(params, it, seed, lrs["means"] * self.settings.noise_lr)
 
     def densify(self, gs: GaussianSet, window: dict[str, np.ndarray], it: int,
                 rng: np.random.Generator) -> DensifyReport:

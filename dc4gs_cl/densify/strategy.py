@@ -1,16 +1,20 @@
 """The densification strategy: when to densify, clone, split, prune and limit opacities, on which criterion,
 and what the device must gather for it.
 
-A strategy owns its hyperparameters and its statistics (the window on the device, and DCS' split geometry
-stage), as gsplat's strategies do; the trainer calls attach() once, then its hooks once per iteration, in
-this order:
+A strategy owns its hyperparameters (its own settings too: for_run), its statistics (the window on the device,
+and DCS' split geometry stage), as gsplat's strategies do, its loss terms and its state in a checkpoint; the
+trainer calls attach() once, then its hooks once per iteration, in this order:
 
     actions = strategy.actions(it)                        what this iteration does after its backward
     gathering = strategy.gather(it, params, cam, result)  what the rasterizer backward gathers this view, and
                                                           where it folds the view's statistics (plain data)
     ... rasterizer backward -> sums, the view folded into the window on the way ...
-    ... optimiser step where actions say so ...
+    ... optimiser step where actions say so, with the strategy's regularizers(n) ...
+    strategy.after_step(it, params, lrs, seed)            after the optimiser step (MCMC's noise)
     report = strategy.apply(actions, it, model, rng)      densify and limit opacities; report
+
+and around them checkpoint_state() / restore_state() (a checkpoint's window), reset(n) (a model started from)
+and memory_held().
 
 The 3DGS recipe is this base class; AbsGS and Pixel-GS change the criteria and a few numbers
 (../shared/docs/dc4gs-spec.md sections 3, 5 and 6). DC4GS, on any base, makes the split criterion the
@@ -27,7 +31,7 @@ import numpy as np
 import pyopencl as cl
 
 from ..backward import SplitGeometry, WindowFold
-from ..config import DC4GSConfig, DensifyConfig
+from ..config import DC4GSConfig, DensifyConfig, TrainConfig
 from ..model import GaussianSet
 from ..render.gaussians import DeviceGaussians
 from ..render.renderer import RenderResult
@@ -97,6 +101,12 @@ class Strategy:
         self.before_densify: Callable[[GaussianSet, dict[str, np.ndarray], int], None] | None = None
         # the window over every process's views (parallel.py; the trainer sets it): identity for one process
         self.reduce_window: Callable[[dict[str, np.ndarray]], dict[str, np.ndarray]] = lambda window: window
+
+    @classmethod
+    def for_run(cls, config: DensifyConfig, run: TrainConfig) -> Strategy:
+        """The strategy of a run of these settings, config its densification settings (train/schedule.py scales
+        them to the run); a strategy with settings of its own takes them from the run's here."""
+        return cls(config, run.dc4gs)
 
     @staticmethod
     def default_config() -> DensifyConfig:
@@ -192,8 +202,14 @@ class Strategy:
                                            self.config.percent_dense * self.extent, fold)
         return Gathering(self.statistics.sums, geometry, fold)
 
-    def after_step(self, it: int, params: DeviceGaussians, lrs: dict, seed: int, noise_lr: float) -> None:
-        """Queued after iteration it's optimiser step (lrs: its learning rates): nothing here (MCMC's noise)."""
+    def regularizers(self, n: int) -> tuple[float, float] | None:
+        """The strategy's loss terms on n Gaussians' opacities and scales, as the gradient factors the optimiser
+        step takes (per Gaussian and per scale value: project_backward.cl, REGULARIZED); None: none (MCMC's)."""
+        return None
+
+    def after_step(self, it: int, params: DeviceGaussians, lrs: dict, seed: int) -> None:
+        """Queued after iteration it's optimiser step (lrs: its learning rates; seed: the run's): nothing here
+        (MCMC's noise)."""
 
     def apply(self, actions: Actions, it: int, model, rng: np.random.Generator) -> DensifyReport | None:
         """Densify (on the device model: optim.trainable.TrainableGaussians) and limit the opacities as the
@@ -203,10 +219,30 @@ class Strategy:
             gs = model.download()
             report = self.densify(gs, self.reduce_window(self.window.download()), it, rng)
             model.upload(gs)
-            self.window.reset(gs.n)
+            self.reset(gs.n)
         if actions.opacity_ceiling is not None:
             model.limit_opacity(actions.opacity_ceiling)
         return report
+
+    def reset(self, n: int) -> None:
+        """Restart the window, for n Gaussians (after a densification step, or for a model the trainer starts
+        from)."""
+        self.window.reset(n)
+
+    def memory_held(self) -> dict[str, int]:
+        """Device bytes the strategy holds, by what holds them."""
+        return {"window statistics": self.window.rows.nbytes}
+
+    # state in a checkpoint -------------------------------------------------------------------------------
+    def checkpoint_state(self) -> dict[str, np.ndarray]:
+        """What a checkpoint holds of the strategy: its window's columns over every process's views
+        (reduce_window; in a parallel run every process calls this together)."""
+        return self.reduce_window(self.window.download())
+
+    def restore_state(self, state: dict[str, np.ndarray], holder: bool = True) -> None:
+        """Continue from a checkpoint_state. In a parallel run only the holder (process 0) takes it, the others'
+        windows restarting at zero, so that the processes' windows still reduce to it."""
+        self.window.upload(state if holder else {k: np.zeros_like(v) for k, v in state.items()})
 
     # the step --------------------------------------------------------------------------------------------
     def split(self, gs: GaussianSet, mask: np.ndarray, rng: np.random.Generator, window: dict[str, np.ndarray]) -> int:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from dataclasses import replace
 
-from ..config import MCMC_DEFAULT_CAP, RECIPE_ITERATIONS, TrainConfig
+from ..config import RECIPE_ITERATIONS, TrainConfig
 from ..densify import STRATEGIES, Strategy
 from ..optim.adam import exponential_lr
 from ..optim.batch_gradients import batch_rate_factor
@@ -15,7 +15,8 @@ EVALUATE_AT = (7_000,)   # test views evaluated at these (scaled) iterations and
 
 
 # TrainConfig's settings that replace the strategy's (DensifyConfig's field of the same name) as given, unscaled
-SCHEDULE_OVERRIDES = ("densify_from", "densify_every", "opacity_reset_every", "densify_until", "split_threshold")
+SCHEDULE_OVERRIDES = ("densify_from", "densify_every", "opacity_reset_every", "densify_until", "split_threshold",
+                      "max_gaussians")
 
 
 class Schedule:
@@ -31,8 +32,8 @@ class Schedule:
         steps of a strategy that gathers gradient statistics is not scaled, as the statistics need that many views
         and new Gaussians that many steps to settle (scaling it grows the model explosively); with --batch B it is
         that many views, 1/B as many iterations, and it shrinks only where fewer than MIN_DENSIFY_STEPS would fit in
-        the window. MCMC's is scaled as gsplat's steps_scaler scales it:
-        it gathers nothing, its growth per step is bounded by the cap, and a short run keeps the full schedule's
+        the window. A strategy with scaled_interval has it scaled as gsplat's steps_scaler scales MCMC's: MCMC
+        gathers nothing, its growth per step is bounded by the cap, and a short run keeps the full schedule's
         number of steps (at 3,000 iterations 24 steps of 5% would grow the model 3.2x at most, short of any cap)."""
         cls = STRATEGIES[self.cfg.strategy]
         base = cls.default_config()
@@ -44,11 +45,10 @@ class Schedule:
         c = replace(base, densify_from=start, densify_until=stop, densify_every=every,
                     big_world_after=self.scaled(base.big_world_after),
                     opacity_reset_every=self.scaled(base.opacity_reset_every),
-                    opacity_clamp_every=None if base.opacity_clamp_every is None else self.scaled(base.opacity_clamp_every),
-                    max_gaussians=self.cfg.max_gaussians if self.cfg.max_gaussians is not None or cls.name != "mcmc"
-                    else MCMC_DEFAULT_CAP)
+                    opacity_clamp_every=None if base.opacity_clamp_every is None
+                    else self.scaled(base.opacity_clamp_every))
         given = {name: value for name in SCHEDULE_OVERRIDES if (value := getattr(self.cfg, name)) is not None}
-        return cls(replace(c, **given), self.cfg.dc4gs)
+        return cls.for_run(replace(c, **given), self.cfg)
 
     def evaluations(self) -> list[int]:
         """The iterations after which the test views are evaluated: --eval-at, else EVALUATE_AT scaled; the

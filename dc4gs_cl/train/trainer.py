@@ -121,71 +121,47 @@ class Trainer:
     def step(self) -> None:
         """One iteration: one view (the model stepped by its gradients, fused into their computation), or with
         --batch B, B views (the model stepped by their mean; optim/batch_gradients.py)."""
-        if self.batch is None:
-            self._step_view()
-        else:
-            self._step_batch()
+        self._queue_iteration()
         if self.iteration in self.cfg.save_at:   # before this iteration's densification and opacity limits, as Inria saves
             self.save_model()
         if self.strategy.apply(self.actions, self.iteration, self.model, self.rng) is not None:
             if self.context.check.enabled:
                 self.context.check("densify", self.model.download().params)
 
-    def _step_view(self) -> None:
-        """An iteration of one view. The host waits once, once the whole iteration is queued, for the view's
-        counts alone (read as soon as they are final, before the loss: the device runs the rest of the iteration
-        while the host goes on): a view whose pairs overflowed the capacity it was given (render/isect.py), or
-        whose Gaussians spanning the backward's runs its carry rows (RasterizeBackward.plan), changed nothing on
-        the device (kernels/common.h FRAME_VOID), and runs again, host state rewound, with room for them."""
-        before = self._host_state()
-        while True:
-            counts = self._queue_iteration()
-            if not self._overflowed(counts):
-                return
-            self._restore(before)
-
-    def _queue_iteration(self) -> FrameCounts:
-        """Queue an iteration of one view, its step fused into the projection's backward; nothing is read back
-        (the view's counts are queued for reading: returned)."""
-        self.iteration += 1
-        it = self.iteration
-        cam, background = self.next_camera(), self._background()
-        self.actions = Actions() if self.frozen else self.strategy.actions(it)
-        res, sums, layout, counts = self._queue_view(it, cam, background)
-        if self.actions.optimiser_step:
-            lrs = self.schedule.learning_rates(it, self.scene.extent, self.actions.opacity_steps)
-            self.project_backward.step(self.params, cam, self.sh_degree, res, sums, layout,
-                                       self.model.adam.step_value(lrs), self.model.adam.m, self.model.adam.v,
-                                       self.regularizers())
-            self.strategy.after_step(it, self.params, lrs, self.cfg.seed, self.cfg.mcmc_noise_lr)
-        return counts
-
-    def _step_batch(self) -> None:
-        """An iteration of cfg.batch views: this process's share of them queued one by one, each view's gradients
-        added to the batch's (a view that overflowed runs again, as in _step_view, before the next is queued:
-        one wait per view), the processes' sums added, then one step on their mean. Every process draws every
-        view of the batch, so that all keep the same generator."""
+    def _queue_iteration(self) -> None:
+        """Queue an iteration up to its densification: its views, each queued until it fits (_queue_fitting), and
+        where the actions say, the optimiser step, then the strategy's after it (queued after the last view's wait:
+        the device still has that view's loss and backward to run). With a batch, this process's share of its views,
+        each view's gradients added to the batch's, the processes' sums added, then one step on their mean; every
+        process draws every view of the batch, so that all keep the same generator."""
         self.iteration += 1
         it = self.iteration
         views = [(self.next_camera(), self._background()) for _ in range(self.cfg.batch)]
         self.actions = Actions() if self.frozen else self.strategy.actions(it)
-        summed = self.batch.start(self.model.n)
-        for cam, background in self.group.share(views):
-            calls = self.loss.calls
-            while True:
-                res, sums, layout, counts = self._queue_view(it, cam, background)
-                if self.actions.optimiser_step:
-                    self.project_backward.gradients(self.params, cam, self.sh_degree, res, sums, layout, summed,
-                                                    accumulate=True)
-                if not self._overflowed(counts):
-                    break
-                self.loss.calls = calls
+        step_args = None   # the optimiser's Adam step (counted once, however often a view runs), moments, regularisers
         if self.actions.optimiser_step:
-            self.group.sum_gradients(self.batch.sums)
             lrs = self.schedule.learning_rates(it, self.scene.extent, self.actions.opacity_steps)
-            self.batch.step(self.params, self.cfg.batch, self.model.adam.step_value(lrs), self.model.adam.m,
-                            self.model.adam.v, self.regularizers())
-            self.strategy.after_step(it, self.params, lrs, self.cfg.seed, self.cfg.mcmc_noise_lr)
+            adam = self.model.adam
+            step_args = (adam.step_value(lrs), adam.m, adam.v, self.strategy.regularizers(self.model.n))
+        summed = None if self.batch is None else self.batch.start(self.model.n)
+        for cam, background in self.group.share(views):
+            self._queue_fitting(it, cam, background, step_args, summed)
+        if step_args is not None:
+            if summed is not None:
+                self.group.sum_gradients(self.batch.sums)
+                self.batch.step(self.params, self.cfg.batch, *step_args)
+            self.strategy.after_step(it, self.params, lrs, self.cfg.seed)
+
+    def _queue_fitting(self, it: int, cam: Camera, background: np.ndarray, step_args: tuple | None,
+                       summed: dict | None) -> None:
+        """Queue a view (_queue_view) and wait for its counts alone, read as soon as they are final, before the loss
+        (the device runs the rest of the view while the host goes on): a view whose pairs overflowed the capacity it
+        was given (render/isect.py), or whose Gaussians spanning the backward's runs its carry rows
+        (RasterizeBackward.plan), changed nothing on the device (kernels/common.h FRAME_VOID), and runs again with
+        room for them, the loss' call count (the one host state a view changes) rewound."""
+        calls = self.loss.calls
+        while self._overflowed(self._queue_view(it, cam, background, step_args, summed)):
+            self.loss.calls = calls
 
     def _background(self) -> np.ndarray:
         """A view's background: --random-background draws a colour from the run's generator (the Inria code's,
@@ -204,10 +180,12 @@ class Trainer:
             self.carry_rows = int(counts["SPANNING"] * (1 + BUFFER_HEADROOM))
         return True
 
-    def _queue_view(self, it: int, cam: Camera, background: np.ndarray) -> tuple:
-        """Queue a view of iteration it up to its per-Gaussian sums (the render, the loss, what the strategy
-        gathers, the rasterizer backward); nothing is read back. Returns (render result, sums, their layout, the
-        view's counts queued for reading)."""
+    def _queue_view(self, it: int, cam: Camera, background: np.ndarray, step_args: tuple | None,
+                    summed: dict | None) -> FrameCounts:
+        """Queue a view of iteration it: the render, the loss, what the strategy gathers, the rasterizer backward
+        and, where the iteration steps (step_args: ProjectBackward.step's Adam step, moments and regularisers), the
+        projection backward: Adam's step fused in, or with a batch (summed: its sums' buffers) the view's gradients
+        added to the batch's. Nothing is read back (the view's counts are queued for reading: returned)."""
         rt, s, ws = self.rt, self.strategy, self.context.ws
         self.context.check.at = f"iteration {it}"
         target, keep = self.scene.image(cam), self.scene.mask(cam)
@@ -230,39 +208,25 @@ class Trainer:
                   kept=np.count_nonzero(keep) if keep is not None else 0)
         sums, layout = self.rasterize_backward.folding(res, dL_dimage, background, gathering.layout,
                                                        gathering.geometry, keep_buf, gathering.window, plan)
-        return res, sums, layout, counts
-
-    def regularizers(self) -> tuple[float, float] | None:
-        """MCMC's loss terms opacity_reg mean(opacity) + scale_reg mean(scale), as the gradient factors the
-        projection's backward takes (per Gaussian and per scale value); None for the other strategies."""
-        if self.strategy.name != "mcmc":
-            return None
-        return self.cfg.opacity_reg / self.model.n, self.cfg.scale_reg / (3 * self.model.n)
-
-    def _host_state(self) -> tuple:
-        """What queueing an iteration changes on the host (step() rewinds it to run a view again)."""
-        return (self.iteration, self.rng.bit_generator.state, list(self.camera_stack), self.loss.calls,
-                dict(self.model.adam.steps))
-
-    def _restore(self, state: tuple) -> None:
-        """Back to a _host_state (copies: a view may run again more than once, pairs then carry rows short)."""
-        self.iteration, rng, camera_stack, self.loss.calls, steps = state
-        self.rng.bit_generator.state = rng
-        self.camera_stack = list(camera_stack)
-        self.model.adam.steps = dict(steps)
+        if step_args is not None and summed is None:
+            self.project_backward.step(self.params, cam, self.sh_degree, res, sums, layout, *step_args)
+        elif step_args is not None:
+            self.project_backward.gradients(self.params, cam, self.sh_degree, res, sums, layout, summed,
+                                            accumulate=True)
+        return counts
 
     def start_from(self, gs: GaussianSet, iteration: int) -> None:
         """Continue from these Gaussians (parameters and moments) at this iteration, the window restarted
         (benchmarks start their configurations from one trained state this way)."""
         self.model.upload(gs)
-        self.strategy.window.reset(gs.n)
+        self.strategy.reset(gs.n)
         self.iteration = iteration
 
     def memory_held(self) -> dict[str, int]:
         """Device bytes held now, by what holds them (capacity included)."""
         m = self.model
         return {"parameters": m.params.nbytes, "Adam m": m.adam.m.nbytes, "Adam v": m.adam.v.nbytes,
-                "window statistics": self.strategy.window.rows.nbytes, **self.context.ws.held()}
+                **self.strategy.memory_held(), **self.context.ws.held()}
 
     # checkpoints --------------------------------------------------------------------------------------
     def _folder_for(self, purpose: str) -> RunFolder:
@@ -276,9 +240,9 @@ class Trainer:
         windows are summed into process 0's (the others' restart at zero, so that a run resumed from it, with any
         process count, goes on from the same state), and their models are checked to be the same."""
         gs = self.model.download()
-        window = self.group.reduce_window(self.strategy.window.download())
+        window = self.strategy.checkpoint_state()
         if self.group.size > 1:
-            self.strategy.window.upload(window if self.group.rank == 0 else {k: np.zeros_like(v) for k, v in window.items()})
+            self.strategy.restore_state(window, holder=self.group.rank == 0)
             self.group.check_same(gs.params, f"iteration {self.iteration}")
         if not self.group.writes:
             return
@@ -304,9 +268,7 @@ class Trainer:
             self.model.upload(GaussianSet(state.params, state.m, state.v))
         except (ValueError, KeyError):
             raise InputError(path, "checkpoint arrays do not match the model layout") from None
-        # a parallel run's window is process 0's (save_checkpoint)
-        self.strategy.window.upload(state.window if self.group.rank == 0
-                                    else {k: np.zeros_like(v) for k, v in state.window.items()})
+        self.strategy.restore_state(state.window, holder=self.group.rank == 0)   # a parallel run's: process 0's
         self.model.adam.steps = state.adam_steps
         self.rng.bit_generator.state = state.rng
         self.camera_stack = state.camera_stack
