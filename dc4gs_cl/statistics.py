@@ -105,7 +105,7 @@ SIDE_TOTAL, SIDE_LEFT = "side_total", "side_left"
 SKIP_SPLIT = "skip_split"
 NO_WINDOW = Record("WIN", [(SKIP_SPLIT, 1)])   # the split geometry without a window: every Gaussian tracked
 # The window columns that hold a largest value or a flag, not a sum over the views: the windows of processes
-# training together (parallel.py) combine by their maximum there, by their sum everywhere else
+# training together (train/parallel.py) combine by their maximum there, by their sum everywhere else
 MAX_COLUMNS = (MAX_RADIUS, SKIP_SPLIT)
 
 PIXELGS_DEPTH_FRACTION = 0.37   # Pixel-GS: gradients of Gaussians nearer than this x extent are scaled down

@@ -18,7 +18,7 @@ from helpers import straight_and_resumed
 from dc4gs_cl.config import TrainConfig
 from dc4gs_cl.densify import DC4GSConfig
 from dc4gs_cl.errors import InputError
-from dc4gs_cl.parallel import SingleProcess
+from dc4gs_cl.train.parallel import SingleProcess
 from dc4gs_cl.run_folder import CHECKPOINT
 from dc4gs_cl.scene.loader import load_scene
 from dc4gs_cl.statistics import MAX_COLUMNS, StatisticsSpec
@@ -142,7 +142,7 @@ def test_two_processes_stopped_and_resumed_end_where_they_would_have(two_process
 def test_started_by_a_launcher_without_mpi4py_says_how_to_get_it(monkeypatch):
     """A process an MPI launcher started among several, where mpi4py does not import: one line naming the extra;
     started alone (no launcher's variables, or a world of one), no MPI at all."""
-    from dc4gs_cl.parallel import SIZE_VARIABLES, process_group
+    from dc4gs_cl.train.parallel import SIZE_VARIABLES, process_group
     for name in SIZE_VARIABLES:
         monkeypatch.delenv(name, raising=False)
     assert type(process_group()) is SingleProcess
@@ -158,7 +158,7 @@ def test_processes_whose_models_differ_stop_with_one_line():
     """MPIGroup.check_same on a world whose processes hash their models differently: a DeviceError naming the first
     process that differs (the command line prints it as one line, exit 2); equal hashes pass."""
     from dc4gs_cl.errors import DeviceError
-    from dc4gs_cl.parallel import MPIGroup
+    from dc4gs_cl.train.parallel import MPIGroup
 
     class World:   # what check_same asks of a communicator, the other process's model hash given
         def __init__(self, other):

@@ -13,7 +13,7 @@ import time
 import numpy as np
 
 from dc4gs_cl.model import group_widths
-from dc4gs_cl.parallel import device_of_process, process_group
+from dc4gs_cl.train.parallel import device_of_process, process_group
 from dc4gs_cl.runtime import DeviceArrays, Runtime, describe
 
 

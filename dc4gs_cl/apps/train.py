@@ -1,6 +1,6 @@
 """`dc4gs-cl train`: its arguments (the flags config.TRAIN_FLAGS declares, then the command's own), the run's
 settings from them (train_config), and the training run in its folder: one run per folder, resumed from its
-checkpoint, under mpirun one process of several (parallel.py)."""
+checkpoint, under mpirun one process of several (train/parallel.py)."""
 from __future__ import annotations
 
 import argparse
@@ -80,9 +80,9 @@ def train_config(args, run: RunFolder | None, processes: int = 1) -> TrainConfig
 
 
 def cmd_train(args) -> int:
-    from ..parallel import process_group
+    from ..train.parallel import process_group
 
-    group = process_group()   # under mpirun: the processes training together (parallel.py)
+    group = process_group()   # under mpirun: the processes training together (train/parallel.py)
     if args.out is None:
         if args.resume:
             raise InputError(None, "--resume needs --out (the folder of the run to continue)")
@@ -104,7 +104,7 @@ def _train_locked(args, run: RunFolder, group) -> int:
     nothing)."""
     from ..evaluation.evaluate import per_view_lines, summary
     from ..evaluation.metrics import lpips_metric
-    from ..parallel import device_of_process
+    from ..train.parallel import device_of_process
     from ..runtime import Runtime, describe
     from ..train import Stopped, Trainer
     from ..train.log import progress_mode

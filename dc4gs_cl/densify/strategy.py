@@ -99,7 +99,7 @@ class Strategy:
         self.white_background = False
         # an observer of the steps (a tool recording their decisions): densify calls it first, with (gs, window, it)
         self.before_densify: Callable[[GaussianSet, dict[str, np.ndarray], int], None] | None = None
-        # the window over every process's views (parallel.py; the trainer sets it): identity for one process
+        # the window over every process's views (train/parallel.py; the trainer sets it): identity for one process
         self.reduce_window: Callable[[dict[str, np.ndarray]], dict[str, np.ndarray]] = lambda window: window
 
     @classmethod

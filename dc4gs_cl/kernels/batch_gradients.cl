@@ -1,6 +1,6 @@
 // batch_gradients.cl: Adam's step on the parameters from gradients gathered over a batch of views (optim/batch_gradients.py):
 // each view's project_backward.cl added its gradients (FUSED_ADAM=0, ACCUMULATE=1), the processes' sums were
-// added where several train together (parallel.py), and this steps every Gaussian by their mean. Built with
+// added where several train together (train/parallel.py), and this steps every Gaussian by their mean. Built with
 // FUSED_ADAM=1, ACCUMULATE=0.
 //
 // One work-item per Gaussian. Buffers (N = Gaussian count, float32):

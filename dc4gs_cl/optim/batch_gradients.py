@@ -1,4 +1,4 @@
-"""Training on a batch of views per step (--batch B, and the processes of a parallel run, parallel.py): each view's
+"""Training on a batch of views per step (--batch B, and the processes of a parallel run, train/parallel.py): each view's
 projection backward adds its parameters' gradients to the batch's (kernels/project_backward.cl, ACCUMULATE), the
 processes add theirs, and Adam steps once on their mean (kernels/batch_gradients.cl). The learning rates and Adam's
 betas follow Grendel's rule for a batch of B views (Zhao et al., "On Scaling Up 3D Gaussian Splatting Training",

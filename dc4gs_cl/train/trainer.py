@@ -31,7 +31,7 @@ from ..errors import DeviceError, InputError
 from ..model import GaussianSet, initial_model
 from ..optim.batch_gradients import BatchGradients, batch_adam_config
 from ..optim.trainable import TrainableGaussians
-from ..parallel import SingleProcess
+from .parallel import SingleProcess
 from ..render import DeviceGaussians, Renderer, RenderOptions, Tuning
 from ..render.stage import FrameCounts
 from ..run_folder import Checkpoint, RunFolder, TrainingState

@@ -16,9 +16,9 @@ import time
 
 import numpy as np
 
-from .errors import DeviceError, InputError
-from .runtime import DeviceArrays
-from .statistics import MAX_COLUMNS
+from ..errors import DeviceError, InputError
+from ..runtime import DeviceArrays
+from ..statistics import MAX_COLUMNS
 
 # what MPI launchers set in each process they start: the world's size (Open MPI, MPICH's Hydra, PMIx, MVAPICH)
 SIZE_VARIABLES = ("OMPI_COMM_WORLD_SIZE", "PMI_SIZE", "PMIX_SIZE", "MV2_COMM_WORLD_SIZE")
@@ -127,7 +127,7 @@ def process_group() -> SingleProcess:
 def device_of_process(group: SingleProcess, spec: str | None) -> str | None:
     """The device a process trains on: the one named (--device or $DC4GS_DEVICE, the same for every process), else,
     where a host has several GPUs, the local process's turn among them; None: the default device."""
-    from .runtime import DEVICE_ENV, is_simulator, list_devices
+    from ..runtime import DEVICE_ENV, is_simulator, list_devices
     import pyopencl as cl
     if group.size == 1 or spec is not None or os.environ.get(DEVICE_ENV):
         return spec
