@@ -6,8 +6,9 @@ One iteration (docs/architecture.md draws it module by module):
     render (render/) -> loss and dL/dimage (backward/loss.py) -> what the strategy gathers this view and where
     it folds it (plain data; its split geometry, for DCS) -> rasterizer backward into per-Gaussian sums
     (backward/), the view's statistics folded into the strategy's window on the way -> projection backward
-    with Adam's step fused in, where the recipe steps -> the strategy densifies and limits opacities where its
-    schedule says.
+    with Adam's step fused in, where the recipe steps (a batch: each view's gradients added, one step on their
+    mean) -> the strategy's step after it (MCMC's position noise) -> the strategy densifies and limits opacities
+    where its schedule says.
 Per iteration the host queues everything, the target image's upload included, and then waits once, for the view's
 counts alone (visible Gaussians, pairs: render/isect.py; Gaussians spanning the backward's runs: backward/), read as
 soon as they are final, before the loss: the device runs the loss and the backward while the host goes on to the
