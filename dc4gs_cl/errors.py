@@ -3,7 +3,6 @@
 The CLI turns any `InputError` into that line on stderr and a non-zero exit; everything else is a bug
 and keeps its traceback.
 """
-
 from __future__ import annotations
 
 import os

@@ -3,7 +3,6 @@
 A file is written under a temporary name beside its final one and renamed into place (a rename within
 one folder is atomic); a folder of renders is filled under a temporary name and swapped in whole.
 """
-
 from __future__ import annotations
 
 import contextlib
@@ -19,7 +18,7 @@ from typing import Callable
 from .errors import OutputError
 
 
-TEMPORARY_NAME = re.compile(r"\..+\.[0-9a-f]{8}\.(tmp|old)(\.[A-Za-z0-9]+)?")  # temporary_sibling's names
+TEMPORARY_NAME = re.compile(r"\..+\.[0-9a-f]{8}\.(tmp|old)(\.[A-Za-z0-9]+)?")   # temporary_sibling's names
 
 
 def temporary_sibling(path: Path, kind: str = "tmp") -> Path:

@@ -1,7 +1,6 @@
 """--check-finite: each stage's outputs read back after it runs, and the run stopped at the first NaN or
 Inf, named by stage, buffer and where in the run it happened. Off (the default) it costs nothing; on, it
 waits for every stage, so it is a debugging switch, not a training mode."""
-
 from __future__ import annotations
 
 import numpy as np
@@ -14,10 +13,8 @@ class NonFiniteError(Exception):
     def __init__(self, stage: str, buffer: str, at: str, bad: int, total: int, first: tuple):
         self.stage, self.buffer, self.at = stage, buffer, at
         where = f"{at}: " if at else ""
-        super().__init__(
-            f"{where}stage {stage} wrote {bad:,} NaN/Inf of {total:,} values in {buffer} "
-            f"(first at index {', '.join(map(str, first))})"
-        )
+        super().__init__(f"{where}stage {stage} wrote {bad:,} NaN/Inf of {total:,} values in {buffer} "
+                         f"(first at index {', '.join(map(str, first))})")
 
 
 class FiniteCheck:

@@ -1,7 +1,6 @@
 """Rotations and principal axes of Gaussians in float64 NumPy: one module that the host's density control
 and the float64 references both use (the kernels have their own, checked against the references), and the
 camera paths (scene/paths.py)."""
-
 from __future__ import annotations
 
 import numpy as np
@@ -16,14 +15,10 @@ def quat_to_rotmat(q: np.ndarray) -> np.ndarray:
     rotates = n > QUAT_NORM_MIN
     q = np.where(rotates, q / np.where(rotates, n, 1), np.array([1.0, 0, 0, 0]))
     w, x, y, z = q.T
-    return np.stack(
-        [
-            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
-            np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
-            np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
-        ],
-        1,
-    )
+    return np.stack([
+        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
+        np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
+        np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1)], 1)
 
 
 def rotmat_to_quat(R: np.ndarray) -> np.ndarray:
@@ -49,7 +44,7 @@ def slerp(q0: np.ndarray, q1: np.ndarray, u: float) -> np.ndarray:
     if np.dot(q0, q1) < 0:
         q1 = -q1
     cos = min(float(np.dot(q0, q1)), 1.0)
-    if cos > 1 - 1e-9:  # (nearly) the same rotation: the chord is the arc
+    if cos > 1 - 1e-9:   # (nearly) the same rotation: the chord is the arc
         q = (1 - u) * q0 + u * q1
         return q / np.linalg.norm(q)
     theta = np.arccos(cos)

@@ -9,7 +9,6 @@ A `Record` is the one description both sides use:
   `pack()` fills the NumPy value pyopencl sends. All lanes are 4 bytes, so the C struct has no padding
   and its layout is the NumPy dtype's (tests/test_layout.py checks it on the device).
 """
-
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -22,8 +21,8 @@ LANE_TYPES = {"float": np.float32, "int": np.int32, "uint": np.uint32}
 @dataclass(frozen=True)
 class Field:
     name: str
-    width: int = 1  # lanes
-    lane: str = "float"  # float, int or uint
+    width: int = 1            # lanes
+    lane: str = "float"       # float, int or uint
 
 
 class Record:
@@ -68,12 +67,8 @@ class Record:
 
     def views(self, rows: np.ndarray) -> dict[str, np.ndarray]:
         """(n, width) rows -> name: (n,) for one-lane fields, (n, width) otherwise (views, not copies)."""
-        return {
-            f.name: rows[:, self.offsets[f.name]]
-            if f.width == 1
-            else rows[:, self.offsets[f.name] : self.offsets[f.name] + f.width]
-            for f in self.fields
-        }
+        return {f.name: rows[:, self.offsets[f.name]] if f.width == 1
+                else rows[:, self.offsets[f.name]:self.offsets[f.name] + f.width] for f in self.fields}
 
     def rows(self, values: dict[str, np.ndarray]) -> np.ndarray:
         """The inverse of views: name -> (n,) or (n, width) arrays -> (n, width) float32 rows."""
@@ -83,12 +78,8 @@ class Record:
     # structs passed by value --------------------------------------------------------------------------
     @property
     def dtype(self) -> np.dtype:
-        return np.dtype(
-            [
-                (f.name, LANE_TYPES[f.lane]) if f.width == 1 else (f.name, LANE_TYPES[f.lane], f.width)
-                for f in self.fields
-            ]
-        )
+        return np.dtype([(f.name, LANE_TYPES[f.lane]) if f.width == 1 else (f.name, LANE_TYPES[f.lane], f.width)
+                         for f in self.fields])
 
     def c_struct(self, type_name: str) -> str:
         members = "".join(f"    {f.lane} {f.name}{'' if f.width == 1 else f'[{f.width}]'};\n" for f in self.fields)

@@ -8,7 +8,6 @@ Layout (one row per Gaussian, float32, C-contiguous):
   sh             (N, K, 3)   K = (sh_degree + 1)^2 SH coefficients, coefficient-major, RGB innermost;
                              sh[:, 0] is the DC band ("f_dc"), sh[:, 1:] the rest ("f_rest")
 """
-
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -27,9 +26,9 @@ def group_widths(sh_coeffs: int) -> dict[str, int]:
     return {"means": 3, "log_scales": 3, "quats": 4, "opacity_logits": 1, "sh": 3 * sh_coeffs}
 
 
-INIT_OPACITY = 0.1  # opacity of a freshly initialised Gaussian
-KNN_NEIGHBOURS = 3  # initial scale: sqrt(mean squared distance to this many neighbours)
-KNN_MIN_MEAN_SQ_DIST = 1e-7  # floor on that mean squared distance (Inria's simple-knn)
+INIT_OPACITY = 0.1             # opacity of a freshly initialised Gaussian
+KNN_NEIGHBOURS = 3             # initial scale: sqrt(mean squared distance to this many neighbours)
+KNN_MIN_MEAN_SQ_DIST = 1e-7    # floor on that mean squared distance (Inria's simple-knn)
 
 
 @dataclass
@@ -68,13 +67,8 @@ class GaussianModel:
     def from_groups(groups: dict[str, np.ndarray]) -> "GaussianModel":
         """The inverse of groups()."""
         n = len(groups["means"])
-        return GaussianModel(
-            means=groups["means"],
-            log_scales=groups["log_scales"],
-            quats=groups["quats"],
-            opacity_logits=groups["opacity_logits"].reshape(n),
-            sh=groups["sh"].reshape(n, -1, 3),
-        )
+        return GaussianModel(means=groups["means"], log_scales=groups["log_scales"], quats=groups["quats"],
+                             opacity_logits=groups["opacity_logits"].reshape(n), sh=groups["sh"].reshape(n, -1, 3))
 
     # activations -------------------------------------------------------------------------------
     @property
@@ -105,11 +99,10 @@ class GaussianSet:
     """The Gaussians in training, on the host (densification, checkpoints): everything per Gaussian that must
     stay aligned: parameters (name -> (n, width) float32 arrays in PARAM_GROUPS order) and their Adam moments
     m and v (same names and shapes)."""
-
     params: dict[str, np.ndarray]
     m: dict[str, np.ndarray]
     v: dict[str, np.ndarray]
-    aux: dict[str, np.ndarray] = field(default_factory=dict)  # (n,) values copied to clones and children
+    aux: dict[str, np.ndarray] = field(default_factory=dict)   # (n,) values copied to clones and children
 
     @property
     def n(self) -> int:
@@ -138,13 +131,8 @@ class GaussianSet:
 
 
 # initialisation --------------------------------------------------------------------------------
-def from_points(
-    points: np.ndarray,
-    colors: np.ndarray,
-    sh_degree: int = SH_MAX_DEGREE,
-    opacity: float = INIT_OPACITY,
-    scale_factor: float = 1.0,
-) -> GaussianModel:
+def from_points(points: np.ndarray, colors: np.ndarray, sh_degree: int = SH_MAX_DEGREE,
+                opacity: float = INIT_OPACITY, scale_factor: float = 1.0) -> GaussianModel:
     """Gaussians initialised from a point cloud, as 3DGS does: one per point, colour (RGB in [0, 1])
     in the SH DC band and the other bands zero, isotropic scale sqrt(mean squared distance to the
     KNN_NEIGHBOURS nearest points, floored at KNN_MIN_MEAN_SQ_DIST) times scale_factor, identity rotation,
@@ -171,7 +159,8 @@ def from_points(
     )
 
 
-def random_points(n: int, rng: np.random.Generator, half_extent: float = 1.3) -> tuple[np.ndarray, np.ndarray]:
+def random_points(n: int, rng: np.random.Generator,
+                  half_extent: float = 1.3) -> tuple[np.ndarray, np.ndarray]:
     """A cloud for scenes without SfM points, as 3DGS makes for NeRF-synthetic scenes: n points (float64)
     uniform in [-half_extent, half_extent]^3 and near-grey colours (float32) whose SH DC is uniform in
     [0, 1/255). The same rng state gives the same cloud."""
@@ -181,23 +170,18 @@ def random_points(n: int, rng: np.random.Generator, half_extent: float = 1.3) ->
 
 
 # k nearest neighbours --------------------------------------------------------------------------
-_CELL_OCCUPANCY = 3.0  # target count of points in a point's own cell (itself included)
-_KEY_BITS = 21  # bits per axis in a cell key; indices wrap, which only adds candidates
-_QUERY_BLOCK = 1 << 15  # queries whose 27 neighbour cells are looked up at once
-_PAIR_CHUNK = 1 << 20  # (query, candidate) pairs held at once: bounds memory to ~100 MB
+_CELL_OCCUPANCY = 3.0          # target count of points in a point's own cell (itself included)
+_KEY_BITS = 21                 # bits per axis in a cell key; indices wrap, which only adds candidates
+_QUERY_BLOCK = 1 << 15         # queries whose 27 neighbour cells are looked up at once
+_PAIR_CHUNK = 1 << 20          # (query, candidate) pairs held at once: bounds memory to ~100 MB
 _OFFSETS = np.array([(i, j, k) for i in (-1, 0, 1) for j in (-1, 0, 1) for k in (-1, 0, 1)])
 
 
-RANDOM_INIT_POINTS = 100_000  # scenes without SfM points start from this many random Gaussians
+RANDOM_INIT_POINTS = 100_000   # scenes without SfM points start from this many random Gaussians
 
 
-def initial_model(
-    points: np.ndarray | None,
-    colors: np.ndarray | None,
-    rng: np.random.Generator,
-    sh_degree: int = SH_MAX_DEGREE,
-    **init,
-) -> GaussianModel:
+def initial_model(points: np.ndarray | None, colors: np.ndarray | None, rng: np.random.Generator,
+                  sh_degree: int = SH_MAX_DEGREE, **init) -> GaussianModel:
     """The Gaussians training starts from: the SfM points, or random points when a scene has none (init:
     from_points' opacity and scale_factor)."""
     if points is None:
@@ -300,7 +284,7 @@ def _grid_pass(pts, weight, lo, h, todo, k, out) -> np.ndarray:
     todo = todo[np.argsort(keys[todo], kind="stable")]  # sorted queries make the lookups cache-friendly
     failed = []
     for b in range(0, len(todo), _QUERY_BLOCK):
-        q = todo[b : b + _QUERY_BLOCK]
+        q = todo[b:b + _QUERY_BLOCK]
         qijk, x = ijk[q], pts[q]
         starts = np.empty((len(q), 27), dtype=np.int64)
         counts = np.empty((len(q), 27), dtype=np.int64)
@@ -331,7 +315,7 @@ def _brute_force(pts, weight, todo, k, out) -> None:
     n = len(pts)
     step = max(1, _PAIR_CHUNK // n)
     for s in range(0, len(todo), step):
-        q = todo[s : s + step]
+        q = todo[s:s + step]
         starts, counts = np.zeros((len(q), 1), dtype=np.int64), np.full((len(q), 1), n)  # one run: all
         out[q] = _k_nearest(pts, weight, np.arange(n), q, starts, counts, k)[0]
 

@@ -5,7 +5,6 @@ One `vertex` element of float32 properties, in this order:
 Normals are zero; f_rest is channel-major (f_rest index = channel * (K-1) + coefficient - 1); opacity is
 the logit, scales are logs and rot is (w, x, y, z), as stored in GaussianModel.
 """
-
 from __future__ import annotations
 
 import os
@@ -18,45 +17,28 @@ from .errors import InputError
 from .files import write_atomic
 from .model import GaussianModel
 
-_WRITE_ROWS = 1 << 16  # Gaussians converted and written at a time (bounded memory)
-_MAX_HEADER_BYTES = 1 << 20  # a longer header is not a PLY we can use
+_WRITE_ROWS = 1 << 16          # Gaussians converted and written at a time (bounded memory)
+_MAX_HEADER_BYTES = 1 << 20    # a longer header is not a PLY we can use
 
 # PLY scalar type names (both spellings) -> NumPy type without byte order.
 _TYPES = {
-    "char": "i1",
-    "int8": "i1",
-    "uchar": "u1",
-    "uint8": "u1",
-    "short": "i2",
-    "int16": "i2",
-    "ushort": "u2",
-    "uint16": "u2",
-    "int": "i4",
-    "int32": "i4",
-    "uint": "u4",
-    "uint32": "u4",
-    "float": "f4",
-    "float32": "f4",
-    "double": "f8",
-    "float64": "f8",
+    "char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1",
+    "short": "i2", "int16": "i2", "ushort": "u2", "uint16": "u2",
+    "int": "i4", "int32": "i4", "uint": "u4", "uint32": "u4",
+    "float": "f4", "float32": "f4", "double": "f8", "float64": "f8",
 }
 _FORMATS = {"ascii": None, "binary_little_endian": "<", "binary_big_endian": ">"}
 _REST_COUNTS = {3 * (sh_coeffs(d) - 1): d for d in range(SH_MAX_DEGREE + 1)}  # 0, 9, 24, 45
-_FIXED = (
-    ["x", "y", "z", "f_dc_0", "f_dc_1", "f_dc_2", "opacity"]
-    + [f"scale_{i}" for i in range(3)]
-    + [f"rot_{i}" for i in range(4)]
-)
+_FIXED = (["x", "y", "z", "f_dc_0", "f_dc_1", "f_dc_2", "opacity"]
+          + [f"scale_{i}" for i in range(3)] + [f"rot_{i}" for i in range(4)])
 
 
 def property_names(sh_degree: int) -> list[str]:
     """The vertex properties of a model of this SH degree, in file order."""
     rest = 3 * (sh_coeffs(sh_degree) - 1)
-    return (
-        ["x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_dc_2"]
-        + [f"f_rest_{i}" for i in range(rest)]
-        + ["opacity", "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3"]
-    )
+    return (["x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_dc_2"]
+            + [f"f_rest_{i}" for i in range(rest)]
+            + ["opacity", "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3"])
 
 
 def ply_header(count: int, sh_degree: int) -> bytes:
@@ -70,7 +52,6 @@ def ply_header(count: int, sh_degree: int) -> bytes:
 def write_ply(path: str | os.PathLike, model: GaussianModel) -> None:
     """Write `model` as a 3DGS PLY. Atomic: the file appears complete or not at all (a failed write
     leaves an existing file as it was and no temporary file behind). Creates missing parent folders."""
-
     def write(tmp: Path) -> None:
         with open(tmp, "xb") as f:  # "x": never clobber
             f.write(ply_header(len(model), model.sh_degree))
@@ -78,7 +59,6 @@ def write_ply(path: str | os.PathLike, model: GaussianModel) -> None:
                 f.write(_vertex_rows(model, start, start + _WRITE_ROWS).tobytes())
             f.flush()
             os.fsync(f.fileno())  # the data is on disk before the name points at it
-
     write_atomic(path, write)
 
 
@@ -87,18 +67,10 @@ def _vertex_rows(model: GaussianModel, start: int, stop: int) -> np.ndarray:
     sh = model.sh[start:stop]
     n = len(sh)
     rest = sh[:, 1:, :].transpose(0, 2, 1).reshape(n, -1)  # channel-major
-    return np.concatenate(
-        [
-            model.means[start:stop],
-            np.zeros((n, 3), np.float32),
-            sh[:, 0, :],
-            rest,
-            model.opacity_logits[start:stop, None],
-            model.log_scales[start:stop],
-            model.quats[start:stop],
-        ],
-        axis=1,
-    ).astype("<f4", copy=False)
+    return np.concatenate([
+        model.means[start:stop], np.zeros((n, 3), np.float32), sh[:, 0, :], rest,
+        model.opacity_logits[start:stop, None], model.log_scales[start:stop], model.quats[start:stop],
+    ], axis=1).astype("<f4", copy=False)
 
 
 def read_ply(path: str | os.PathLike) -> GaussianModel:
@@ -160,13 +132,8 @@ def read_header(path, f) -> tuple[str | None, list[dict]]:
             e = elements[-1]
             if len(words) == 3 and words[1] in _TYPES and words[2] not in e["props"]:
                 e["props"][words[2]] = _TYPES[words[1]]
-            elif (
-                len(words) == 5
-                and words[1] == "list"
-                and words[2] in _TYPES
-                and words[3] in _TYPES
-                and words[4] not in e["props"]
-            ):
+            elif (len(words) == 5 and words[1] == "list" and words[2] in _TYPES and words[3] in _TYPES
+                  and words[4] not in e["props"]):
                 e["props"][words[4]] = None
                 e["lists"][words[4]] = (_TYPES[words[2]], _TYPES[words[3]])
             else:
@@ -200,11 +167,8 @@ def _read_binary(path, f, order, before, vertex) -> np.ndarray:
     size = dtype.itemsize * vertex["count"]
     left = os.fstat(f.fileno()).st_size - f.tell()
     if left < size:  # checked before reading: a corrupt count must not allocate a huge buffer
-        raise InputError(
-            path,
-            f"truncated: the header promises {vertex['count']} vertices of "
-            f"{dtype.itemsize} bytes but only {max(left, 0) // dtype.itemsize} are there",
-        )
+        raise InputError(path, f"truncated: the header promises {vertex['count']} vertices of "
+                               f"{dtype.itemsize} bytes but only {max(left, 0) // dtype.itemsize} are there")
     return np.frombuffer(f.read(size), dtype=dtype)
 
 
@@ -229,17 +193,14 @@ def _skip_binary(path, f, order, element) -> None:
 def _read_ascii(path, f, before, vertex) -> dict[str, np.ndarray]:
     """The vertex columns of an ASCII body (one element row per line)."""
     skip, count, names = sum(e["count"] for e in before), vertex["count"], list(vertex["props"])
-    rows = f.read().split(b"\n")[skip : skip + count]
+    rows = f.read().split(b"\n")[skip:skip + count]
     try:
         values = np.array(b" ".join(rows).split(), dtype=np.float64)
     except ValueError:
         raise InputError(path, "malformed ASCII vertex data (a value is not a number)") from None
     if len(values) < count * len(names):
-        raise InputError(
-            path,
-            f"truncated: the header promises {count} vertices of {len(names)} values "
-            f"but only {len(values)} values are there",
-        )
+        raise InputError(path, f"truncated: the header promises {count} vertices of {len(names)} values "
+                               f"but only {len(values)} values are there")
     if len(values) > count * len(names):
         raise InputError(path, f"malformed ASCII vertex data (not {len(names)} values per line)")
     return dict(zip(names, values.reshape(count, len(names)).T))
@@ -256,7 +217,8 @@ def _to_model(path, cols, names: list[str]) -> GaussianModel:
         raise InputError(path, f"{bad.sum()} NaN or Inf values ({where})")
     n, rest = len(v), (len(names) - len(_FIXED)) // 3  # columns as in _FIXED, then f_rest
     sh = np.concatenate([v[:, None, 3:6], v[:, 14:].reshape(n, 3, rest).transpose(0, 2, 1)], axis=1)
-    model = GaussianModel(means=v[:, 0:3], log_scales=v[:, 7:10], quats=v[:, 10:14], opacity_logits=v[:, 6], sh=sh)
+    model = GaussianModel(means=v[:, 0:3], log_scales=v[:, 7:10], quats=v[:, 10:14], opacity_logits=v[:, 6],
+                          sh=sh)
     check_ranges(path, model)
     return model
 
@@ -264,15 +226,9 @@ def _to_model(path, cols, names: list[str]) -> GaussianModel:
 def check_ranges(path, model: GaussianModel) -> None:
     """InputError naming the first Gaussian whose mean or log scale lies beyond what the kernels and the exports
     keep finite (constants.MAX_ABS_MEAN, MAX_ABS_LOG_SCALE)."""
-    for what, values, limit in (
-        ("mean", model.means, MAX_ABS_MEAN),
-        ("log scale", model.log_scales, MAX_ABS_LOG_SCALE),
-    ):
+    for what, values, limit in (("mean", model.means, MAX_ABS_MEAN), ("log scale", model.log_scales, MAX_ABS_LOG_SCALE)):
         beyond = np.flatnonzero((np.abs(values) > limit).any(axis=1))
         if len(beyond):
             i = int(beyond[0])
-            raise InputError(
-                path,
-                f"{len(beyond)} Gaussians with a {what} beyond +-{limit:g} (Gaussian {i}: "
-                f"{', '.join(f'{x:g}' for x in values[i])})",
-            )
+            raise InputError(path, f"{len(beyond)} Gaussians with a {what} beyond +-{limit:g} (Gaussian {i}: "
+                                   f"{', '.join(f'{x:g}' for x in values[i])})")

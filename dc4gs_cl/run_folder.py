@@ -19,7 +19,6 @@ go through this module; every file is written atomically (files.py).
 `render --out` writes the same layout without the iterations (OUT/<split>/renders/, OUT/path-KIND/) and caches its
 scene's images there too.
 """
-
 from __future__ import annotations
 
 import contextlib
@@ -35,7 +34,7 @@ import numpy as np
 
 try:
     import fcntl
-except ImportError:  # Windows
+except ImportError:   # Windows
     fcntl = None
 
 from .config import TrainConfig
@@ -47,43 +46,22 @@ from .scene.camera import Scene
 
 CONFIG = "config.json"
 CHECKPOINT, PREVIOUS_CHECKPOINT = "checkpoint.npz", "checkpoint.prev.npz"
-CORRUPT_CHECKPOINT = "checkpoint.corrupt.npz"  # a checkpoint found corrupt, set aside when resuming past it
-LOCK = ".lock"  # held by the run writing the folder (RunFolder.locked), the holder's PID inside
+CORRUPT_CHECKPOINT = "checkpoint.corrupt.npz"   # a checkpoint found corrupt, set aside when resuming past it
+LOCK = ".lock"   # held by the run writing the folder (RunFolder.locked), the holder's PID inside
 RESULTS, PER_VIEW = "results.json", "per_view.json"
-ITERATION_KEY = "ours_"  # + N: the results' key and the views' folder of the model at iteration N (the Inria code's)
-RENDERS, GROUND_TRUTH = "renders", "gt"  # a views folder's renders and the images they are compared with
-UNDISTORTED = "undistorted"  # the scene's undistorted images, cached
+ITERATION_KEY = "ours_"   # + N: the results' key and the views' folder of the model at iteration N (the Inria code's)
+RENDERS, GROUND_TRUTH = "renders", "gt"   # a views folder's renders and the images they are compared with
+UNDISTORTED = "undistorted"   # the scene's undistorted images, cached
 METRICS = "metrics.jsonl"
 # The numbers a metrics row may hold (train/log.py writes them; report plots them), and stage_ms: stage -> ms
-METRIC_NUMBERS = (
-    "loss",
-    "train_psnr",
-    "gaussians",
-    "it_per_s",
-    "elapsed_s",
-    "test_psnr",
-    "test_ssim",
-    "test_lpips",
-    "test_lpips_alex",
-    "test_views",
-)
-RUN_FILES = (
-    CONFIG,
-    "cfg_args",
-    "cameras.json",
-    CHECKPOINT,
-    PREVIOUS_CHECKPOINT,
-    CORRUPT_CHECKPOINT,
-    RESULTS,
-    PER_VIEW,
-    METRICS,
-    "results.corrupt.json",
-    "per_view.corrupt.json",
-)
+METRIC_NUMBERS = ("loss", "train_psnr", "gaussians", "it_per_s", "elapsed_s", "test_psnr", "test_ssim", "test_lpips",
+                  "test_lpips_alex", "test_views")
+RUN_FILES = (CONFIG, "cfg_args", "cameras.json", CHECKPOINT, PREVIOUS_CHECKPOINT, CORRUPT_CHECKPOINT, RESULTS, PER_VIEW,
+             METRICS, "results.corrupt.json", "per_view.corrupt.json")
 RUN_DIRS = ("point_cloud", "test", "train")
-META = "meta"  # the checkpoint entry holding the JSON metadata
-CHECKSUM = "sha256"  # the metadata key holding checkpoint_checksum(arrays, meta)
-STATE_GROUPS = ("param", "m", "v", "window")  # TrainingState's array groups, "<group>/<name>", in its fields' order
+META = "meta"           # the checkpoint entry holding the JSON metadata
+CHECKSUM = "sha256"     # the metadata key holding checkpoint_checksum(arrays, meta)
+STATE_GROUPS = ("param", "m", "v", "window")   # TrainingState's array groups, "<group>/<name>", in its fields' order
 
 
 def checkpoint_checksum(arrays: dict[str, np.ndarray], meta: dict) -> str:
@@ -103,11 +81,9 @@ def _read_checkpoint_file(path: Path) -> tuple[dict[str, np.ndarray], dict]:
         meta = json.loads(bytes(arrays.pop(META)).decode())
         if not isinstance(meta, dict):
             raise ValueError("metadata is not a JSON object")
-    except Exception as e:  # zipfile, zlib and numpy raise a dozen kinds on a damaged archive; all mean "corrupt"
+    except Exception as e:   # zipfile, zlib and numpy raise a dozen kinds on a damaged archive; all mean "corrupt"
         raise InputError(path, f"corrupt checkpoint ({e.__class__.__name__}: {_one_line(e)})") from None
-    if CHECKSUM in meta and meta[CHECKSUM] != checkpoint_checksum(
-        arrays, meta
-    ):  # checkpoints before checksums have none
+    if CHECKSUM in meta and meta[CHECKSUM] != checkpoint_checksum(arrays, meta):   # checkpoints before checksums have none
         raise InputError(path, "corrupt checkpoint (checksum mismatch)")
     return arrays, meta
 
@@ -120,7 +96,7 @@ def _is_int(value) -> bool:
     return isinstance(value, int) and not isinstance(value, bool)
 
 
-def _is_number(value) -> bool:  # NaN included: a rate over no time is written as NaN
+def _is_number(value) -> bool:   # NaN included: a rate over no time is written as NaN
     return _is_int(value) or isinstance(value, float)
 
 
@@ -128,42 +104,34 @@ def _is_number(value) -> bool:  # NaN included: a rate over no time is written a
 class TrainingState:
     """What a checkpoint holds: all a run needs to continue bit for bit. The arrays are stored in STATE_GROUPS,
     the rest in the JSON metadata, with the Gaussian count."""
-
     config: TrainConfig
-    params: dict[str, np.ndarray]  # the Gaussians' parameters (name -> (n, width)) ...
-    m: dict[str, np.ndarray]  # ... and Adam's moments, same names and shapes
+    params: dict[str, np.ndarray]   # the Gaussians' parameters (name -> (n, width)) ...
+    m: dict[str, np.ndarray]        # ... and Adam's moments, same names and shapes
     v: dict[str, np.ndarray]
-    window: dict[str, np.ndarray]  # the densification window's columns
+    window: dict[str, np.ndarray]   # the densification window's columns
     iteration: int
     adam_steps: int
-    rng: dict  # the NumPy bit generator's state
+    rng: dict                       # the NumPy bit generator's state
     camera_stack: list[int]
-    train_cameras: list[str]  # their names: a run resumed with other images is refused
-    loss_sums: tuple[list[float], int] | None  # the loss's running sums and calls (None before metrics.jsonl)
+    train_cameras: list[str]        # their names: a run resumed with other images is refused
+    loss_sums: tuple[list[float], int] | None   # the loss's running sums and calls (None before metrics.jsonl)
 
     def entries(self) -> tuple[dict[str, np.ndarray], dict]:
         """The named arrays and metadata that RunFolder.write_checkpoint writes."""
         groups = dict(zip(STATE_GROUPS, (self.params, self.m, self.v, self.window)))
         arrays = {f"{group}/{k}": a for group, named in groups.items() for k, a in named.items()}
-        meta = {
-            "iteration": self.iteration,
-            "config": self.config.to_json(),
-            "adam_steps": self.adam_steps,
-            "rng": self.rng,
-            "camera_stack": self.camera_stack,
-            "train_cameras": self.train_cameras,
-            "gaussians": len(self.params["means"]),
-            "loss_sums": self.loss_sums,
-        }
+        meta = {"iteration": self.iteration, "config": self.config.to_json(), "adam_steps": self.adam_steps,
+                "rng": self.rng, "camera_stack": self.camera_stack, "train_cameras": self.train_cameras,
+                "gaussians": len(self.params["means"]), "loss_sums": self.loss_sums}
         return arrays, meta
 
 
 @dataclass
 class Checkpoint:
-    path: Path  # the file read
+    path: Path                      # the file read
     arrays: dict[str, np.ndarray]
     meta: dict
-    passed_over: list[InputError]  # newer checkpoints found corrupt
+    passed_over: list[InputError]   # newer checkpoints found corrupt
 
     def training_state(self, loss_stats: int) -> TrainingState:
         """The state the arrays and metadata hold (TrainingState.entries wrote them); InputError where they hold
@@ -173,24 +141,14 @@ class Checkpoint:
         params, m, v, window = map(named, STATE_GROUPS)
         try:
             loss_sums = meta.get("loss_sums")
-            if loss_sums is not None:  # checkpoints before metrics.jsonl have none
+            if loss_sums is not None:   # checkpoints before metrics.jsonl have none
                 sums, calls = loss_sums
                 loss_sums = [float(x) for x in sums], int(calls)
                 if len(sums) != loss_stats:
                     raise ValueError(f"loss_sums holds {len(sums)} sums")
-            state = TrainingState(
-                TrainConfig.from_json(meta["config"]),
-                params,
-                m,
-                v,
-                window,
-                meta["iteration"],
-                meta["adam_steps"],
-                meta["rng"],
-                meta["camera_stack"],
-                meta["train_cameras"],
-                loss_sums,
-            )
+            state = TrainingState(TrainConfig.from_json(meta["config"]), params, m, v, window, meta["iteration"],
+                                  meta["adam_steps"], meta["rng"], meta["camera_stack"], meta["train_cameras"],
+                                  loss_sums)
             n = meta["gaussians"]
         except (KeyError, TypeError, ValueError, InputError) as e:
             raise InputError(self.path, f"corrupt checkpoint ({e.__class__.__name__}: {e})") from None
@@ -232,11 +190,8 @@ class RunFolder:
 
     def rendered_iterations(self, split: str) -> list[int]:
         """The iterations whose views of a split were rendered (views_dir), in order."""
-        return sorted(
-            int(m.group(1))
-            for d in (self.path / split).glob(f"{ITERATION_KEY}*")
-            if (m := re.fullmatch(rf"{ITERATION_KEY}(\d+)", d.name)) and d.is_dir()
-        )
+        return sorted(int(m.group(1)) for d in (self.path / split).glob(f"{ITERATION_KEY}*")
+                      if (m := re.fullmatch(rf"{ITERATION_KEY}(\d+)", d.name)) and d.is_dir())
 
     def path_frames_dir(self, kind: str, iteration: int | None = None) -> Path:
         """Where render --path writes the frames of a camera path of this KIND: path-KIND/ours_N/ for the model at
@@ -273,15 +228,13 @@ class RunFolder:
         except OSError as e:
             raise OutputError(self.path, f"cannot be made or written ({e.strerror})") from e
         try:
-            if fcntl is not None:  # (not on Windows: no lock there)
+            if fcntl is not None:   # (not on Windows: no lock there)
                 try:
                     fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
                 except OSError:
                     holder = os.pread(fd, 32, 0).decode(errors="replace").strip() or "unknown"
-                    raise InputError(
-                        self.path,
-                        f"is in use by another run (PID {holder}): wait for it to end, or train into another --out",
-                    ) from None
+                    raise InputError(self.path, f"is in use by another run (PID {holder}): wait for it to end, or "
+                                                "train into another --out") from None
             os.ftruncate(fd, 0)
             os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
             yield self
@@ -306,30 +259,14 @@ class RunFolder:
         # the Inria code's Namespace, with what is true of this run only: no source_path for the built-in scene
         # (it has no folder), images only where that folder is the scene's, no data_device (there is no CUDA)
         root = Path(scene.root)
-        values = {
-            "sh_degree": cfg.sh_degree,
-            **({"source_path": str(root.resolve())} if root.exists() else {}),
-            "model_path": str(self.path.resolve()),
-            **({"images": "images"} if (root / "images").is_dir() else {}),
-            "resolution": cfg.resolution or -1,
-            "white_background": cfg.white_background,
-            "eval": cfg.test_every > 0,
-        }
+        values = {"sh_degree": cfg.sh_degree, **({"source_path": str(root.resolve())} if root.exists() else {}),
+                  "model_path": str(self.path.resolve()), **({"images": "images"} if (root / "images").is_dir() else {}),
+                  "resolution": cfg.resolution or -1, "white_background": cfg.white_background, "eval": cfg.test_every > 0}
         cfg_args = "Namespace(" + ", ".join(f"{k}={v!r}" for k, v in values.items()) + ")"
         write_atomic(self.path / "cfg_args", lambda tmp: tmp.write_text(cfg_args))
-        cams = [
-            {
-                "id": i,
-                "img_name": Path(c.name).stem,
-                "width": c.width,
-                "height": c.height,
-                "position": c.center.tolist(),
-                "rotation": c.R.T.tolist(),
-                "fy": c.fy,
-                "fx": c.fx,
-            }
-            for i, c in enumerate(scene.train + scene.test)
-        ]
+        cams = [{"id": i, "img_name": Path(c.name).stem, "width": c.width, "height": c.height,
+                 "position": c.center.tolist(), "rotation": c.R.T.tolist(), "fy": c.fy, "fx": c.fx}
+                for i, c in enumerate(scene.train + scene.test)]
         write_json(self.path / "cameras.json", cams)
 
     def read_config(self) -> TrainConfig:
@@ -337,32 +274,21 @@ class RunFolder:
             raise InputError(self.path, "not a training output folder (no config.json)")
         try:
             return TrainConfig.from_json(json.loads(self.config_path.read_text(encoding="utf-8")))
-        except (OSError, ValueError, TypeError, InputError) as e:  # ValueError covers bad JSON and bad UTF-8
+        except (OSError, ValueError, TypeError, InputError) as e:   # ValueError covers bad JSON and bad UTF-8
             problem = e.problem if isinstance(e, InputError) else _one_line(e)
             raise InputError(self.config_path, f"unreadable run settings ({problem})") from None
 
-    def load_scene(
-        self,
-        cfg: TrainConfig | None = None,
-        scene: str | None = None,
-        resolution: int | None = None,
-        white_background: bool = False,
-    ) -> Scene:
+    def load_scene(self, cfg: TrainConfig | None = None, scene: str | None = None, resolution: int | None = None,
+                   white_background: bool = False) -> Scene:
         """The scene as the run's settings load it (cfg, else config.json): its resolution, test views,
         background and alpha masks, the undistorted images cached in the folder. scene and resolution replace
         the run's, white_background makes it white (render's --scene, -r, --white-background)."""
-        from .scene.loader import load_scene  # pycolmap and OpenImageIO: only where a scene is read
-
+        from .scene.loader import load_scene   # pycolmap and OpenImageIO: only where a scene is read
         cfg = self.read_config() if cfg is None else cfg
-        return load_scene(
-            scene or cfg.scene,
-            resolution=resolution or cfg.resolution,
-            cache_dir=self.images_cache,
-            test_every=cfg.test_every,
-            test_split=cfg.test_split,
-            white_background=white_background or cfg.white_background,
-            alpha_mask=cfg.alpha_mask,
-        )
+        return load_scene(scene or cfg.scene, resolution=resolution or cfg.resolution,
+                          cache_dir=self.images_cache, test_every=cfg.test_every,
+                          test_split=cfg.test_split, white_background=white_background or cfg.white_background,
+                          alpha_mask=cfg.alpha_mask)
 
     # models ----------------------------------------------------------------------------------------------
     def save_model(self, iteration: int, model: GaussianModel) -> Path:
@@ -371,11 +297,8 @@ class RunFolder:
         return path
 
     def saved_iterations(self) -> list[int]:
-        return sorted(
-            int(m.group(1))
-            for d in (self.path / "point_cloud").glob("iteration_*")
-            if (m := re.fullmatch(r"iteration_(\d+)", d.name)) and (d / "point_cloud.ply").is_file()
-        )
+        return sorted(int(m.group(1)) for d in (self.path / "point_cloud").glob("iteration_*")
+                      if (m := re.fullmatch(r"iteration_(\d+)", d.name)) and (d / "point_cloud.ply").is_file())
 
     def load_model(self, iteration: int | None = None) -> tuple[int, GaussianModel]:
         """The model saved at `iteration` (None: the last one) and that iteration."""
@@ -401,7 +324,6 @@ class RunFolder:
                 np.savez(f, **entries)
                 f.flush()
                 os.fsync(f.fileno())
-
         current, previous = self.checkpoint_paths
         write_atomic(current, write, keep_previous=previous)
 
@@ -422,11 +344,8 @@ class RunFolder:
             if passed_over:
                 os.replace(existing[0], self.path / CORRUPT_CHECKPOINT)
             return Checkpoint(path, arrays, meta, passed_over)
-        raise InputError(
-            existing[0],
-            "; ".join(e.problem if e.path == str(existing[0]) else str(e) for e in passed_over)
-            + "; no intact checkpoint left to resume from",
-        )
+        raise InputError(existing[0], "; ".join(e.problem if e.path == str(existing[0]) else str(e)
+                                                for e in passed_over) + "; no intact checkpoint left to resume from")
 
     # metrics over iterations -----------------------------------------------------------------------------
     @property
@@ -457,9 +376,8 @@ class RunFolder:
                     wrong.append(("stage_ms", stages))
                 if wrong:
                     key, value = wrong[0]
-                    raise InputError(
-                        self.metrics_path, f"line {number}: {key} is {_one_line(repr(value))[:60]}, not a number"
-                    )
+                    raise InputError(self.metrics_path, f"line {number}: {key} is {_one_line(repr(value))[:60]}, "
+                                                        "not a number")
                 rows.append(row)
         return rows
 

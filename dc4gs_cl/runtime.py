@@ -9,7 +9,6 @@ alone decides what the driver caches. Every device buffer is made here (`buffer`
 the bytes held (`memory_in_use`) and their high-water mark (`memory_peak`, restarted by
 `reset_memory_peak()`).
 """
-
 from __future__ import annotations
 
 import math
@@ -30,10 +29,10 @@ from .constants import kernel_defines
 from .errors import DeviceError
 from .records import records_header
 
-DEVICE_ENV = "DC4GS_DEVICE"  # same forms as --device: "P:D", "gpu", "cpu" or part of the name
+DEVICE_ENV = "DC4GS_DEVICE"   # same forms as --device: "P:D", "gpu", "cpu" or part of the name
 RELAXED_MATH = "RELAXED_MATH"  # a define that, set to 1, also builds the program with -cl-fast-relaxed-math
-BUFFER_HEADROOM = 0.125  # a buffer that must grow gets this much more than it needs: fewer reallocations
-BUFFER_GROWTH = 1.5  # but at most this much more than it had
+BUFFER_HEADROOM = 0.125       # a buffer that must grow gets this much more than it needs: fewer reallocations
+BUFFER_GROWTH = 1.5           # but at most this much more than it had
 
 _INCLUDE = re.compile(r'^\s*#\s*include\s+"([\w.]+)"\s*$', re.M)
 
@@ -56,7 +55,6 @@ def kernel_source(name: str) -> str:
                 return ""
             body = generated[header] if header in generated else (root / header).read_text()
             return expand(body, seen + (header,))
-
         return _INCLUDE.sub(sub, text)
 
     return expand((root / name).read_text(), (name,))
@@ -71,7 +69,7 @@ def grown_size(want: int, have: int) -> int:
     return want if want <= have else min(int(want * (1 + BUFFER_HEADROOM)), max(want, int(have * BUFFER_GROWTH)))
 
 
-ICD_VENDORS_ENV = "OCL_ICD_VENDORS"  # the ICD loader's folder of .icd files (default /etc/OpenCL/vendors)
+ICD_VENDORS_ENV = "OCL_ICD_VENDORS"   # the ICD loader's folder of .icd files (default /etc/OpenCL/vendors)
 SYSTEM_VENDORS = Path("/etc/OpenCL/vendors")
 # Runtimes installed from PyPI whose bundled .icd names a placeholder path (the `intel` extra: intel-opencl-rt),
 # by the library the loader must be given instead.
@@ -96,7 +94,7 @@ def register_bundled_runtimes(prefix: Path = Path(sys.prefix), cache: Path | Non
             (folder / f"{lib.stem}.icd").write_text(f"{lib.resolve()}\n")
         for icd in sorted(SYSTEM_VENDORS.glob("*.icd")) if SYSTEM_VENDORS.is_dir() else []:
             (folder / f"system-{icd.name}").symlink_to(icd.resolve())
-    except OSError:  # a read-only home: the bundled runtime stays unseen, as without this
+    except OSError:   # a read-only home: the bundled runtime stays unseen, as without this
         return None
     os.environ[ICD_VENDORS_ENV] = str(folder)
     return folder
@@ -119,26 +117,14 @@ def list_devices() -> list[tuple[str, cl.Device]]:
             continue
         out += [(f"{pi}:{di}", d) for di, d in enumerate(devices)]
     if not out:
-        raise DeviceError(
-            "No OpenCL device found (" + why + "). Install PoCL for the CPU with "
-            "`pip install 'pyopencl[pocl]'`, or a GPU vendor's OpenCL driver."
-        )
+        raise DeviceError("No OpenCL device found (" + why + "). Install PoCL for the CPU with "
+                          "`pip install 'pyopencl[pocl]'`, or a GPU vendor's OpenCL driver.")
     return out
 
 
 def describe(device: cl.Device) -> str:
-    kind = next(
-        (
-            name
-            for name, bit in (
-                ("GPU", cl.device_type.GPU),
-                ("CPU", cl.device_type.CPU),
-                ("accelerator", cl.device_type.ACCELERATOR),
-            )
-            if device.type & bit
-        ),
-        "other",
-    )
+    kind = next((name for name, bit in (("GPU", cl.device_type.GPU), ("CPU", cl.device_type.CPU),
+                                        ("accelerator", cl.device_type.ACCELERATOR)) if device.type & bit), "other")
     return f"{device.platform.name.strip()} | {device.name.strip()} ({kind}, {device.max_compute_units} compute units)"
 
 
@@ -147,11 +133,8 @@ SIMULATORS = ("oclgrind",)
 # CPU implementations in the order the default prefers them, each with why (measured on 2 AMD EPYC cores: the
 # built-in scene's and the garden's frames, issue #11; `dc4gs-cl devices` shows the reason).
 CPU_PREFERENCE = (
-    (
-        "intel(r) opencl",
-        "Intel's CPU runtime: frames 11-24% faster than PoCL's, 3DGS iterations 6-23% "
-        "(`dc4gs-cl bench`; DC4GS iterations within 9% either way)",
-    ),
+    ("intel(r) opencl", "Intel's CPU runtime: frames 11-24% faster than PoCL's, 3DGS iterations 6-23% "
+                        "(`dc4gs-cl bench`; DC4GS iterations within 9% either way)"),
     ("portable computing language", "PoCL"),
 )
 
@@ -192,12 +175,9 @@ def choose_device(spec: str | None = None) -> tuple[str, cl.Device]:
         if s == key:
             return key, d
     kinds = {"gpu": cl.device_type.GPU, "cpu": cl.device_type.CPU, "accelerator": cl.device_type.ACCELERATOR}
-    matches = [
-        (key, d)
-        for key, d in devices
-        if (s in kinds and d.type & kinds[s]) or (s not in kinds and s in describe(d).lower())
-    ]
-    if matches:  # "gpu" / "cpu" never pick a simulator (Oclgrind calls itself every type) while another matches
+    matches = [(key, d) for key, d in devices
+               if (s in kinds and d.type & kinds[s]) or (s not in kinds and s in describe(d).lower())]
+    if matches:   # "gpu" / "cpu" never pick a simulator (Oclgrind calls itself every type) while another matches
         return next(((k, d) for k, d in matches if not is_simulator(d)), matches[0])
     names = "; ".join(f"{k} {describe(d)}" for k, d in devices)
     raise DeviceError(f"no OpenCL device matches '{spec}' (devices: {names})")
@@ -224,12 +204,12 @@ class Capabilities:
     compute_units: int
     max_work_group_size: int
     local_mem_size: int
-    float_atomic_add: bool  # native float atomics (cl_ext_float_atomics); our kernels need none (see
-    # kernels/common.h), this is reported by `dc4gs-cl devices`
+    float_atomic_add: bool     # native float atomics (cl_ext_float_atomics); our kernels need none (see
+                               # kernels/common.h), this is reported by `dc4gs-cl devices`
     fp64: bool
-    loop_limit: int | None = None  # a driver defect: see LOOP_LIMITED_DRIVERS
-    platform: str = ""  # the OpenCL platform's name: some shapes suit one implementation's compiler
-    subgroups: str | None = None  # how 32 work-items exchange values (SUBGROUP_SOURCES), None: they cannot
+    loop_limit: int | None = None   # a driver defect: see LOOP_LIMITED_DRIVERS
+    platform: str = ""              # the OpenCL platform's name: some shapes suit one implementation's compiler
+    subgroups: str | None = None    # how 32 work-items exchange values (SUBGROUP_SOURCES), None: they cannot
 
     @staticmethod
     def of(device: cl.Device) -> "Capabilities":
@@ -247,18 +227,13 @@ class Capabilities:
         )
 
     def summary(self) -> str:
-        return (
-            f"work-groups up to {self.max_work_group_size}, {self.local_mem_size // 1024} KiB local memory, "
-            f"float atomics: {'native' if self.float_atomic_add else 'none (compare-and-swap emulation)'}, "
-            f"fp64: {'yes' if self.fp64 else 'no'}, "
-            f"subgroups: {self.subgroups or 'none (the backward takes its portable twin)'}"
-            + (
-                f", loops cut after {self.loop_limit:,} iterations per work-item (a driver defect, gone in "
-                f"Mesa 25.0: renders take short-loop shapes; training is refused, its backward would be wrong)"
-                if self.loop_limit
-                else ""
-            )
-        )
+        return (f"work-groups up to {self.max_work_group_size}, {self.local_mem_size // 1024} KiB local memory, "
+                f"float atomics: {'native' if self.float_atomic_add else 'none (compare-and-swap emulation)'}, "
+                f"fp64: {'yes' if self.fp64 else 'no'}, "
+                f"subgroups: {self.subgroups or 'none (the backward takes its portable twin)'}"
+                + (f", loops cut after {self.loop_limit:,} iterations per work-item (a driver defect, gone in "
+                   f"Mesa 25.0: renders take short-loop shapes; training is refused, its backward would be wrong)"
+                   if self.loop_limit else ""))
 
 
 # How 32 work-items exchange values (kernels/rasterize_backward.cl, -D SUBGROUP_SOURCE): NVIDIA's OpenCL has no
@@ -276,8 +251,8 @@ def subgroup_source(device: cl.Device) -> str | None:
 
 
 class KernelLimits(NamedTuple):
-    work_group: int  # work-items per group
-    local_bytes: int  # local memory the built kernel takes (its __local arrays)
+    work_group: int    # work-items per group
+    local_bytes: int   # local memory the built kernel takes (its __local arrays)
 
 
 class _Buffer(cl.Buffer):
@@ -319,11 +294,11 @@ class Runtime:
         self.profiling = profiling
         self.caps = Capabilities.of(self.device)
         self._programs: dict[tuple, cl.Program] = {}
-        self._kernel_limits: dict[cl.Kernel, KernelLimits] = {}  # as the driver reports them
-        self._kernel_arguments: dict[cl.Kernel, list] = {}  # as launch() last set them (_held_argument)
+        self._kernel_limits: dict[cl.Kernel, KernelLimits] = {}   # as the driver reports them
+        self._kernel_arguments: dict[cl.Kernel, list] = {}         # as launch() last set them (_held_argument)
         self.events: dict[str, list[cl.Event]] = defaultdict(list)
-        self.memory_in_use = 0  # bytes in device buffers made here and not yet released
-        self.memory_peak = 0  # the most memory_in_use has been since the last reset_memory_peak()
+        self.memory_in_use = 0   # bytes in device buffers made here and not yet released
+        self.memory_peak = 0     # the most memory_in_use has been since the last reset_memory_peak()
         # Since the runtime was made: kernels enqueued, and the host's blocking waits on the queue (a read back,
         # or a write that waits for the queue before its copy); stage_times' own wait is the caller's, uncounted;
         # and the kernel arguments set (launch sets only those that changed).
@@ -362,8 +337,7 @@ class Runtime:
             info = cl.kernel_work_group_info
             driver = self._kernel_limits[kernel] = KernelLimits(
                 kernel.get_work_group_info(info.WORK_GROUP_SIZE, self.device),
-                kernel.get_work_group_info(info.LOCAL_MEM_SIZE, self.device),
-            )
+                kernel.get_work_group_info(info.LOCAL_MEM_SIZE, self.device))
         return driver._replace(work_group=min(driver.work_group, self.caps.max_work_group_size))
 
     def launch(self, stage: str, kernel: cl.Kernel, global_size, local_size, *args) -> cl.Event:
@@ -400,11 +374,9 @@ class Runtime:
     def check_launch(self, stage: str, kernel: cl.Kernel, local_size: tuple) -> None:
         items, (item_limit, local) = math.prod(local_size), self.kernel_limits(kernel)
         if items > item_limit or local > self.caps.local_mem_size:
-            raise DeviceError(
-                f"stage {stage}: kernel {kernel.function_name} launched in work-groups of {items} "
-                f"items taking {local:,} bytes of local memory; on {describe(self.device)} it "
-                f"allows {item_limit} items and {self.caps.local_mem_size:,} bytes"
-            )
+            raise DeviceError(f"stage {stage}: kernel {kernel.function_name} launched in work-groups of {items} "
+                              f"items taking {local:,} bytes of local memory; on {describe(self.device)} it "
+                              f"allows {item_limit} items and {self.caps.local_mem_size:,} bytes")
 
     def launch_items(self, stage: str, kernel: cl.Kernel, n: int, wg: int, *args) -> cl.Event:
         """A 1D launch of n work-items (one per element) in work-groups of wg, or of the kernel's limit where
@@ -461,7 +433,7 @@ class Runtime:
     def write(self, buf: cl.Buffer, array: np.ndarray) -> None:
         a = np.ascontiguousarray(array)
         if a.nbytes:
-            cl.enqueue_copy(self.queue, buf, a)  # blocking: returns once the queue has run up to the copy
+            cl.enqueue_copy(self.queue, buf, a)   # blocking: returns once the queue has run up to the copy
             self.syncs += 1
 
     def write_async(self, buf: cl.Buffer, array: np.ndarray) -> None:
@@ -533,11 +505,9 @@ class DeviceArrays:
         return self.rt.to_host(self.buffers[name], (self.n, self.widths[name]))
 
     def upload_group(self, name: str, array: np.ndarray) -> None:
-        self.rt.write(
-            self.buffers[name], np.ascontiguousarray(array, dtype=np.float32).reshape(self.n, self.widths[name])
-        )
+        self.rt.write(self.buffers[name], np.ascontiguousarray(array, dtype=np.float32).reshape(self.n, self.widths[name]))
 
     def zero(self, name: str | None = None) -> None:
         """Zero every group (or only `name`) for the n Gaussians."""
-        for k in [name] if name else self.widths:
+        for k in ([name] if name else self.widths):
             self.rt.fill(self.buffers[k], np.float32(0), 4 * self.widths[k] * self.n)

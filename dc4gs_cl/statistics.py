@@ -11,7 +11,6 @@ the only spelling of it; the kernels read them as -D defines.
   layout, so the two cannot disagree.
 This module needs no device: settings, reports and tests read it without OpenCL.
 """
-
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -34,7 +33,6 @@ class SumsLayout:
     with stats: abs (2, sum |g_x|, |g_y| in NDC units), pixels (1); with dc_stats: dc (3, sum of g/|g| and
     the count: the SPLIT_LANES ux, uy, count over all the pixels); with split_candidates N: split
     (SPLIT_SUMS x N, the left side of each candidate)."""
-
     stats: bool = False
     dc_stats: bool = False
     split_candidates: int = 0
@@ -65,25 +63,17 @@ class SumsLayout:
     def defines(self) -> dict[str, int]:
         """The record's offsets and the kernels' switches (with split sums, the split lanes and the split
         geometry's offsets)."""
-        split = (
-            {**geometry_record(self.split_candidates).defines(), **SPLIT_LANES.defines()}
-            if self.split_candidates
-            else {}
-        )
-        return {
-            **self.record.defines(),
-            **split,
-            "STATS": int(self.stats),
-            "DC_STATS": int(self.dc_stats),
-            "SPLIT_CANDIDATES": self.split_candidates,
-        }
+        split = ({**geometry_record(self.split_candidates).defines(), **SPLIT_LANES.defines()}
+                 if self.split_candidates else {})
+        return {**self.record.defines(), **split, "STATS": int(self.stats), "DC_STATS": int(self.dc_stats),
+                "SPLIT_CANDIDATES": self.split_candidates}
 
     def views(self, sums: np.ndarray) -> dict[str, np.ndarray]:
         """(N, width) host rows -> named views."""
         return self.record.views(sums)
 
 
-GRADIENTS = SumsLayout()  # the gradients alone: what a view gathers once the densification window has closed
+GRADIENTS = SumsLayout()   # the gradients alone: what a view gathers once the densification window has closed
 
 
 def geometry_record(candidates: int) -> Record:
@@ -94,18 +84,18 @@ def geometry_record(candidates: int) -> Record:
 
 
 # Window columns. Base columns (every strategy); g = a pixel's dL/dmean2d in NDC units.
-GRAD = "grad"  # |sum_j g_j| per view (3DGS)
-ABS = "abs"  # |(sum_j |g_x|, sum_j |g_y|)| per view (AbsGS' homodirectional gradient)
-VIEWS = "views"  # views in which the Gaussian was visible
-PIX_GRAD = "pix_grad"  # f |sum_j g_j| pix_v per view, f the depth factor (Pixel-GS)
-PIX = "pix"  # pixels where it was blended (Pixel-GS' count)
-MAX_RADIUS = "max_radius"  # largest screen radius, px (the screen-size pruning rule)
+GRAD = "grad"               # |sum_j g_j| per view (3DGS)
+ABS = "abs"                 # |(sum_j |g_x|, sum_j |g_y|)| per view (AbsGS' homodirectional gradient)
+VIEWS = "views"             # views in which the Gaussian was visible
+PIX_GRAD = "pix_grad"       # f |sum_j g_j| pix_v per view, f the depth factor (Pixel-GS)
+PIX = "pix"                 # pixels where it was blended (Pixel-GS' count)
+MAX_RADIUS = "max_radius"   # largest screen radius, px (the screen-size pruning rule)
 BASE_COLUMNS = (GRAD, ABS, VIEWS, PIX_GRAD, PIX, MAX_RADIUS)
 
 # DCC: (1 - kappa) times a base's per-view term, kappa the view's (or window's) directional consistency.
 DCC_ABS, DCC_GRAD, DCC_PIX = "dcc_abs", "dcc_grad", "dcc_pix"
-DC_WEIGHTED = {GRAD: DCC_GRAD, ABS: DCC_ABS, PIX_GRAD: DCC_PIX}  # a base's term -> its DC-weighted column
-DC_WINDOW_COLUMNS = ("dc_ux", "dc_uy", "dc_n")  # window pooling: the unit-vector sums since the last step
+DC_WEIGHTED = {GRAD: DCC_GRAD, ABS: DCC_ABS, PIX_GRAD: DCC_PIX}   # a base's term -> its DC-weighted column
+DC_WINDOW_COLUMNS = ("dc_ux", "dc_uy", "dc_n")   # window pooling: the unit-vector sums since the last step
 
 # DCS: the candidates' split costs; with window pooling, the sides' running sums (SPLIT_LANES each).
 SPLIT_COSTS = "split_costs"
@@ -113,13 +103,13 @@ SIDE_TOTAL, SIDE_LEFT = "side_total", "side_left"
 # Non-zero withholds a Gaussian's split line (kernels/split_geometry.cl): DCS' tracking stops gathering split costs
 # for Gaussians that cannot reach the split threshold.
 SKIP_SPLIT = "skip_split"
-NO_WINDOW = Record("WIN", [(SKIP_SPLIT, 1)])  # the split geometry without a window: every Gaussian tracked
+NO_WINDOW = Record("WIN", [(SKIP_SPLIT, 1)])   # the split geometry without a window: every Gaussian tracked
 # The window columns that hold a largest value or a flag, not a sum over the views: the windows of processes
 # training together (train/parallel.py) combine by their maximum there, by their sum everywhere else
 MAX_COLUMNS = (MAX_RADIUS, SKIP_SPLIT)
 
-PIXELGS_DEPTH_FRACTION = 0.37  # Pixel-GS: gradients of Gaussians nearer than this x extent are scaled down
-TRACK_MIN_VIEWS = 5  # DCS tracking: split costs for every Gaussian in its first views of a window
+PIXELGS_DEPTH_FRACTION = 0.37   # Pixel-GS: gradients of Gaussians nearer than this x extent are scaled down
+TRACK_MIN_VIEWS = 5             # DCS tracking: split costs for every Gaussian in its first views of a window
 
 
 def mean_per_view(total: np.ndarray, count: np.ndarray) -> np.ndarray:
@@ -130,7 +120,6 @@ def mean_per_view(total: np.ndarray, count: np.ndarray) -> np.ndarray:
 @dataclass(frozen=True)
 class Criterion:
     """A densification criterion read from the window: column `total` over column `count`."""
-
     total: str
     count: str
 
@@ -138,9 +127,9 @@ class Criterion:
         return mean_per_view(window[self.total], window[self.count])
 
 
-GRAD_PER_VIEW = Criterion(GRAD, VIEWS)  # 3DGS
-ABS_PER_VIEW = Criterion(ABS, VIEWS)  # AbsGS' split criterion
-GRAD_PER_PIXEL = Criterion(PIX_GRAD, PIX)  # Pixel-GS
+GRAD_PER_VIEW = Criterion(GRAD, VIEWS)        # 3DGS
+ABS_PER_VIEW = Criterion(ABS, VIEWS)          # AbsGS' split criterion
+GRAD_PER_PIXEL = Criterion(PIX_GRAD, PIX)     # Pixel-GS
 
 
 @dataclass(frozen=True)
@@ -151,7 +140,6 @@ class StatisticsSpec:
     TRACK_COUNT), cost gathering stopping for a Gaussian whose criterion stays under the threshold;
     split_sums: whether the view gathers the split sums (False: a view DCS skips, DC4GSConfig.cost_every; the
     window, split costs included, keeps its layout, and the fold leaves the split costs as they are)."""
-
     dc: bool = False
     split_candidates: int = 0
     window_pooling: bool = False
@@ -161,9 +149,8 @@ class StatisticsSpec:
     @cached_property
     def sums(self) -> SumsLayout:
         """The backward's per-Gaussian sums of one view (SumsLayout validates the combination)."""
-        return SumsLayout(
-            stats=True, dc_stats=self.dc, split_candidates=self.split_candidates if self.split_sums else 0
-        )
+        return SumsLayout(stats=True, dc_stats=self.dc,
+                          split_candidates=self.split_candidates if self.split_sums else 0)
 
     @cached_property
     def window(self) -> Record:
@@ -181,11 +168,6 @@ class StatisticsSpec:
     def defines(self) -> dict[str, int]:
         """Everything the window's fold (kernels/window_fold.h) is built with, the view's sums layout included."""
         window = self.window
-        return {
-            **self.sums.defines(),
-            **window.defines(),
-            "DC_WINDOW": int(self.window_pooling),
-            "TRACK_TOTAL": window.offsets[self.tracked.total],
-            "TRACK_COUNT": window.offsets[self.tracked.count],
-            "TRACK_MIN_VIEWS": TRACK_MIN_VIEWS,
-        }
+        return {**self.sums.defines(), **window.defines(),
+                "DC_WINDOW": int(self.window_pooling), "TRACK_TOTAL": window.offsets[self.tracked.total],
+                "TRACK_COUNT": window.offsets[self.tracked.count], "TRACK_MIN_VIEWS": TRACK_MIN_VIEWS}

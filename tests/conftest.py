@@ -1,6 +1,5 @@
 """Shared fixtures: the OpenCL runtime, fresh random generators (seed printed for reproduction), and the
 real scenes beside the repository (tests that need them skip with the reason when they are absent)."""
-
 from __future__ import annotations
 
 import os
@@ -13,7 +12,7 @@ import pytest
 from dc4gs_cl.runtime import Runtime
 
 DATA_DIR = Path(__file__).resolve().parents[1].parent / "shared" / "data"
-SEED_ENV = "DC4GS_TEST_SEED"  # set to reproduce a failing draw
+SEED_ENV = "DC4GS_TEST_SEED"   # set to reproduce a failing draw
 
 
 @pytest.fixture(scope="session")

@@ -1,6 +1,5 @@
 """Our Adam, fused into the projection's backward, against a float64 NumPy transcription of PyTorch's update
 rule fed with the same kernel's stored gradients; and the learning-rate schedule."""
-
 import numpy as np
 import pytest
 from helpers import random_model
@@ -18,7 +17,7 @@ from dc4gs_cl.statistics import GRADIENTS
 def adam_reference(p, g, m, v, t, lr, b1=0.9, b2=0.999, eps=1e-15):
     m = b1 * m + (1 - b1) * g
     v = b2 * v + (1 - b2) * g * g
-    return p - (lr / (1 - b1**t)) * m / (np.sqrt(v / (1 - b2**t)) + eps), m, v
+    return p - (lr / (1 - b1 ** t)) * m / (np.sqrt(v / (1 - b2 ** t)) + eps), m, v
 
 
 def rel_l2(got, ref):
@@ -26,11 +25,11 @@ def rel_l2(got, ref):
     return np.linalg.norm(got - ref) / np.linalg.norm(ref)
 
 
-@pytest.mark.parametrize("sh_degree", [0, 2, 3])  # SH rows of 3, 27, 48 floats: whole and partial float4s
+@pytest.mark.parametrize("sh_degree", [0, 2, 3])   # SH rows of 3, 27, 48 floats: whole and partial float4s
 def test_fused_adam_matches_reference_over_several_steps(rt, rng, sh_degree):
     cam = Camera.look_at("c", (0.3, -3.0, 0.8), (0.0, 0.0, 0.0), 64, 48, fov_x=0.9)
     model = random_model(rng, 800, sh_degree=sh_degree, spread=0.6, scale_range=(0.05, 0.3))
-    model.means[-60:] = cam.center - cam.R[2] * rng.uniform(0.5, 2, (60, 1))  # behind: zero gradient, still steps
+    model.means[-60:] = cam.center - cam.R[2] * rng.uniform(0.5, 2, (60, 1))   # behind: zero gradient, still steps
     g = DeviceGaussians(rt, model)
     n, widths = g.n, group_widths(g.sh_coeffs)
     renderer, layout = Renderer(rt), GRADIENTS
@@ -46,33 +45,21 @@ def test_fused_adam_matches_reference_over_several_steps(rt, rng, sh_degree):
         sums = rt.to_device(rng.normal(scale=10.0 ** rng.uniform(-6, 0), size=(n, layout.width)).astype(np.float32))
         backward.gradients(g, cam, 3, res, sums, layout, grads.buffers)
         grad = {k: x.astype(np.float64) for k, x in grads.download().items()}
-        lrs = {
-            "means": 1e-3 * (it + 1),
-            "log_scales": 5e-3,
-            "quats": 1e-3,
-            "opacity_logits": 0.05,
-            "sh": (2.5e-3, 1.25e-4),
-        }
+        lrs = {"means": 1e-3 * (it + 1), "log_scales": 5e-3, "quats": 1e-3, "opacity_logits": 0.05,
+               "sh": (2.5e-3, 1.25e-4)}
         if it % 2:
-            del lrs["opacity_logits"]  # as on an opacity reset: that group does not step
+            del lrs["opacity_logits"]          # as on an opacity reset: that group does not step
         backward.step(g, cam, 3, res, sums, layout, adam.step_value(lrs), adam.m, adam.v)
         for k, lr in lrs.items():
             steps[k] += 1
             rate = np.repeat([lr[0], lr[1]], [3, widths[k] - 3]) if k == "sh" else lr
             host[k], m[k], v[k] = adam_reference(host[k], grad[k], m[k], v[k], steps[k], rate)
     got, got_m, got_v = g.download(), adam.m.download(), adam.v.download()
-    start = {
-        k: x.reshape(n, -1)
-        for k, x in {
-            "means": model.means,
-            "log_scales": model.log_scales,
-            "quats": model.quats,
-            "opacity_logits": model.opacity_logits,
-            "sh": model.sh,
-        }.items()
-    }
+    start = {k: x.reshape(n, -1) for k, x in
+             {"means": model.means, "log_scales": model.log_scales, "quats": model.quats,
+              "opacity_logits": model.opacity_logits, "sh": model.sh}.items()}
     for k in widths:
-        assert rel_l2(got[k] - start[k], host[k] - start[k]) < 1e-4, k  # the updates, not the values
+        assert rel_l2(got[k] - start[k], host[k] - start[k]) < 1e-4, k     # the updates, not the values
         assert rel_l2(got_m[k], m[k]) < 1e-4, k
         assert rel_l2(got_v[k], v[k]) < 1e-4, k
     assert adam.steps == steps
@@ -83,10 +70,8 @@ def test_a_batch_sums_its_views_and_steps_on_their_mean(rt, rng, sh_degree, regu
     """--batch: each view's gradients added to the batch's in launch order (the float32 sums the host computes from
     the views' stored gradients, bit for bit), then one Adam step on their mean with the batch's betas (and MCMC's
     regularisers once), against the float64 reference."""
-    cams = [
-        Camera.look_at(f"c{k}", tuple(rng.uniform(-1, 1, 3) + (0, -3.0, 0.5)), (0.0, 0.0, 0.0), 64, 48, fov_x=0.9)
-        for k in range(3)
-    ]
+    cams = [Camera.look_at(f"c{k}", tuple(rng.uniform(-1, 1, 3) + (0, -3.0, 0.5)), (0.0, 0.0, 0.0), 64, 48, fov_x=0.9)
+            for k in range(3)]
     model = random_model(rng, 700, sh_degree=sh_degree, spread=0.6, scale_range=(0.05, 0.3))
     g = DeviceGaussians(rt, model)
     n, widths = g.n, group_widths(g.sh_coeffs)
@@ -124,9 +109,8 @@ def test_a_batch_sums_its_views_and_steps_on_their_mean(rt, rng, sh_degree, regu
         grad["log_scales"] += regularizers[1] * np.exp(host["log_scales"])
     for k, lr in lrs.items():
         rate = np.repeat([lr[0], lr[1]], [3, widths[k] - 3]) if k == "sh" else lr
-        want, m, v = adam_reference(
-            host[k], grad[k], m0[k].astype(np.float64), v0[k].astype(np.float64), 1, rate, config.beta1, config.beta2
-        )
+        want, m, v = adam_reference(host[k], grad[k], m0[k].astype(np.float64), v0[k].astype(np.float64), 1, rate,
+                                    config.beta1, config.beta2)
         assert rel_l2(got[k] - host[k], want - host[k]) < 1e-4, k
         assert rel_l2(got_m[k], m) < 1e-4 and rel_l2(got_v[k], v) < 1e-4, k
 

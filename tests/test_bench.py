@@ -1,6 +1,5 @@
 """`dc4gs-cl bench`: the quick suite runs end to end and writes a report whose every number is real (finite,
 positive times, small errors against the float64 references); --compare reads two reports line by line."""
-
 import copy
 import json
 import math
@@ -39,14 +38,14 @@ def test_quick_suite_measures_every_stage_and_writes_both_reports(quick_report):
             assert all(math.isfinite(v) and v > 0 for v in stages.values()), (name, stages)
             assert run["device_ms"] >= max(stages.values())
             assert 100 < run["bytes_per_gaussian"] < 1e5
-        for name, run in bench.case_runs(case).items():  # per frame or iteration
+        for name, run in bench.case_runs(case).items():   # per frame or iteration
             assert run["launches"] >= len(run["stages_ms"]) and run["syncs"] >= 1, (name, run)
             # set only where they changed: ~2 an iteration's launch sets, of the ~9 each passes
             assert 0 <= run["arguments"] < 4 * run["launches"], (name, run)
             assert run["host_ms"] == pytest.approx(run["wall_ms"] - run["device_ms"])
     rows = {(r["stage"], r["quantity"]): r["rel_l2"] for r in report["accuracy"]}
     assert len(rows) == 14
-    for key, err in rows.items():  # NaN fails too
+    for key, err in rows.items():   # NaN fails too
         assert err < 1e-3, key
     # the markdown names the device and holds every case's table and the accuracy table
     assert env["device"] in text and env["driver_version"] in text
@@ -98,10 +97,8 @@ def test_runtime_counts_launches_and_blocking_syncs(rt):
     """What bench reports per iteration: each kernel enqueued is a launch; a read back and a write (pyopencl's
     blocking copies, which wait for the queue) are syncs; a fill and a queued write are neither."""
     import pyopencl as cl
-
-    kernel = cl.Kernel(
-        cl.Program(rt.context, "__kernel void one(__global int *x) { x[get_global_id(0)] = 1; }").build(), "one"
-    )
+    kernel = cl.Kernel(cl.Program(rt.context, "__kernel void one(__global int *x) { x[get_global_id(0)] = 1; }")
+                       .build(), "one")
     buf = rt.buffer(16)
     launches, syncs = rt.launches, rt.syncs
     rt.fill(buf, np.int32(0), 16)
@@ -111,9 +108,9 @@ def test_runtime_counts_launches_and_blocking_syncs(rt):
     rt.launch("test", kernel, 4, None, buf)
     assert (rt.to_host(buf, 4, np.int32) == 1).all()
     assert (rt.launches - launches, rt.syncs - syncs) == (2, 2)
-    rt.write_async(buf, np.full(4, 7, np.int32))  # queued, no wait: not a sync
+    rt.write_async(buf, np.full(4, 7, np.int32))   # queued, no wait: not a sync
     assert rt.syncs - syncs == 2 and (rt.to_host(buf, 4, np.int32) == 7).all() and rt.syncs - syncs == 3
-    later = rt.to_host_later(buf, 4, np.int32)  # queued, no wait until its result is asked for, once
+    later = rt.to_host_later(buf, 4, np.int32)     # queued, no wait until its result is asked for, once
     rt.write_async(buf, np.full(4, 9, np.int32))
     assert rt.syncs - syncs == 3 and (later.result() == 7).all() and (later.result() == 7).all()
     assert rt.syncs - syncs == 4
@@ -123,7 +120,6 @@ def test_garden_case_and_the_gsplat_side_refused_without_it(rt, tmp_path, capsys
     """--garden adds gsplat's asset as a case (skipped here without the shared data); --gsplat without torch and
     gsplat (CUDA) is refused in one line before anything runs, as is a --garden file that is not there."""
     from dc4gs_cl.apps.gsplat_frames import available
-
     if available() is None:
         pytest.skip("torch and gsplat with CUDA are here: the refusal cannot be shown")
     assert main(["bench", "--quick", "--gsplat", "--out", str(tmp_path)]) == 2
@@ -136,17 +132,13 @@ def test_garden_case_and_the_gsplat_side_refused_without_it(rt, tmp_path, capsys
 def test_a_gsplat_failure_keeps_our_measurements(rt, monkeypatch):
     """gsplat's side is another project's code on our frames: where it fails, the case keeps our numbers, says why
     it has no ratios, and the suite goes on."""
-
     def failing(*args):
         raise RuntimeError("CUDA error: out of memory")
-
     monkeypatch.setattr(bench, "gsplat_side", failing)
     said = []
     report = bench.run_suite(rt, bench.QUICK, said.append, gsplat=True)
-    assert report["cases"] and all(
-        c["gsplat_error"] == "RuntimeError: CUDA error: out of memory" and "gsplat" not in c and c["train"]
-        for c in report["cases"]
-    )
+    assert report["cases"] and all(c["gsplat_error"] == "RuntimeError: CUDA error: out of memory" and
+                                   "gsplat" not in c and c["train"] for c in report["cases"])
     assert sum("gsplat failed" in line for line in said) == len(report["cases"])
     assert bench.markdown(report).count("gsplat failed on these frames: RuntimeError") == len(report["cases"])
 
@@ -165,14 +157,12 @@ def test_gsplat_gets_our_cameras_in_its_conventions(rng):
     from dc4gs_cl.apps.gsplat_frames import camera_matrices
     from dc4gs_cl.reference.project import project_reference
     from dc4gs_cl.reference.testing import random_camera, random_model
-
     cams = [random_camera(rng, 64, 48), random_camera(rng, 40, 30)]
     model = random_model(rng, 200)
     viewmats, ks = camera_matrices(cams)
     for cam, v, k in zip(cams, viewmats, ks):
-        ours = project_reference(
-            model.means, model.log_scales, model.quats, model.opacity_logits, model.sh, cam, model.sh_degree, 4, 3
-        )
+        ours = project_reference(model.means, model.log_scales, model.quats, model.opacity_logits, model.sh, cam,
+                                 model.sh_degree, 4, 3)
         seen = ours["radius"] > 0
         assert seen.sum() > 20
         p = (np.c_[model.means, np.ones(len(model))] @ v.T.astype(np.float64))[:, :3]

@@ -1,6 +1,5 @@
 """tools/bench_train.py: a scene's runs interleaved in turns give the same results as run one after the other
 (only the timing may differ), each run measured on its own."""
-
 import json
 
 from helpers import load_tool
@@ -12,23 +11,8 @@ SAME = ("psnr", "ssim", "gaussians_initial", "gaussians_final", "gaussians_peak"
 
 def runs(tmp_path, turn):
     report = tmp_path / f"turn{turn}.json"
-    args = [
-        "--scenes",
-        "builtin",
-        "--strategies",
-        "absgs",
-        "absgs+dc4gs",
-        "--iterations",
-        "60",
-        "-r",
-        "4",
-        "--turn",
-        str(turn),
-        "--json",
-        str(report),
-        "--out",
-        str(tmp_path / f"runs{turn}"),
-    ]
+    args = ["--scenes", "builtin", "--strategies", "absgs", "absgs+dc4gs", "--iterations", "60", "-r", "4",
+            "--turn", str(turn), "--json", str(report), "--out", str(tmp_path / f"runs{turn}")]
     assert bench_train.main(args) == 0
     return json.loads(report.read_text())
 
@@ -50,15 +34,8 @@ def test_interleaved_runs_match_runs_one_after_the_other(tmp_path, capsys):
 
 def test_strategy_specs_name_dc4gs_settings():
     import pytest
-
     assert bench_train.variant("absgs+dc4gs:every=4:track=0.5:shrink") == {
-        "strategy": "absgs",
-        "dcc": True,
-        "dcs": True,
-        "cost_every": 4,
-        "track": 0.5,
-        "other_scale": 0.625,
-    }
+        "strategy": "absgs", "dcc": True, "dcs": True, "cost_every": 4, "track": 0.5, "other_scale": 0.625}
     assert bench_train.variant("3dgs+dcs:window") == {"strategy": "3dgs", "dcs": True, "pooling": "window"}
     for spec in ("absgs+dc4gs:often=2", "absgs+dc4gs:every", "absgs+dc4", "bogus"):
         with pytest.raises(ValueError, match="unknown strategy"):

@@ -1,5 +1,4 @@
 """The built-in scene: deterministic, non-trivial images, and cameras, images and points that agree."""
-
 from __future__ import annotations
 
 import numpy as np
@@ -39,9 +38,9 @@ def test_contents(scene):
         assert image.shape == (144, 192, 3) and image.dtype == np.float32
         assert np.isfinite(image).all() and 0 <= image.min() and image.max() <= 1
         assert image.std() > 0.1
-        assert len(np.unique((image * 255).astype(np.uint8).reshape(-1, 3), axis=0)) > 500  # plain sky: ~900
+        assert len(np.unique((image * 255).astype(np.uint8).reshape(-1, 3), axis=0)) > 500   # plain sky: ~900
         gradient = np.maximum(np.abs(np.diff(image, axis=0))[:, :-1], np.abs(np.diff(image, axis=1))[:-1]).max(axis=2)
-        assert (gradient > 0.1).mean() > 0.05  # many edges (found: 14-22 % of the pixels)
+        assert (gradient > 0.1).mean() > 0.05        # many edges (found: 14-22 % of the pixels)
 
 
 def projection_errors(scene, mirror: bool = False):
@@ -62,7 +61,7 @@ def projection_errors(scene, mirror: bool = False):
         offset = scene.points[ok] - cam.center
         dist = np.linalg.norm(offset, axis=1)
         _, hit = cast_rays(cam.center.astype(np.float32)[:, None], (offset / dist[:, None]).T.astype(np.float32))
-        seen = np.abs(hit - dist) < 0.015 * scene.extent  # 5 sigma of the position noise
+        seen = np.abs(hit - dist) < 0.015 * scene.extent        # 5 sigma of the position noise
         pixels = scene.image(cam)[v[ok][seen].astype(int), u[ok][seen].astype(int)]  # pixel (i, j) spans [i, i+1)
         errors.append(np.abs(pixels - scene.colors[ok][seen]).max(axis=1))
     return np.array(inside), errors
@@ -70,8 +69,8 @@ def projection_errors(scene, mirror: bool = False):
 
 def test_cameras_images_and_points_agree(scene):
     inside, errors = projection_errors(scene)
-    assert inside.mean() > 0.7  # most points in view of each camera
-    assert inside.any(axis=0).mean() > 0.99  # every point (but a few outliers) seen somewhere
+    assert inside.mean() > 0.7                        # most points in view of each camera
+    assert inside.any(axis=0).mean() > 0.99           # every point (but a few outliers) seen somewhere
     assert sum(len(e) for e in errors) > 10 * len(scene.points)
     assert np.median(np.concatenate(errors)) < 0.06
     assert max(np.median(e) for e in errors) < 0.1
@@ -105,7 +104,7 @@ def test_split(scene):
     assert [c.name for c in scene.test] == [c.name for c in test] == ["view_000", "view_008", "view_016", "view_024"]
     assert [c.name for c in scene.train] == [c.name for c in train]
     azimuths = sorted(np.degrees(np.arctan2(c.center[1], c.center[0])) % 360 for c in scene.test)
-    assert np.diff(azimuths).min() > 60  # spread around the ring
+    assert np.diff(azimuths).min() > 60                # spread around the ring
     assert len(builtin_scene(test_every=4).test) == 8
     assert builtin_scene(test_every=0).test == []
 
@@ -116,16 +115,14 @@ def test_interpolated_split_holds_out_views_inside_the_path():
     rng = np.random.default_rng()
     for every, n in zip(rng.integers(3, 12, 40), rng.integers(30, 200, 40)):
         n = max(int(n), 2 * int(every))
-        cams = [
-            Camera(name=f"{i:05d}", width=8, height=8, fx=8, fy=8, cx=4, cy=4, R=np.eye(3), t=np.zeros(3))
-            for i in rng.permutation(n)
-        ]
+        cams = [Camera(name=f"{i:05d}", width=8, height=8, fx=8, fy=8, cx=4, cy=4, R=np.eye(3), t=np.zeros(3))
+                for i in rng.permutation(n)]
         train, test = split_train_test(cams, int(every), "interpolated")
         held = sorted(int(c.name) for c in test)
         assert len(held) == len(split_train_test(cams, int(every))[1]) == -(-n // every)
         assert sorted(int(c.name) for c in train + test) == list(range(n))
         assert 0 < held[0] and held[-1] < n - 1 and min(np.diff(held), default=2) >= 2
-        assert np.ptp(np.diff([0, *held, n - 1])) <= every  # spread evenly along the path
+        assert np.ptp(np.diff([0, *held, n - 1])) <= every       # spread evenly along the path
     scene = builtin_scene(test_split="interpolated")
     assert [c.name for c in scene.test] == ["view_004", "view_012", "view_020", "view_028"]
     with pytest.raises(ValueError, match="test split 'middle'"):

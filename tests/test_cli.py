@@ -1,6 +1,5 @@
 """The command line: help, devices, render, and bad input (exit code 2, the file named, no output); every
 command loads a run's scene and settings as the run trained."""
-
 import argparse
 import shutil
 import subprocess
@@ -33,20 +32,17 @@ def test_help_lists_the_commands():
     assert out.returncode == 0
     for command in ("devices", "render", "train", "eval", "view", "export", "report"):
         assert command in out.stdout
-    assert "With no command, dc4gs-cl runs `dc4gs-cl train`" in " ".join(out.stdout.split())  # the bare command
+    assert "With no command, dc4gs-cl runs `dc4gs-cl train`" in " ".join(out.stdout.split())   # the bare command
     from dc4gs_cl import __version__
-
     version = run_cli("--version")
     assert version.returncode == 0 and version.stdout.strip() == f"dc4gs-cl {__version__}"
 
 
 def test_a_reader_that_leaves_early_ends_the_command_quietly():
     """`dc4gs-cl eval ... | head`: the closed pipe ends the command with 141, as a pipe stage, no traceback."""
-    code = (
-        "import sys\nfrom dc4gs_cl import cli\n"
-        "cli.COMMANDS['devices'] = lambda args: [print('x' * 1000) for _ in range(10 ** 4)] and 0\n"
-        "sys.exit(cli.main(['devices']))"
-    )
+    code = ("import sys\nfrom dc4gs_cl import cli\n"
+            "cli.COMMANDS['devices'] = lambda args: [print('x' * 1000) for _ in range(10 ** 4)] and 0\n"
+            "sys.exit(cli.main(['devices']))")
     proc = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     proc.stdout.read(10)
     proc.stdout.close()
@@ -59,7 +55,7 @@ def test_devices_marks_the_chosen_device():
     assert out.returncode == 0, out.stderr
     marked = [line for line in out.stdout.splitlines() if line.startswith("*")]
     assert len(marked) == 1 and "|" in marked[0]
-    assert "float atomics" in out.stdout  # each device's capabilities
+    assert "float atomics" in out.stdout          # each device's capabilities
 
 
 def test_render_builtin_scene_from_a_ply(tmp_path, rng, capsys):
@@ -72,36 +68,20 @@ def test_render_builtin_scene_from_a_ply(tmp_path, rng, capsys):
     image = read_image(pngs[0])
     assert image.shape == (72, 96, 3) and image.std() > 0.01
     assert "rasterize" in capsys.readouterr().out
-    assert [p.name for p in out.iterdir()] == ["test"]  # no staging folder left behind
+    assert [p.name for p in out.iterdir()] == ["test"]   # no staging folder left behind
     # --split all: train and test views each in their own folder (Blender scenes reuse names across splits)
     assert main(["render", "--ply", str(ply), "--out", str(out), "-r", "4", "--split", "all"]) == 0
     assert sorted(p.name for p in out.iterdir()) == ["test", "train"]
     assert len(list((out / "train" / "renders").glob("*.png"))) == 28
-    assert read_image(sorted((out / "test" / "renders").glob("*.png"))[0]).shape == (36, 48, 3)  # replaced whole
+    assert read_image(sorted((out / "test" / "renders").glob("*.png"))[0]).shape == (36, 48, 3)   # replaced whole
 
 
 def test_a_run_trained_antialiased_renders_antialiased(tmp_path, rng, capsys):
     """--antialiased is the model's mode: config.json records it, render and eval use it, render
     --no-antialiased (or a PLY without --antialiased) does not; the renders differ only by the opacities."""
     run = tmp_path / "run"
-    assert (
-        main(
-            [
-                "train",
-                "--out",
-                str(run),
-                "--iterations",
-                "30",
-                "-r",
-                "4",
-                "--no-progress",
-                "--lpips",
-                "none",
-                "--antialiased",
-            ]
-        )
-        == 0
-    )
+    assert main(["train", "--out", str(run), "--iterations", "30", "-r", "4", "--no-progress", "--lpips", "none",
+                 "--antialiased"]) == 0
     assert RunFolder(run).read_config().antialiased
     renders = {}
     for name, flags in (("run", []), ("off", ["--no-antialiased"])):
@@ -116,11 +96,8 @@ def test_a_run_trained_antialiased_renders_antialiased(tmp_path, rng, capsys):
     # .spz records the mode in its header (export of the run sets it; render of the file follows it); a PLY
     # export says it cannot
     from dc4gs_cl.apps.export import cmd_export, read_model_file, recorded_antialiased
-
     for name in ("m.spz", "m.ply"):
-        assert (
-            cmd_export(argparse.Namespace(model=run, ply=None, iteration=None, out=tmp_path / name, format=None)) == 0
-        )
+        assert cmd_export(argparse.Namespace(model=run, ply=None, iteration=None, out=tmp_path / name, format=None)) == 0
     assert recorded_antialiased(tmp_path / "m.spz") is True and recorded_antialiased(tmp_path / "m.ply") is None
     assert "cannot record" in capsys.readouterr().out
     write_ply(tmp_path / "spz-read.ply", read_model_file(tmp_path / "m.spz"))
@@ -176,30 +153,17 @@ def test_every_command_loads_a_runs_scene_as_it_trained(tmp_path, rng, monkeypat
     write_json(run.config_path, cfg.to_json())
     run.save_model(cfg.iterations, random_model(rng, 20, sh_degree=0))
     expected = load_scene(cfg.scene, test_split="interpolated", alpha_mask=True)
-    assert [c.name for c in expected.test] != [c.name for c in load_scene(cfg.scene).test]  # not llff's views
+    assert [c.name for c in expected.test] != [c.name for c in load_scene(cfg.scene).test]   # not llff's views
     loaded, load = [], RunFolder.load_scene
 
     def loading(self, *args, **kwargs):
         loaded.append(load(self, *args, **kwargs))
         raise SceneLoaded
-
     monkeypatch.setattr(RunFolder, "load_scene", loading)
-    monkeypatch.setattr(viewer, "_viser", lambda: None)  # the viewer stops at its scene: viser is never used
-    for argv in (
-        ["render", "--model", str(run)],
-        ["eval", "--model", str(run)],
-        ["view", str(run), "--port", "0"],
-        [
-            "train",
-            "--scene",
-            cfg.scene,
-            "--out",
-            str(tmp_path / "again"),
-            "--test-split",
-            "interpolated",
-            "--alpha-mask",
-        ],
-    ):
+    monkeypatch.setattr(viewer, "_viser", lambda: None)   # the viewer stops at its scene: viser is never used
+    for argv in (["render", "--model", str(run)], ["eval", "--model", str(run)], ["view", str(run), "--port", "0"],
+                 ["train", "--scene", cfg.scene, "--out", str(tmp_path / "again"), "--test-split", "interpolated",
+                  "--alpha-mask"]):
         with pytest.raises(SceneLoaded):
             main(argv)
     with pytest.raises(SceneLoaded):
@@ -207,7 +171,7 @@ def test_every_command_loads_a_runs_scene_as_it_trained(tmp_path, rng, monkeypat
     assert len(loaded) == 5
     for scene in loaded:
         assert [c.name for c in scene.test] == [c.name for c in expected.test]
-        assert all(scene.mask(c) is not None for c in scene.train)  # the alpha masks
+        assert all(scene.mask(c) is not None for c in scene.train)   # the alpha masks
 
 
 def test_resume_takes_the_flags_the_run_was_started_with(tmp_path):
@@ -222,21 +186,15 @@ def test_resume_takes_the_flags_the_run_was_started_with(tmp_path):
 def test_settings_an_older_run_saved_flat_still_load(tmp_path):
     """config.json of runs made before DC4GS' and MCMC's settings were nested (TrainConfig.dc4gs, .mcmc) holds them
     flat, under their flag's key: --resume (with flags that agree) and eval read them as they were."""
-    cfg = TrainConfig(
-        scene="builtin",
-        iterations=100,
-        strategy="mcmc",
-        dc4gs=DC4GSConfig(dcs=True, split_pick="dense"),
-        mcmc=MCMCConfig(noise_lr=1e4, opacity_reg=0.02, scale_reg=0.0),
-    )
+    cfg = TrainConfig(scene="builtin", iterations=100, strategy="mcmc", dc4gs=DC4GSConfig(dcs=True, split_pick="dense"),
+                      mcmc=MCMCConfig(noise_lr=1e4, opacity_reg=0.02, scale_reg=0.0))
     flat = {k: v for k, v in cfg.to_json().items() if k not in ("dc4gs", "mcmc")}
     flat |= {"dcs": True, "split_pick": "dense", "mcmc_noise_lr": 1e4, "opacity_reg": 0.02, "scale_reg": 0.0}
     run = RunFolder(tmp_path)
     write_json(run.config_path, flat)
     assert run.read_config() == cfg
-    args = build_parser().parse_args(
-        ["train", "--out", str(tmp_path), "--resume", "--mcmc-noise-lr", "10000", "--scale-reg", "0"]
-    )
+    args = build_parser().parse_args(["train", "--out", str(tmp_path), "--resume", "--mcmc-noise-lr", "10000",
+                                      "--scale-reg", "0"])
     assert train_config(args, run) == cfg
 
 

@@ -1,6 +1,5 @@
 """tools/dc4gs_decisions.py: the known-geometry probe finds the built-in ground's checker edge where it lies on
 a Gaussian's axis and none inside a tile; a short run's report accounts for every candidate."""
-
 import json
 
 import numpy as np
@@ -15,11 +14,10 @@ def test_axis_profile_finds_the_checker_edge():
     """Ground tiles are 0.5 wide: a Gaussian at x = 3 + s along x (sigma s' = 0.1) crosses the edge x = 3 at
     -s / 0.1 sigma; one inside the tile [3, 3.5] crosses none."""
     rng = np.random.default_rng()
-    offset = rng.uniform(-0.15, 0.15)  # the next edges, x = 2.5 and 3.5, stay off the axis
+    offset = rng.uniform(-0.15, 0.15)            # the next edges, x = 2.5 and 3.5, stay off the axis
     means = np.array([[3.0 - offset, 3.25, 0.0], [3.25, 3.25, 0.0]])
-    steps, seen = decisions.axis_profiles(
-        means, np.array([0.1, 0.07]), np.array([[1.0, 0, 0], [1.0, 0, 0]]), builtin.builtin_scene(resolution=4).train
-    )
+    steps, seen = decisions.axis_profiles(means, np.array([0.1, 0.07]), np.array([[1.0, 0, 0], [1.0, 0, 0]]),
+                                          builtin.builtin_scene(resolution=4).train)
     assert (seen > 0).all()
     at = (np.arange(decisions.SAMPLES - 1) + 0.5) * 6 / (decisions.SAMPLES - 1) - 3
     edges = at[steps[0] >= decisions.EDGE_STEP]

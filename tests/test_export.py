@@ -2,7 +2,6 @@
 from the format's layout (the docstrings of dc4gs_cl/apps/export/*.py); the .splat order and size; the files
 read by a tool nobody here wrote: PlayCanvas's splat-transform, whose .spz reader and writer are Niantic's
 own library (skipped with the reason when it is not installed); bad input and unwritable output."""
-
 import argparse
 import gzip
 import os
@@ -18,25 +17,17 @@ from dc4gs_cl.apps.export import FORMATS, READERS, export_model
 from dc4gs_cl.apps.export.common import SMALLEST_THREE_BITS, SQRT_HALF, dc_colour, unit_quats
 from dc4gs_cl.apps.export.compressed_ply import CHUNK_SIZE, COLOR_BITS, LOG_SCALE_LIMIT, SH_SPAN, XYZ_BITS, morton_order
 from dc4gs_cl.apps.export.splat import SPLAT_RECORD, read_splat
-from dc4gs_cl.apps.export.spz import (
-    SPZ_COLOR_SCALE,
-    SPZ_FRACTIONAL_BITS,
-    SPZ_ROTATION_MAX,
-    SPZ_SCALE_OFFSET,
-    SPZ_SCALE_STEPS,
-    SPZ_SH_BUCKETS,
-    SPZ_SH_STEPS,
-    read_spz,
-)
+from dc4gs_cl.apps.export.spz import (SPZ_COLOR_SCALE, SPZ_FRACTIONAL_BITS, SPZ_ROTATION_MAX, SPZ_SCALE_OFFSET,
+                                      SPZ_SCALE_STEPS, SPZ_SH_BUCKETS, SPZ_SH_STEPS, read_spz)
 from dc4gs_cl.errors import InputError, OutputError
 from dc4gs_cl.model import GaussianModel
 from dc4gs_cl.ply import read_ply, write_ply
 from dc4gs_cl.run_folder import RunFolder
 from dc4gs_cl.reference.testing import random_model
 
-N = 1500  # Gaussians per model: several compressed-PLY chunks, the last one partial
+N = 1500            # Gaussians per model: several compressed-PLY chunks, the last one partial
 F32 = float(np.finfo(np.float32).eps)
-BYTE = 1 / 255  # one step of an 8-bit [0, 1] code
+BYTE = 1 / 255      # one step of an 8-bit [0, 1] code
 SPLAT_TRANSFORM_ENV = "DC4GS_SPLAT_TRANSFORM"
 SPLAT_TRANSFORM_CACHE = Path.home() / ".cache" / "dc4gs-cl" / "splat-transform"
 SPLAT_TRANSFORM_INSTALL = f"npm install --prefix {SPLAT_TRANSFORM_CACHE} @playcanvas/splat-transform@2.7.1"
@@ -80,7 +71,7 @@ def chunk_steps(values, bits, limit=np.inf):
     v = values.astype(np.float64)
     lo = np.clip(np.minimum.reduceat(v, np.arange(0, len(v), CHUNK_SIZE)), -limit, limit)
     hi = np.clip(np.maximum.reduceat(v, np.arange(0, len(v), CHUNK_SIZE)), -limit, limit)
-    return np.repeat((hi - lo) / (2 * ((1 << np.array(bits)) - 1)), CHUNK_SIZE, axis=0)[: len(v)]
+    return np.repeat((hi - lo) / (2 * ((1 << np.array(bits)) - 1)), CHUNK_SIZE, axis=0)[:len(v)]
 
 
 def smallest_three_bound(eps):
@@ -92,7 +83,7 @@ def smallest_three_bound(eps):
 
 def check_quats(name, got, want, bound):
     q, w = unit_quats(got), unit_quats(want)
-    q *= np.where((q * w).sum(axis=1) < 0, -1.0, 1.0)[:, None]  # q and -q are one rotation
+    q *= np.where((q * w).sum(axis=1) < 0, -1.0, 1.0)[:, None]   # q and -q are one rotation
     check(name, np.linalg.norm(q - w, axis=1), 0.0, bound)
 
 
@@ -103,7 +94,7 @@ def assert_within_bounds(fmt, model, back, splat_rotation_step=0.5 / 128):
     sh = m.sh.astype(np.float64)
     colour, back_colour = dc_colour(sh[:, 0]), dc_colour(back.sh[:, 0])
     assert len(back) == len(m)
-    check("opacity", back.opacities, m.opacities, 0.5 * BYTE)  # every compact format: round(255 opacity)
+    check("opacity", back.opacities, m.opacities, 0.5 * BYTE)   # every compact format: round(255 opacity)
     if fmt == "splat":
         assert back.sh_degree == 0
         check("means", back.means, m.means, 0.0)
@@ -134,9 +125,7 @@ def assert_within_bounds(fmt, model, back, splat_rotation_step=0.5 / 128):
         c = np.clip(sh[:, 1:], -SH_SPAN / 2, SH_SPAN / 2)
         inner = np.abs(c) < SH_SPAN / 2 - SH_SPAN / 256
         check("SH rest", back.sh[:, 1:], c, np.where(inner, SH_SPAN / 512, SH_SPAN / 256))
-        check_quats(
-            "rotation", back.quats, m.quats, smallest_three_bound(0.5 / ((1 << SMALLEST_THREE_BITS[1]) - 1) / SQRT_HALF)
-        )
+        check_quats("rotation", back.quats, m.quats, smallest_three_bound(0.5 / ((1 << SMALLEST_THREE_BITS[1]) - 1) / SQRT_HALF))
 
 
 # our readers -------------------------------------------------------------------------------------------
@@ -168,7 +157,7 @@ def test_splat_is_32_bytes_a_gaussian_sorted_by_size_times_opacity(tmp_path, rng
     # positions are stored exactly, so they tell where each record came from
     order = file_order("splat", m)
     assert np.array_equal(read_splat(path).means, m.means[order])
-    rec = np.frombuffer(path.read_bytes(), SPLAT_RECORD)  # codes: rounded, so within half a code
+    rec = np.frombuffer(path.read_bytes(), SPLAT_RECORD)   # codes: rounded, so within half a code
     rgba = np.concatenate([dc_colour(m.sh[order, 0]), m.opacities[order, None]], axis=1)
     check("RGBA codes", rec["rgba"], np.clip(255 * rgba, 0, 255), 0.5)
     check("rotation codes", rec["rotation"], np.minimum(128 * unit_quats(m.quats[order]) + 128, 255), 0.5)
@@ -180,23 +169,23 @@ def test_spz_header_and_coordinates(tmp_path, rng):
     data = gzip.decompress(written(tmp_path, m, "spz").read_bytes())
     magic, version, count = np.frombuffer(data[:12], "<u4")
     assert (magic, version, count) == (0x5053474E, 3, N) and tuple(data[12:16]) == (1, 12, 0, 0)
-    b = np.frombuffer(data[16:25], np.uint8).reshape(3, 3).astype(np.int64)  # the first Gaussian's x, y, z
+    b = np.frombuffer(data[16:25], np.uint8).reshape(3, 3).astype(np.int64)   # the first Gaussian's x, y, z
     fixed = ((b[:, 0] | b[:, 1] << 8 | b[:, 2] << 16) ^ 0x800000) - 0x800000
-    check("stored first position", fixed / 2.0**12, m.means[0] * [1, -1, -1], 2.0**-13)
+    check("stored first position", fixed / 2.0 ** 12, m.means[0] * [1, -1, -1], 2.0 ** -13)
 
 
 def test_spz_fewer_fractional_bits_for_far_gaussians(tmp_path, rng):
     m = model_for(rng, 0)
-    m.means[0] = [5000.0, -3000.0, 0.5]  # beyond the 2048 units of 12 fractional bits
+    m.means[0] = [5000.0, -3000.0, 0.5]        # beyond the 2048 units of 12 fractional bits
     back = read_spz(written(tmp_path, m, "spz"))
     assert gzip.decompress((tmp_path / "model.spz").read_bytes())[13] == 10
-    check("means", back.means, m.means, 2.0**-11)
+    check("means", back.means, m.means, 2.0 ** -11)
 
 
 def test_compressed_ply_chunks_hold_256_neighbours(tmp_path, rng):
     m = model_for(rng, 0)
     data = written(tmp_path, m, "compressed-ply").read_bytes()
-    header = data[: data.index(b"end_header\n")].decode()
+    header = data[:data.index(b"end_header\n")].decode()
     assert f"element chunk {-(-N // CHUNK_SIZE)}" in header and f"element vertex {N}" in header
     assert "element sh" not in header
     # Morton order on a shuffled 16^3 grid: each run of 256 fills an 8 x 8 x 4 block
@@ -211,16 +200,11 @@ def test_compressed_ply_chunks_hold_256_neighbours(tmp_path, rng):
 def splat_transform() -> str:
     """PlayCanvas's splat-transform CLI: $DC4GS_SPLAT_TRANSFORM, else on PATH, else in the cache folder."""
     cached = SPLAT_TRANSFORM_CACHE / "node_modules" / ".bin" / "splat-transform"
-    tool = (
-        os.environ.get(SPLAT_TRANSFORM_ENV)
-        or shutil.which("splat-transform")
-        or (str(cached) if cached.exists() else None)
-    )
+    tool = os.environ.get(SPLAT_TRANSFORM_ENV) or shutil.which("splat-transform") or (
+        str(cached) if cached.exists() else None)
     if tool is None:
-        pytest.skip(
-            f"splat-transform not found (${SPLAT_TRANSFORM_ENV}, PATH, {cached}); install it (node >= 18) "
-            f"with: {SPLAT_TRANSFORM_INSTALL}"
-        )
+        pytest.skip(f"splat-transform not found (${SPLAT_TRANSFORM_ENV}, PATH, {cached}); install it (node >= 18) "
+                    f"with: {SPLAT_TRANSFORM_INSTALL}")
     return tool
 
 
@@ -235,9 +219,8 @@ def test_splat_transform_reads_our_files(tmp_path, rng, splat_transform, fmt):
     Its .splat reader decodes a rotation byte as u / 127.5 - 1, up to 1.5 / 128 from the true component."""
     m = model_for(rng, 3, external=True)
     convert(splat_transform, written(tmp_path, m, fmt), tmp_path / "back.ply")
-    assert_within_bounds(
-        fmt, reordered(m, file_order(fmt, m)), read_ply(tmp_path / "back.ply"), splat_rotation_step=1.5 / 128
-    )
+    assert_within_bounds(fmt, reordered(m, file_order(fmt, m)), read_ply(tmp_path / "back.ply"),
+                         splat_rotation_step=1.5 / 128)
 
 
 def test_spz_is_what_niantics_writer_writes(tmp_path, rng, splat_transform):
@@ -247,7 +230,7 @@ def test_spz_is_what_niantics_writer_writes(tmp_path, rng, splat_transform):
     write_ply(tmp_path / "model.ply", m)
     convert(splat_transform, tmp_path / "model.ply", tmp_path / "theirs.spz", "--spz-version", "3")
     ours, theirs = read_spz(written(tmp_path, m, "spz")), read_spz(tmp_path / "theirs.spz")
-    check("means", ours.means, theirs.means, 2.0**-SPZ_FRACTIONAL_BITS)
+    check("means", ours.means, theirs.means, 2.0 ** -SPZ_FRACTIONAL_BITS)
     check("log scales", ours.log_scales, theirs.log_scales, 1 / SPZ_SCALE_STEPS)
     check("opacity", ours.opacities, theirs.opacities, BYTE)
     check("f_dc", ours.sh[:, 0], theirs.sh[:, 0], BYTE / SPZ_COLOR_SCALE)
@@ -336,7 +319,6 @@ def test_failed_write_keeps_the_previous_file(tmp_path, rng, monkeypatch):
 
     def full(fd):
         raise OSError(28, "No space left on device")
-
     monkeypatch.setattr(os, "fsync", full)
     with pytest.raises(OutputError, match="No space left"):
         export_model(model_for(rng, 0), out)
@@ -352,7 +334,6 @@ def test_render_reads_every_export_format(tmp_path, rng, fmt):
     from dc4gs_cl.apps.export import read_model_file
     from dc4gs_cl.cli import main
     from dc4gs_cl.scene.images import read_image
-
     m = random_model(rng, 800, 1, spread=1.5)
     path = written(tmp_path, m, fmt)
     if fmt == "compressed-ply":
@@ -367,19 +348,15 @@ def test_render_reads_every_export_format(tmp_path, rng, fmt):
         assert np.array_equal(read_image(png), read_image(tmp_path / "file" / "test" / "renders" / png.name))
 
 
-@pytest.mark.parametrize(
-    "name,data,says",
-    [
-        ("bad.spz", b"\x1f\x8b" + b"\x00" * 30, "not a .spz file"),
-        ("bad.splat", b"\x00" * 33, "not a .splat file"),
-        ("nan.splat", np.array([(np.nan, 1.0, 1.0)], np.float32).tobytes() + b"\x00" * 20, "NaN or Inf"),
-        ("bad.compressed.ply", b"ply\nformat ascii 1.0\nend_header\n", "not a compressed PLY"),
-        ("model.bin", b"nothing", "not a PLY file"),
-    ],
-)
+@pytest.mark.parametrize("name,data,says", [
+    ("bad.spz", b"\x1f\x8b" + b"\x00" * 30, "not a .spz file"),
+    ("bad.splat", b"\x00" * 33, "not a .splat file"),
+    ("nan.splat", np.array([(np.nan, 1.0, 1.0)], np.float32).tobytes() + b"\x00" * 20, "NaN or Inf"),
+    ("bad.compressed.ply", b"ply\nformat ascii 1.0\nend_header\n", "not a compressed PLY"),
+    ("model.bin", b"nothing", "not a PLY file"),
+])
 def test_render_of_a_bad_model_file_is_one_line(tmp_path, capsys, name, data, says):
     from dc4gs_cl.cli import main
-
     path = tmp_path / name
     path.write_bytes(data)
     assert main(["render", "--ply", str(path), "--out", str(tmp_path / "out"), "-r", "8"]) == 2

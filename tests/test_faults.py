@@ -1,7 +1,6 @@
 """Faults while training: checkpoints carry a checksum and the one before them survives until the next is
 complete; --resume passes over a corrupt checkpoint to the previous one; a write that fails (disk full,
 read-only folder) says what failed and leaves the earlier outputs intact."""
-
 import errno
 import json
 import os
@@ -18,10 +17,8 @@ SMALL = ["--scene", "builtin", "-r", "4", "--no-progress"]
 
 
 def state(rng, n=5):
-    return {
-        "param/means": rng.normal(size=(n, 3)).astype(np.float32),
-        "window/count": rng.integers(0, 9, n).astype(np.float32),
-    }
+    return {"param/means": rng.normal(size=(n, 3)).astype(np.float32),
+            "window/count": rng.integers(0, 9, n).astype(np.float32)}
 
 
 def flip_byte(path, offset):
@@ -46,7 +43,7 @@ def test_the_previous_checkpoint_stays_until_the_next_is_complete(tmp_path, rng)
     np.testing.assert_array_equal(got.arrays["param/means"], second["param/means"])
     with np.load(tmp_path / PREVIOUS_CHECKPOINT) as f:
         np.testing.assert_array_equal(f["param/means"], first["param/means"])
-    assert sorted(p.name for p in tmp_path.iterdir()) == [CHECKPOINT, PREVIOUS_CHECKPOINT]  # no temporaries
+    assert sorted(p.name for p in tmp_path.iterdir()) == [CHECKPOINT, PREVIOUS_CHECKPOINT]   # no temporaries
 
 
 @pytest.mark.parametrize("damage", ["flipped array byte", "truncated", "empty", "metadata edited"])
@@ -56,13 +53,13 @@ def test_resume_passes_over_a_corrupt_checkpoint_to_the_previous_one(tmp_path, r
     run.write_checkpoint(first, {"iteration": 10})
     run.write_checkpoint(second, {"iteration": 20})
     current = tmp_path / CHECKPOINT
-    if damage == "flipped array byte":  # the zip CRC and the checksum both see it
+    if damage == "flipped array byte":   # the zip CRC and the checksum both see it
         flip_byte(current, array_offset(current, second["param/means"]) + int(rng.integers(60)))
     elif damage == "truncated":
         current.write_bytes(current.read_bytes()[: int(rng.integers(1, current.stat().st_size))])
     elif damage == "empty":
         current.write_bytes(b"")
-    else:  # a consistent archive whose metadata no longer matches its checksum
+    else:                                # a consistent archive whose metadata no longer matches its checksum
         with np.load(current) as f:
             entries = {k: f[k] for k in f.files}
         meta = json.loads(bytes(entries["meta"]).decode()) | {"iteration": 30}
@@ -80,10 +77,8 @@ def test_resume_passes_over_a_corrupt_checkpoint_to_the_previous_one(tmp_path, r
 
 def test_resume_from_the_command_line_says_which_checkpoint_it_continues(tmp_path, capsys):
     out = tmp_path / "run"
-    assert (
-        main(["train", *SMALL, "--iterations", "20", "--checkpoint-every", "5", "--test-every", "0", "--out", str(out)])
-        == 0
-    )
+    assert main(["train", *SMALL, "--iterations", "20", "--checkpoint-every", "5", "--test-every", "0",
+                 "--out", str(out)]) == 0
     final = (out / "point_cloud" / "iteration_20" / "point_cloud.ply").read_bytes()
     # as if the run had been killed after its checkpoint at iteration 15 and its last checkpoint were damaged
     shutil.rmtree(out / "point_cloud")
@@ -105,20 +100,18 @@ def test_a_full_disk_stops_training_naming_the_file_and_keeps_the_last_checkpoin
     out = tmp_path / "run"
     real_savez, calls = np.savez, []
 
-    def savez(file, **entries):  # the third checkpoint (iteration 15) finds the disk full
+    def savez(file, **entries):   # the third checkpoint (iteration 15) finds the disk full
         calls.append(1)
         return partial_write_then_enospc(file) if len(calls) == 3 else real_savez(file, **entries)
-
     monkeypatch.setattr(np, "savez", savez)
     capsys.readouterr()
-    code = main(
-        ["train", *SMALL, "--iterations", "20", "--checkpoint-every", "5", "--test-every", "0", "--out", str(out)]
-    )
+    code = main(["train", *SMALL, "--iterations", "20", "--checkpoint-every", "5", "--test-every", "0",
+                 "--out", str(out)])
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 1
     assert err[-1] == f"dc4gs-cl train: error: {out / CHECKPOINT}: cannot write: No space left on device"
-    assert RunFolder(out).read_checkpoint().meta["iteration"] == 10  # the last complete one, intact
-    assert [p.name for p in out.iterdir() if p.name.startswith(".")] == [LOCK]  # no temporary left behind
+    assert RunFolder(out).read_checkpoint().meta["iteration"] == 10      # the last complete one, intact
+    assert [p.name for p in out.iterdir() if p.name.startswith(".")] == [LOCK]   # no temporary left behind
 
 
 def test_a_read_only_folder_stops_the_model_save_and_keeps_earlier_outputs(tmp_path, capsys, monkeypatch):
@@ -131,12 +124,10 @@ def test_a_read_only_folder_stops_the_model_save_and_keeps_earlier_outputs(tmp_p
         if str(dst).endswith("point_cloud.ply"):
             raise OSError(errno.EROFS, os.strerror(errno.EROFS))
         return real_replace(src, dst)
-
     monkeypatch.setattr(os, "replace", replace)
     capsys.readouterr()
-    code = main(
-        ["train", *SMALL, "--iterations", "10", "--checkpoint-every", "5", "--test-every", "0", "--out", str(out)]
-    )
+    code = main(["train", *SMALL, "--iterations", "10", "--checkpoint-every", "5", "--test-every", "0",
+                 "--out", str(out)])
     err = capsys.readouterr().err.strip().splitlines()
     ply = out / "point_cloud" / "iteration_10" / "point_cloud.ply"
     assert code == 1 and err[-1] == f"dc4gs-cl train: error: {ply}: cannot write: Read-only file system"
@@ -166,35 +157,15 @@ def test_temporaries_of_interrupted_writes_are_removed_when_a_run_starts(tmp_pat
     """A process killed inside a checkpoint or model write leaves a hidden temporary file; the next run into the
     folder (--resume or --force) removes them, and nothing else."""
     out = tmp_path / "run"
-    assert (
-        main(["train", *SMALL, "--iterations", "4", "--checkpoint-every", "2", "--test-every", "0", "--out", str(out)])
-        == 0
-    )
-    stale = [
-        out / ".checkpoint.0123abcd.tmp.npz",
-        out / "point_cloud" / "iteration_4" / ".point_cloud.89abcdef.tmp.ply",
-    ]
+    assert main(["train", *SMALL, "--iterations", "4", "--checkpoint-every", "2", "--test-every", "0",
+                 "--out", str(out)]) == 0
+    stale = [out / ".checkpoint.0123abcd.tmp.npz",
+             out / "point_cloud" / "iteration_4" / ".point_cloud.89abcdef.tmp.ply"]
     kept = [out / ".mine", out / ".checkpoint.notours.tmp.npz", out / "notes.txt"]
     for p in stale + kept:
         p.write_bytes(b"x")
-    assert (
-        main(
-            [
-                "train",
-                *SMALL,
-                "--iterations",
-                "4",
-                "--checkpoint-every",
-                "2",
-                "--test-every",
-                "0",
-                "--out",
-                str(out),
-                "--resume",
-            ]
-        )
-        == 0
-    )  # a finished run: nothing left to train
+    assert main(["train", *SMALL, "--iterations", "4", "--checkpoint-every", "2", "--test-every", "0",
+                 "--out", str(out), "--resume"]) == 0   # a finished run: nothing left to train
     assert not any(p.exists() for p in stale) and all(p.exists() for p in kept)
 
 
@@ -202,21 +173,8 @@ def test_the_same_command_with_resume_resumes_a_dc4gs_run(tmp_path, capsys):
     """A job script re-runs its command with --resume: --dc4gs (DCC and DCS) compares as the settings it gives,
     so the run resumes (here from its last checkpoint, with nothing left to train); a real change is refused
     naming the setting."""
-    command = [
-        "train",
-        *SMALL,
-        "--iterations",
-        "4",
-        "--checkpoint-every",
-        "2",
-        "--test-every",
-        "0",
-        "--strategy",
-        "absgs",
-        "--dc4gs",
-        "--out",
-        str(tmp_path / "run"),
-    ]
+    command = ["train", *SMALL, "--iterations", "4", "--checkpoint-every", "2", "--test-every", "0",
+               "--strategy", "absgs", "--dc4gs", "--out", str(tmp_path / "run")]
     assert main(command) == 0
     capsys.readouterr()
     assert main(command + ["--resume"]) == 0
@@ -230,20 +188,11 @@ def test_a_run_folder_holds_one_run_at_a_time(tmp_path, capsys):
     into a new folder leaves no folder behind."""
     import subprocess
     import sys
-
     out = tmp_path / "run"
-    holder = subprocess.Popen(
-        [
-            sys.executable,
-            "-c",
-            (
-                "import sys, time; from dc4gs_cl.run_folder import RunFolder\n"
-                f"with RunFolder({str(out)!r}).locked():\n    print('held', flush=True); time.sleep(60)"
-            ),
-        ],
-        stdout=subprocess.PIPE,
-        text=True,
-    )
+    holder = subprocess.Popen([sys.executable, "-c", (
+        "import sys, time; from dc4gs_cl.run_folder import RunFolder\n"
+        f"with RunFolder({str(out)!r}).locked():\n    print('held', flush=True); time.sleep(60)")],
+        stdout=subprocess.PIPE, text=True)
     try:
         assert holder.stdout.readline().strip() == "held"
         capsys.readouterr()
@@ -272,7 +221,7 @@ def test_a_damaged_results_file_is_set_aside_not_the_evaluation(tmp_path, capsys
     assert len(err) == 1 and "results.json: not a results file" in err[0] and "results.corrupt.json" in err[0]
     assert (out / "results.corrupt.json").read_text() == damage
     assert list(json.loads((out / "results.json").read_text())) == ["ours_3"]
-    assert "ours_3" in json.loads((out / "per_view.json").read_text())  # the intact one merged as before
+    assert "ours_3" in json.loads((out / "per_view.json").read_text())   # the intact one merged as before
 
 
 @pytest.mark.parametrize("command", ["train", "render"])
@@ -283,34 +232,21 @@ def test_sigterm_while_the_scene_loads_is_a_clean_exit(tmp_path, command):
     import signal
     import subprocess
     import sys
-
     out = tmp_path / "new"
-    args = {
-        "train": ["train", *SMALL, "--iterations", "5", "--out", str(out)],
-        "render": ["render", "--scene", "builtin", "--out", str(out)],
-    }[command]
-    done = subprocess.run(
-        [
-            sys.executable,
-            "-c",
-            (
-                "import os, signal, sys, time\n"
-                "import dc4gs_cl.scene.loader as scenes\n"
-                "def loading(*a, **k):\n"
-                f"    if os.path.isdir({str(out)!r}):   # train's own folder: what undistortion would have cached\n"
-                f"        os.makedirs(os.path.join({str(out)!r}, 'undistorted'))\n"
-                f"        open(os.path.join({str(out)!r}, 'undistorted', 'a.png'), 'wb').close()\n"
-                "    os.kill(os.getpid(), signal.SIGTERM)\n"
-                "    time.sleep(30)\n"
-                "scenes.builtin_scene = loading\n"
-                "from dc4gs_cl.cli import main\n"
-                f"sys.exit(main({args!r}))"
-            ),
-        ],
-        capture_output=True,
-        text=True,
-        timeout=120,
-    )
+    args = {"train": ["train", *SMALL, "--iterations", "5", "--out", str(out)],
+            "render": ["render", "--scene", "builtin", "--out", str(out)]}[command]
+    done = subprocess.run([sys.executable, "-c", (
+        "import os, signal, sys, time\n"
+        "import dc4gs_cl.scene.loader as scenes\n"
+        "def loading(*a, **k):\n"
+        f"    if os.path.isdir({str(out)!r}):   # train's own folder: what undistortion would have cached\n"
+        f"        os.makedirs(os.path.join({str(out)!r}, 'undistorted'))\n"
+        f"        open(os.path.join({str(out)!r}, 'undistorted', 'a.png'), 'wb').close()\n"
+        "    os.kill(os.getpid(), signal.SIGTERM)\n"
+        "    time.sleep(30)\n"
+        "scenes.builtin_scene = loading\n"
+        "from dc4gs_cl.cli import main\n"
+        f"sys.exit(main({args!r}))")], capture_output=True, text=True, timeout=120)
     assert done.returncode == 128 + signal.SIGTERM, (done.returncode, done.stderr[-2000:])
     assert done.stderr.strip().splitlines() == [f"dc4gs-cl {command}: terminated"], done.stderr[-2000:]
     assert not out.exists()

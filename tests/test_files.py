@@ -1,5 +1,4 @@
 """Atomic output (dc4gs_cl/files.py) and per-view output names."""
-
 import numpy as np
 import pytest
 
@@ -14,7 +13,6 @@ def test_a_failed_write_keeps_the_old_file_and_leaves_no_temporary(tmp_path):
     def fails(tmp):
         tmp.write_text("half")
         raise RuntimeError("disk full")
-
     with pytest.raises(RuntimeError):
         write_atomic(path, fails)
     assert path.read_text() == '{\n  "a": 1\n}'
@@ -33,7 +31,7 @@ def test_replace_folder_swaps_in_the_new_folder_whole(tmp_path):
     (final / "old.png").write_bytes(b"old")
     staging = staging_folder(final)
     (staging / "new.png").write_bytes(b"new")
-    assert (final / "old.png").exists()  # the old folder stays until the new one is complete
+    assert (final / "old.png").exists()            # the old folder stays until the new one is complete
     replace_folder(staging, final)
     assert [p.name for p in final.iterdir()] == ["new.png"]
     assert [p.name for p in tmp_path.iterdir()] == ["renders"]
@@ -42,7 +40,6 @@ def test_replace_folder_swaps_in_the_new_folder_whole(tmp_path):
 def test_file_stems_are_unique_across_folders():
     def cam(name):
         return Camera(name, 4, 3, 1.0, 1.0, 2.0, 1.5, np.eye(3), np.zeros(3))
-
     assert cam("cam1/0001.jpg").file_stem == "cam1_0001"
     assert cam("cam2/0001.jpg").file_stem == "cam2_0001"
     assert cam("r_0").file_stem == "r_0"

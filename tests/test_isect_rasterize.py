@@ -1,6 +1,5 @@
 """Tile intersection (compaction, two sorts, ranges) and the forward rasterizer against the float64
 references, fed with the device's own projected values so that integer outputs must agree exactly."""
-
 from dataclasses import replace
 
 import numpy as np
@@ -20,17 +19,13 @@ def render_and_download(rt, renderer, model, cam, background):
     h, w = cam.height, cam.width
     proj = res.proj
     host = {
-        "mean2d": rt.to_host(proj.mean2d, (n, 2)),
-        "conic_opacity": rt.to_host(proj.conic_opacity, (n, 4)),
-        "rgb": rt.to_host(proj.rgb, (n, 3)),
-        "depth": rt.to_host(proj.depth, n),
-        "radius": rt.to_host(proj.radius, n, np.int32),
-        "alpha_extent": rt.to_host(proj.alpha_extent, (n, 2)),
+        "mean2d": rt.to_host(proj.mean2d, (n, 2)), "conic_opacity": rt.to_host(proj.conic_opacity, (n, 4)),
+        "rgb": rt.to_host(proj.rgb, (n, 3)), "depth": rt.to_host(proj.depth, n),
+        "radius": rt.to_host(proj.radius, n, np.int32), "alpha_extent": rt.to_host(proj.alpha_extent, (n, 2)),
         "tiles_touched": rt.to_host(proj.tiles_touched, n, np.uint32),
         "gaussian_of_pair": rt.to_host(res.isect.gaussian_of_pair, p, np.uint32),
         "ranges": rt.to_host(res.isect.ranges, (res.tiles_x * res.tiles_y, 2), np.uint32),
-        "image": res.image(rt),
-        "final_T": rt.to_host(res.raster.final_T, (h, w)),
+        "image": res.image(rt), "final_T": rt.to_host(res.raster.final_T, (h, w)),
         "last_pair": rt.to_host(res.raster.last_pair, (h, w), np.int32),
     }
     # each pair's tile, from the tiles' ranges (the sort's tile keys are temporaries, gone after the render)
@@ -41,7 +36,7 @@ def render_and_download(rt, renderer, model, cam, background):
 
 
 TUNINGS = {**SHAPES, "gpu-within-64": NARROW_SHAPE}
-EDGE_ROUNDING = 1e-3  # px: a pair box's edge this close to a tile boundary may fall either side in float32
+EDGE_ROUNDING = 1e-3   # px: a pair box's edge this close to a tile boundary may fall either side in float32
 
 
 def assert_pairs_match(got, tile_of_pair, gaussian_of_pair, ranges, tiles_x, tiles_y):
@@ -59,10 +54,8 @@ def assert_pairs_match(got, tile_of_pair, gaussian_of_pair, ranges, tiles_x, til
     np.testing.assert_array_equal(got["gaussian_of_pair"][mine], gaussian_of_pair[theirs])
     for g in np.flatnonzero(undecided):
         tiles = set(got["tile_of_pair"][got["gaussian_of_pair"] == g].tolist())
-        inner, outer = (
-            tile_rect_reference(mean[g : g + 1], half[g : g + 1] + d, tiles_x, tiles_y)[0]
-            for d in (-EDGE_ROUNDING, EDGE_ROUNDING)
-        )
+        inner, outer = (tile_rect_reference(mean[g:g + 1], half[g:g + 1] + d, tiles_x, tiles_y)[0]
+                        for d in (-EDGE_ROUNDING, EDGE_ROUNDING))
         within = lambda r: {y * tiles_x + x for y in range(r[1], r[3]) for x in range(r[0], r[2])}
         assert within(inner) <= tiles <= within(outer), g
     # the device's own pairs in (tile, depth, index) order, and its ranges those of its pairs
@@ -85,30 +78,19 @@ def test_a_shape_narrowed_to_the_work_group_limit():
 @pytest.mark.parametrize("shape", TUNINGS)
 def test_intersections_and_raster_match_reference(rt, rng, shape):
     model = random_model(rng, 3000, spread=1.2)
-    model.means[100:300] = model.means[100]  # equal depths: ties must keep index order
+    model.means[100:300] = model.means[100]     # equal depths: ties must keep index order
     cam = random_camera(rng, int(rng.integers(100, 180)), int(rng.integers(70, 140)))
     background = rng.uniform(0, 1, 3)
     res, got = render_and_download(rt, Renderer(rt, TUNINGS[shape], poison=True), model, cam, background)
 
     tile_of_pair, gaussian_of_pair, ranges = intersect_reference(
-        got["mean2d"], got["radius"], got["alpha_extent"], got["tiles_touched"], got["depth"], res.tiles_x, res.tiles_y
-    )
+        got["mean2d"], got["radius"], got["alpha_extent"], got["tiles_touched"], got["depth"], res.tiles_x, res.tiles_y)
     assert res.isect.n_visible == np.count_nonzero(got["tiles_touched"]) > 500
     assert_pairs_match(got, tile_of_pair, gaussian_of_pair, ranges, res.tiles_x, res.tiles_y)
 
     co = got["conic_opacity"].astype(np.float64)
-    ref = rasterize_reference(
-        got["mean2d"].astype(np.float64),
-        co[:, :3],
-        co[:, 3],
-        got["rgb"].astype(np.float64),
-        gaussian_of_pair,
-        ranges,
-        cam.width,
-        cam.height,
-        res.tiles_x,
-        background,
-    )
+    ref = rasterize_reference(got["mean2d"].astype(np.float64), co[:, :3], co[:, 3], got["rgb"].astype(np.float64),
+                              gaussian_of_pair, ranges, cam.width, cam.height, res.tiles_x, background)
     assert np.isfinite(got["image"]).all()
     # float32 against float64: a blend decision can flip where alpha or T sits on its threshold within
     # rounding (about one pixel in 10^4 here); such a pixel differs by one faint Gaussian's share.
@@ -129,7 +111,7 @@ def test_saturated_tiles_stop_early_and_empty_tiles_show_background(rt, rng):
     model.means[:, 0] = rng.uniform(-2.2, -0.6, n)
     model.means[:, 2] = rng.uniform(-1.3, 1.3, n)
     model.opacity_logits[:] = 8.0
-    cam = Camera.look_at("front", (0, -3, 0), (0, 0, 0), 128, 64, fov_x=1.2)  # image x = world x
+    cam = Camera.look_at("front", (0, -3, 0), (0, 0, 0), 128, 64, fov_x=1.2)   # image x = world x
     background = np.array([0.1, 0.7, 0.3])
     res, got = render_and_download(rt, Renderer(rt, SHAPES["cpu"], poison=True), model, cam, background)
     left, right = got["final_T"][8:-8, 4:28], got["final_T"][:, 100:]
@@ -137,7 +119,7 @@ def test_saturated_tiles_stop_early_and_empty_tiles_show_background(rt, rng):
     # TRANSMITTANCE_MIN, so T < TRANSMITTANCE_MIN / (1 - ALPHA_MAX) (T < 1e-3, asked of 90% of the pixels before,
     # failed 1 draw in a few hundred, seeds 628167841 and 2112003836: T stops anywhere in [1e-4, 1e-2))
     assert (left < TRANSMITTANCE_MIN / (1 - ALPHA_MAX)).all()
-    np.testing.assert_array_equal(right, 1.0)  # untouched: T stays 1
+    np.testing.assert_array_equal(right, 1.0)          # untouched: T stays 1
     np.testing.assert_allclose(got["image"][:, 100:], np.broadcast_to(background, (64, 28, 3)), atol=1e-6)
     # Saturated pixels stopped before the end of their tile's list.
     first, end = got["ranges"][res.tiles_x * 2 + 1]
@@ -146,7 +128,6 @@ def test_saturated_tiles_stop_early_and_empty_tiles_show_background(rt, rng):
 
 def test_empty_model_renders_background(rt, rng):
     from dc4gs_cl.model import GaussianModel
-
     empty = GaussianModel(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 4)), np.zeros(0), np.zeros((0, 1, 3)))
     cam = random_camera(rng, 40, 30)
     res = Renderer(rt, poison=True).render(DeviceGaussians(rt, empty), cam, 0, (0.25, 0.5, 0.75))
@@ -156,18 +137,13 @@ def test_empty_model_renders_background(rt, rng):
 
 def test_exact_skips_change_no_pixel_and_fast_exp_matches_driver_exp(rt, rng):
     from dc4gs_cl.render import RenderOptions
-
     model = random_model(rng, 4000, spread=1.0)
-    model.opacity_logits[:1000] = 6.0  # opaque ones saturate tiles, so early stop has work to skip
+    model.opacity_logits[:1000] = 6.0    # opaque ones saturate tiles, so early stop has work to skip
     cam = random_camera(rng, 160, 120)
     g = DeviceGaussians(rt, model)
     images, pairs = {}, {}
-    for name, opts in [
-        ("default", RenderOptions()),
-        ("no_alpha_cut", RenderOptions(alpha_cut=False)),
-        ("no_early_stop", RenderOptions(early_stop=False)),
-        ("driver_exp", RenderOptions(fast_exp=False)),
-    ]:
+    for name, opts in [("default", RenderOptions()), ("no_alpha_cut", RenderOptions(alpha_cut=False)),
+                       ("no_early_stop", RenderOptions(early_stop=False)), ("driver_exp", RenderOptions(fast_exp=False))]:
         res = Renderer(rt, SHAPES["cpu"], opts, poison=True).render(g, cam, 3, (0.3, 0.3, 0.3))
         images[name], pairs[name] = res.image(rt), res.isect.n_pairs
     assert pairs["no_alpha_cut"] > pairs["default"]
@@ -183,7 +159,6 @@ def test_exact_skips_change_no_pixel_and_fast_exp_matches_driver_exp(rt, rng):
 
 def test_relaxed_math_is_built_with_the_flag_and_stays_close(rt, rng):
     from dc4gs_cl.render import RenderOptions
-
     relaxed = RenderOptions(relaxed_math=True)
     assert "-cl-fast-relaxed-math" in rt.build_options(relaxed.defines())
     assert "-cl-fast-relaxed-math" not in rt.build_options(RenderOptions().defines())
@@ -206,18 +181,14 @@ def test_a_pair_capacity_gives_the_same_frame_or_says_it_overflowed(rt, rng, sha
     given room for fewer, it says so on the device, with its true counts, and writes no pair past the room (the
     scratch is poisoned: what lies past it stays so)."""
     from dc4gs_cl.render.workspace import POISON
-
     model = random_model(rng, 2000, spread=1.2)
     cam = random_camera(rng, int(rng.integers(80, 140)), int(rng.integers(60, 110)))
     g, background = DeviceGaussians(rt, model), rng.uniform(0, 1, 3)
     exact = Renderer(rt, SHAPES[shape], poison=True)
     res = exact.render(g, cam, 3, background)
     p, tiles = res.isect.n_pairs, res.tiles_x * res.tiles_y
-    want = {
-        "gaussian_of_pair": rt.to_host(res.isect.gaussian_of_pair, p, np.uint32),
-        "ranges": rt.to_host(res.isect.ranges, (tiles, 2), np.uint32),
-        "image": res.image(rt),
-    }
+    want = {"gaussian_of_pair": rt.to_host(res.isect.gaussian_of_pair, p, np.uint32),
+            "ranges": rt.to_host(res.isect.ranges, (tiles, 2), np.uint32), "image": res.image(rt)}
     v = res.isect.n_visible
     assert p > 1000 and frame_counts(exact) == (v, p, False)
 
@@ -229,7 +200,7 @@ def test_a_pair_capacity_gives_the_same_frame_or_says_it_overflowed(rt, rng, sha
     np.testing.assert_array_equal(rt.to_host(res.isect.ranges, (tiles, 2), np.uint32), want["ranges"])
     np.testing.assert_array_equal(res.image(rt), want["image"])
 
-    tight = Renderer(rt, SHAPES[shape], poison=True)  # its buffers first sized for all pairs, then poisoned
+    tight = Renderer(rt, SHAPES[shape], poison=True)   # its buffers first sized for all pairs, then poisoned
     held = tight.render(g, cam, 3, background, pair_capacity=p).isect
     for buf in (held.gaussian_of_pair, held.pair_of_emission):
         rt.fill(buf, POISON, buf.size)

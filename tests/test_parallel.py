@@ -1,7 +1,6 @@
 """Training on batches of views (--batch B) and in several processes (mpirun -n P dc4gs-cl train): the batch's
 rules, a batch run resuming to the same model, and two MPI processes training as one process with a batch of two,
 their models the same on both, interrupted and resumed. The MPI tests skip where mpi4py or mpirun is absent."""
-
 import importlib.util
 import json
 import os
@@ -27,31 +26,27 @@ from dc4gs_cl.train import Trainer
 from dc4gs_cl.train.schedule import Schedule
 
 MPIRUN = shutil.which("mpirun", path=f"{Path(sys.executable).parent}{os.pathsep}{os.environ.get('PATH', '')}")
-needs_mpi = pytest.mark.skipif(
-    importlib.util.find_spec("mpi4py") is None or MPIRUN is None,
-    reason="mpi4py or mpirun is not installed (pip install '.[mpi]')",
-)
+needs_mpi = pytest.mark.skipif(importlib.util.find_spec("mpi4py") is None or MPIRUN is None,
+                               reason="mpi4py or mpirun is not installed (pip install '.[mpi]')")
 
 
 def test_a_batch_scales_the_rates_betas_and_schedule_and_splits_among_processes(rt):
     """Grendel's rule: rates times sqrt(B), Adam's betas to the power B; the schedule in views; a batch that the
     processes cannot share evenly is refused; each process takes a contiguous share."""
     one, four = (Schedule(TrainConfig(scene="builtin", batch=b)).learning_rates(10, 2.0, True) for b in (1, 4))
-    assert four["means"] == pytest.approx(2 * one["means"]) and four["sh"] == pytest.approx(
-        (2 * one["sh"][0], 2 * one["sh"][1])
-    )
+    assert four["means"] == pytest.approx(2 * one["means"]) and four["sh"] == pytest.approx((2 * one["sh"][0],
+                                                                                           2 * one["sh"][1]))
     # the densification interval counts views: a batch of 4 over 7,500 iterations densifies where 30,000 of one do
     for batch, iterations in ((1, 30_000), (4, 7_500)):
         c = Schedule(TrainConfig(scene="builtin", batch=batch, iterations=iterations)).strategy().config
         assert (c.densify_from * batch, c.densify_until * batch, c.densify_every * batch) == (500, 15_000, 100)
     scene = load_scene("builtin", resolution=8)
     trainer = Trainer(TrainConfig(scene="builtin", resolution=8, batch=4), scene, rt)
-    assert trainer.model.adam.config.beta1 == pytest.approx(0.9**4)
-    assert trainer.model.adam.config.beta2 == pytest.approx(0.999**4)
+    assert trainer.model.adam.config.beta1 == pytest.approx(0.9 ** 4)
+    assert trainer.model.adam.config.beta2 == pytest.approx(0.999 ** 4)
 
     class Two(SingleProcess):
         size, rank = 2, 1
-
     with pytest.raises(InputError, match="--batch 3 must be a multiple of the 2 processes"):
         Trainer(TrainConfig(scene="builtin", resolution=8, batch=3), scene, rt, group=Two())
     assert Two().share(list("abcd")) == ["c", "d"]
@@ -62,36 +57,22 @@ def test_a_batch_run_learns_and_resumes_to_the_same_model(rt, tmp_path):
     """--batch 2 with AbsGS + DC4GS (the window gathered over both views of each step): the test views improve,
     it densifies, and a run stopped at a checkpoint and resumed ends bit for bit where the straight run does."""
     scene = load_scene("builtin", resolution=4)
-    cfg = TrainConfig(
-        scene="builtin", resolution=4, iterations=120, batch=2, strategy="absgs", dc4gs=DC4GSConfig(dcc=True, dcs=True)
-    )
+    cfg = TrainConfig(scene="builtin", resolution=4, iterations=120, batch=2, strategy="absgs",
+                      dc4gs=DC4GSConfig(dcc=True, dcs=True))
 
     straight, resumed = straight_and_resumed(cfg, scene, rt, tmp_path, 50)
     a, b = straight.model.download(), resumed.model.download()
     for name in a.params:
         np.testing.assert_array_equal(a.params[name], b.params[name], err_msg=name)
         np.testing.assert_array_equal(a.m[name], b.m[name], err_msg=name)
-    stepping = sum(straight.strategy.actions(it).optimiser_step for it in range(1, 121))  # not on densify steps
+    stepping = sum(straight.strategy.actions(it).optimiser_step for it in range(1, 121))   # not on densify steps
     assert straight.model.adam.steps["means"] == stepping > 100 and a.n > len(scene.points)
     assert straight.loss.read_stats()["loss"] < 0.25
 
 
 def mpi_train(n: int, *args, wait: bool = True) -> subprocess.Popen:
-    cmd = [
-        MPIRUN,
-        "--allow-run-as-root",
-        "--oversubscribe",
-        "-n",
-        str(n),
-        sys.executable,
-        "-m",
-        "dc4gs_cl",
-        "train",
-        "--no-progress",
-        "--lpips",
-        "none",
-        *args,
-    ]
+    cmd = [MPIRUN, "--allow-run-as-root", "--oversubscribe", "-n", str(n), sys.executable, "-m", "dc4gs_cl", "train",
+           "--no-progress", "--lpips", "none", *args]
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
     if wait:
         proc.out, proc.err = proc.communicate(timeout=600)
@@ -99,12 +80,8 @@ def mpi_train(n: int, *args, wait: bool = True) -> subprocess.Popen:
 
 
 def one_process(*args) -> subprocess.CompletedProcess:
-    return subprocess.run(
-        [sys.executable, "-m", "dc4gs_cl", "train", "--no-progress", "--lpips", "none", *args],
-        capture_output=True,
-        text=True,
-        timeout=600,
-    )
+    return subprocess.run([sys.executable, "-m", "dc4gs_cl", "train", "--no-progress", "--lpips", "none", *args],
+                          capture_output=True, text=True, timeout=600)
 
 
 def model_bytes(out: Path, iterations: int) -> bytes:
@@ -166,14 +143,13 @@ def test_started_by_a_launcher_without_mpi4py_says_how_to_get_it(monkeypatch):
     """A process an MPI launcher started among several, where mpi4py does not import: one line naming the extra;
     started alone (no launcher's variables, or a world of one), no MPI at all."""
     from dc4gs_cl.train.parallel import SIZE_VARIABLES, process_group
-
     for name in SIZE_VARIABLES:
         monkeypatch.delenv(name, raising=False)
     assert type(process_group()) is SingleProcess
     monkeypatch.setenv("PMI_SIZE", "1")
     assert type(process_group()) is SingleProcess
     monkeypatch.setenv("PMI_SIZE", "4")
-    monkeypatch.setitem(sys.modules, "mpi4py", None)  # import mpi4py raises ImportError
+    monkeypatch.setitem(sys.modules, "mpi4py", None)   # import mpi4py raises ImportError
     with pytest.raises(InputError, match=r"one of 4 MPI processes, but mpi4py is not installed: pip install"):
         process_group()
 
@@ -184,7 +160,7 @@ def test_processes_whose_models_differ_stop_with_one_line():
     from dc4gs_cl.errors import DeviceError
     from dc4gs_cl.train.parallel import MPIGroup
 
-    class World:  # what check_same asks of a communicator, the other process's model hash given
+    class World:   # what check_same asks of a communicator, the other process's model hash given
         def __init__(self, other):
             self.other = other
 

@@ -1,6 +1,5 @@
 """Camera paths (scene/paths.py) and `render --path`: the interpolated path passes through the training cameras,
 the orbit circles the point they look at, looking at it; frames and a video are written, or a line says why not."""
-
 import shutil
 
 import numpy as np
@@ -20,7 +19,7 @@ def random_rotation(rng) -> np.ndarray:
 
 
 def test_quaternions_of_rotations_and_their_interpolation(rng):
-    for _ in range(200):  # every branch of Shepperd's method
+    for _ in range(200):   # every branch of Shepperd's method
         R = random_rotation(rng)
         q = geometry.rotmat_to_quat(R)
         assert q[0] >= 0 and abs(np.linalg.norm(q) - 1) < 1e-12
@@ -29,7 +28,7 @@ def test_quaternions_of_rotations_and_their_interpolation(rng):
     np.testing.assert_allclose(geometry.slerp(q0, q1, 0.0), q0, atol=1e-12)
     assert abs(abs(geometry.slerp(q0, q1, 1.0) @ q1) - 1) < 1e-12
     half = geometry.slerp(q0, q1, 0.5)
-    assert abs(np.linalg.norm(half) - 1) < 1e-12 and abs(abs(half @ q0) - abs(half @ q1)) < 1e-12  # halfway
+    assert abs(np.linalg.norm(half) - 1) < 1e-12 and abs(abs(half @ q0) - abs(half @ q1)) < 1e-12   # halfway
     np.testing.assert_allclose(geometry.slerp(q0, q0, 0.3), q0, atol=1e-12)
 
 
@@ -43,13 +42,13 @@ def test_the_interpolated_path_passes_through_the_training_cameras():
         np.testing.assert_allclose(frame.center, cam.center, atol=1e-9)
         assert (frame.width, frame.height) == (cams[0].width, cams[0].height) and frame.fx == pytest.approx(cam.fx)
     steps_between = [np.linalg.norm(a.center - b.center) for a, b in zip(path, path[1:])]
-    assert max(steps_between) < 3 * np.median(steps_between)  # smooth: no jumps
+    assert max(steps_between) < 3 * np.median(steps_between)   # smooth: no jumps
 
 
 def test_the_orbit_circles_the_point_the_cameras_look_at():
     cams = load_scene("builtin", resolution=4).train
     target = look_at_point(cams)
-    for cam in cams[:5]:  # the built-in ring looks at one point
+    for cam in cams[:5]:   # the built-in ring looks at one point
         to_target = target - cam.center
         assert np.linalg.norm(np.cross(cam.R[2], to_target)) / np.linalg.norm(to_target) < 0.05
     path = camera_path(cams, "orbit", 24)
@@ -57,9 +56,9 @@ def test_the_orbit_circles_the_point_the_cameras_look_at():
     assert np.ptp(distances) < 1e-9 * max(distances)
     for c in path:
         direction = (target - c.center) / np.linalg.norm(target - c.center)
-        np.testing.assert_allclose(c.R[2], direction, atol=1e-9)  # looking at it
+        np.testing.assert_allclose(c.R[2], direction, atol=1e-9)   # looking at it
     first = sorted(cams, key=lambda c: c.name)[0]
-    assert np.dot(path[0].center - target, first.center - target) > 0  # starting on the first camera's side
+    assert np.dot(path[0].center - target, first.center - target) > 0   # starting on the first camera's side
 
 
 def test_a_path_needs_two_cameras_and_two_frames():

@@ -1,6 +1,5 @@
 """The 3DGS PLY: exact round trips, the Inria header, channel-major f_rest, tolerant reading, clear errors,
 atomic writes."""
-
 import os
 
 import numpy as np
@@ -12,31 +11,14 @@ from dc4gs_cl.model import GaussianModel
 from dc4gs_cl.ply import read_ply, write_ply
 
 FIELDS = ("means", "log_scales", "quats", "opacity_logits", "sh")
-NP_TYPES = {
-    "char": "i1",
-    "uchar": "u1",
-    "short": "i2",
-    "ushort": "u2",
-    "int": "i4",
-    "uint": "u4",
-    "float": "f4",
-    "double": "f8",
-    "int8": "i1",
-    "uint8": "u1",
-    "float32": "f4",
-    "float64": "f8",
-}
+NP_TYPES = {"char": "i1", "uchar": "u1", "short": "i2", "ushort": "u2", "int": "i4", "uint": "u4",
+            "float": "f4", "double": "f8", "int8": "i1", "uint8": "u1", "float32": "f4", "float64": "f8"}
 
 
 def random_model(rng, n, degree):
     k = (degree + 1) ** 2
-    return GaussianModel(
-        rng.normal(size=(n, 3)) * 10,
-        rng.normal(size=(n, 3)),
-        rng.normal(size=(n, 4)),
-        rng.normal(size=n) * 5,
-        rng.normal(size=(n, k, 3)),
-    )
+    return GaussianModel(rng.normal(size=(n, 3)) * 10, rng.normal(size=(n, 3)), rng.normal(size=(n, 4)),
+                         rng.normal(size=n) * 5, rng.normal(size=(n, k, 3)))
 
 
 def assert_same(a, b):
@@ -49,7 +31,8 @@ def assert_same(a, b):
 
 def columns(model):
     """The model as named PLY columns (f_rest channel-major), to write in any order with write_custom."""
-    cols = {"x": model.means[:, 0], "y": model.means[:, 1], "z": model.means[:, 2], "opacity": model.opacity_logits}
+    cols = {"x": model.means[:, 0], "y": model.means[:, 1], "z": model.means[:, 2],
+            "opacity": model.opacity_logits}
     for i in range(3):
         cols[f"f_dc_{i}"] = model.sh[:, 0, i]
         cols[f"scale_{i}"] = model.log_scales[:, i]
@@ -79,11 +62,8 @@ def write_custom(path, elements, fmt="binary_little_endian", header_extra=()):
                 else:
                     fields.append((t, values[r]))
             if order is None:
-                body.append(
-                    (
-                        " ".join(repr(float(v)) if NP_TYPES[t][0] == "f" else str(int(v)) for t, v in fields) + "\n"
-                    ).encode()
-                )
+                body.append((" ".join(repr(float(v)) if NP_TYPES[t][0] == "f" else str(int(v))
+                                      for t, v in fields) + "\n").encode())
             else:
                 body.append(b"".join(np.array(v, dtype=order + NP_TYPES[t]).tobytes() for t, v in fields))
     with open(path, "wb") as f:
@@ -124,9 +104,9 @@ def test_header_is_what_plyfile_writes(tmp_path, rng):
     header = "ply\nformat binary_little_endian 1.0\nelement vertex 7\n"
     header += "".join(f"property float {n}\n" for n in names) + "end_header\n"
     data = (tmp_path / "a.ply").read_bytes()
-    assert data[: len(header)] == header.encode("ascii")
+    assert data[:len(header)] == header.encode("ascii")
     assert len(data) == len(header) + 7 * 62 * 4
-    table = np.frombuffer(data[len(header) :], dtype="<f4").reshape(7, 62)
+    table = np.frombuffer(data[len(header):], dtype="<f4").reshape(7, 62)
     np.testing.assert_array_equal(table[:, 3:6], 0)  # normals
     np.testing.assert_array_equal(table[:, 54], model.opacity_logits)
     np.testing.assert_array_equal(table[:, 58:62], model.quats)  # w x y z
@@ -142,9 +122,9 @@ def test_f_rest_is_channel_major(tmp_path, degree):
     model = GaussianModel(np.zeros((2, 3)), np.zeros((2, 3)), np.zeros((2, 4)), np.zeros(2), sh)
     write_ply(tmp_path / "a.ply", model)
     data = (tmp_path / "a.ply").read_bytes()
-    table = np.frombuffer(data[data.index(b"end_header\n") + 11 :], dtype="<f4").reshape(2, -1)
+    table = np.frombuffer(data[data.index(b"end_header\n") + 11:], dtype="<f4").reshape(2, -1)
     np.testing.assert_array_equal(table[0, 6:9], [0, 1, 2])  # f_dc_0..2 = R, G, B of coefficient 0
-    rest = table[0, 9 : 9 + 3 * (k - 1)]
+    rest = table[0, 9:9 + 3 * (k - 1)]
     for i, value in enumerate(rest):  # f_rest_i = channel * (K-1) + coef - 1
         channel, coef = divmod(i, k - 1)
         assert value == 100 * (coef + 1) + channel, i
@@ -236,7 +216,7 @@ def bad_file(tmp_path, rng, case):
     if case == "bad ascii":
         write_custom(path, [good], "ascii")
         head, body = path.read_bytes().split(b"end_header\n")
-        path.write_bytes(head + b"end_header\noops" + body[body.index(b" ") :])
+        path.write_bytes(head + b"end_header\noops" + body[body.index(b" "):])
         return path, "not a number"
     if case == "non-finite":
         model.opacity_logits[[2, 5]] = [np.nan, np.inf]
@@ -244,10 +224,11 @@ def bad_file(tmp_path, rng, case):
         write_ply(path, model)
         return path, "3 NaN or Inf values (2 in opacity, 1 in scale_1)"
     if case == "double overflow":
-        props = [(t, n, np.full(10, 1e300) if n == "x" else v) for t, n, v in vertex(model, {"x": "double"})[2]]
+        props = [(t, n, np.full(10, 1e300) if n == "x" else v)
+                 for t, n, v in vertex(model, {"x": "double"})[2]]
         write_custom(path, [("vertex", 10, props)])
         return path, "10 NaN or Inf values (10 in x)"  # beyond float32
-    if case == "huge log scale":  # finite, but its exp overflows an export's float32 (a .splat held inf)
+    if case == "huge log scale":   # finite, but its exp overflows an export's float32 (a .splat held inf)
         model.log_scales[4, 2] = 1e30
         write_ply(path, model)
         return path, "1 Gaussians with a log scale beyond +-40 (Gaussian 4:"
@@ -264,29 +245,10 @@ def bad_file(tmp_path, rng, case):
     raise AssertionError(case)
 
 
-BAD_CASES = [
-    "missing",
-    "directory",
-    "magic",
-    "empty file",
-    "no end_header",
-    "bad count",
-    "bad type",
-    "bad format",
-    "no vertex",
-    "missing properties",
-    "f_rest count",
-    "f_rest numbering",
-    "truncated",
-    "truncated ascii",
-    "bad ascii",
-    "non-finite",
-    "double overflow",
-    "huge log scale",
-    "huge mean",
-    "no Gaussians",
-    "vertex list",
-]
+BAD_CASES = ["missing", "directory", "magic", "empty file", "no end_header", "bad count", "bad type",
+             "bad format", "no vertex", "missing properties", "f_rest count", "f_rest numbering",
+             "truncated", "truncated ascii", "bad ascii", "non-finite", "double overflow", "huge log scale",
+             "huge mean", "no Gaussians", "vertex list"]
 
 
 @pytest.mark.parametrize("case", BAD_CASES)

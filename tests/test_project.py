@@ -21,27 +21,12 @@ def run_projection(rt, model, cam, sh_degree, antialiased=False):
     ctx = StageContext(rt, options=RenderOptions(antialiased=antialiased), poison=True)
     p = Project(ctx)(g, cam, sh_degree, tiles_x, tiles_y)
     n = len(model)
-    got = {
-        "mean2d": rt.to_host(p.mean2d, (n, 2)),
-        "conic_opacity": rt.to_host(p.conic_opacity, (n, 4)),
-        "rgb": rt.to_host(p.rgb, (n, 3)),
-        "depth": rt.to_host(p.depth, n),
-        "radius": rt.to_host(p.radius, n, np.int32),
-        "tiles_touched": rt.to_host(p.tiles_touched, n, np.uint32),
-        "alpha_extent": rt.to_host(p.alpha_extent, (n, 2)),
-    }
-    ref = project_reference(
-        model.means,
-        model.log_scales,
-        model.quats,
-        model.opacity_logits,
-        model.sh,
-        cam,
-        sh_degree,
-        tiles_x,
-        tiles_y,
-        antialiased,
-    )
+    got = {"mean2d": rt.to_host(p.mean2d, (n, 2)), "conic_opacity": rt.to_host(p.conic_opacity, (n, 4)),
+           "rgb": rt.to_host(p.rgb, (n, 3)), "depth": rt.to_host(p.depth, n),
+           "radius": rt.to_host(p.radius, n, np.int32), "tiles_touched": rt.to_host(p.tiles_touched, n, np.uint32),
+           "alpha_extent": rt.to_host(p.alpha_extent, (n, 2))}
+    ref = project_reference(model.means, model.log_scales, model.quats, model.opacity_logits, model.sh, cam,
+                            sh_degree, tiles_x, tiles_y, antialiased)
     return got, ref
 
 
@@ -50,7 +35,7 @@ def test_projection_matches_float64_reference(rt, rng, sh_degree, antialiased):
     model = random_model(rng, 5000, sh_degree=3, spread=2.0)
     cam = random_camera(rng, int(rng.integers(90, 200)), int(rng.integers(60, 150)), distance=3.5)
     if antialiased:
-        model.log_scales[:500] = np.log(rng.uniform(0.002, 0.02, (500, 1)))  # sub-pixel ones too
+        model.log_scales[:500] = np.log(rng.uniform(0.002, 0.02, (500, 1)))   # sub-pixel ones too
     got, ref = run_projection(rt, model, cam, sh_degree, antialiased)
     tiles_x, tiles_y = tile_grid(cam.width, cam.height)
     np.testing.assert_allclose(got["depth"], ref["depth"], rtol=1e-5, atol=1e-5)
@@ -74,7 +59,7 @@ def test_projection_matches_float64_reference(rt, rng, sh_degree, antialiased):
         assert rel_l2(got[key][both], r[both]) < 1e-5, key
     assert rel_l2(got["conic_opacity"][both, :3], ref["conic"][both]) < 1e-4
     assert rel_l2(got["conic_opacity"][both, 3], ref["opacity"][both]) < 1e-6
-    if antialiased:  # the compensation spans its range: sub-pixel Gaussians far below 1, large ones near it
+    if antialiased:   # the compensation spans its range: sub-pixel Gaussians far below 1, large ones near it
         ratio = ref["opacity"][both] * (1 + np.exp(-model.opacity_logits[both].astype(np.float64)))
         assert ratio.min() < 0.2 and ratio.max() > 0.95, (ratio.min(), ratio.max())
         # each Gaussian's, not only in the mean: a faint one's error is its alpha extent's, amplified
@@ -89,12 +74,12 @@ def test_projection_of_degenerate_gaussians_is_finite_or_culled(rt, rng, antiali
     cam = random_camera(rng, 120, 90)
     n = len(model)
     idx = rng.permutation(n)
-    model.quats[idx[:40]] = 0.0  # zero-norm quaternions
-    model.log_scales[idx[40:80]] = rng.choice([-30.0, 20.0], (40, 3))  # vanishing and huge scales
-    model.log_scales[idx[80:120], 0] = -25.0  # needle-thin
+    model.quats[idx[:40]] = 0.0                                    # zero-norm quaternions
+    model.log_scales[idx[40:80]] = rng.choice([-30.0, 20.0], (40, 3))   # vanishing and huge scales
+    model.log_scales[idx[80:120], 0] = -25.0                         # needle-thin
     model.opacity_logits[idx[120:160]] = rng.choice([-30.0, 30.0], 40)
-    model.means[idx[160:200]] = cam.center + rng.normal(0, 1e-3, (40, 3))  # on or behind the near plane
-    model.means[idx[200:240]] = model.means[idx[200]]  # coincident
+    model.means[idx[160:200]] = cam.center + rng.normal(0, 1e-3, (40, 3))   # on or behind the near plane
+    model.means[idx[200:240]] = model.means[idx[200]]                # coincident
     got, ref = run_projection(rt, model, cam, 3, antialiased)
     vis = got["radius"] > 0
     for key in ("mean2d", "conic_opacity", "rgb"):

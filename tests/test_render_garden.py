@@ -1,6 +1,5 @@
 """Whole-image check on a real point cloud: the device pipeline against the float64 reference renderer
 on gsplat's test asset (111,785 Gaussians after the crop, 648 x 420)."""
-
 import numpy as np
 import pytest
 
@@ -20,9 +19,8 @@ def test_garden_render_matches_float64_reference(rt, rng, view, scale):
     image = res.image(rt)
     # The reference pairs each Gaussian with every tile of its 3-sigma box: agreement also shows that
     # cutting pairs to the box where alpha can reach 1/255 changes no pixel.
-    ref = render_reference(
-        model.means, model.log_scales, model.quats, model.opacity_logits, model.sh, cam, 0, background, alpha_cut=False
-    )["image"]
+    ref = render_reference(model.means, model.log_scales, model.quats, model.opacity_logits, model.sh, cam, 0,
+                           background, alpha_cut=False)["image"]
     assert res.isect.n_visible > 20_000
     assert np.isfinite(image).all()
     # float32 end to end (projection, conic inversion) against float64: measured 4e-6 .. 9.5e-5 relative

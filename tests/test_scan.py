@@ -32,9 +32,8 @@ def test_scan_in_place_and_empty(rt, rng):
     buf = rt.to_device(values)
     total = rt.to_device(np.full(1, POISON, np.uint32))
     scan(buf, buf, len(values), total, 0)
-    np.testing.assert_array_equal(
-        rt.to_host(buf, len(values), np.uint32), np.concatenate([[0], np.cumsum(values)[:-1]])
-    )
+    np.testing.assert_array_equal(rt.to_host(buf, len(values), np.uint32),
+                                  np.concatenate([[0], np.cumsum(values)[:-1]]))
     scan(buf, buf, 0, total, 0)
     assert rt.to_host(total, 1, np.uint32)[0] == 0
 

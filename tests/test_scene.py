@@ -1,5 +1,4 @@
 """Scene loading: real COLMAP / NeRF scenes, undistortion, NeRF conversion, and bad input."""
-
 from __future__ import annotations
 
 import json
@@ -18,8 +17,8 @@ from conftest import DATA_DIR
 from dc4gs_cl.scene.loader import load_scene
 
 
-# ---------------------------------------------------------------------------------------------- helpers
 
+# ---------------------------------------------------------------------------------------------- helpers
 
 def write_image(path: Path, pixels: np.ndarray) -> Path:
     """Write (H, W, C) float in [0, 1] as 8-bit; the format follows the extension."""
@@ -34,26 +33,17 @@ def write_image(path: Path, pixels: np.ndarray) -> Path:
     return path
 
 
-def write_colmap(
-    root: Path,
-    camera: str = "PINHOLE 64 48 50 50 32 24",
-    images: tuple = (("a.png", (1, 0, 0, 0), (0, 0, 0)),),
-    points: tuple = ((0, 0, 5),),
-    size: tuple[int, int] | None = (64, 48),
-) -> Path:
+def write_colmap(root: Path, camera: str = "PINHOLE 64 48 50 50 32 24",
+                 images: tuple = (("a.png", (1, 0, 0, 0), (0, 0, 0)),),
+                 points: tuple = ((0, 0, 5),), size: tuple[int, int] | None = (64, 48)) -> Path:
     """A COLMAP text model in root/sparse/0 with one camera; images of `size` (None: none written)."""
     model = root / "sparse" / "0"
     model.mkdir(parents=True)
     (model / "cameras.txt").write_text(f"1 {camera}\n")
-    (model / "images.txt").write_text(
-        "".join(
-            f"{i + 1} {' '.join(map(str, q))} {' '.join(map(str, t))} 1 {name}\n\n"
-            for i, (name, q, t) in enumerate(images)
-        )
-    )
-    (model / "points3D.txt").write_text(
-        "".join(f"{i + 1} {x} {y} {z} 128 128 128 0\n" for i, (x, y, z) in enumerate(points))
-    )
+    (model / "images.txt").write_text("".join(
+        f"{i + 1} {' '.join(map(str, q))} {' '.join(map(str, t))} 1 {name}\n\n" for i, (name, q, t) in enumerate(images)))
+    (model / "points3D.txt").write_text("".join(
+        f"{i + 1} {x} {y} {z} 128 128 128 0\n" for i, (x, y, z) in enumerate(points)))
     if size is not None:
         for name, _, _ in images:
             write_image(root / "images" / name, np.full((size[1], size[0], 3), 0.5))
@@ -79,7 +69,6 @@ def gl_c2w(R: np.ndarray, t: np.ndarray) -> list:
 
 
 # ---------------------------------------------------------------------------------------------- real scenes
-
 
 @pytest.fixture(scope="module")
 def data() -> Path:
@@ -159,9 +148,8 @@ def test_sfm_points_project_into_their_images(data, scene):
     rec = pycolmap.Reconstruction(str(root / "sparse" / "0"))
     s = load_scene(root)
     for c in (s.train + s.test)[::4]:
-        obs = [
-            (p.xy, rec.points3D[p.point3D_id].xyz) for p in rec.find_image_with_name(c.name).points2D if p.has_point3D()
-        ]
+        obs = [(p.xy, rec.points3D[p.point3D_id].xyz) for p in rec.find_image_with_name(c.name).points2D
+               if p.has_point3D()]
         xy = np.array([o[0] for o in obs])
         X = np.array([o[1] for o in obs]) @ c.R.T + c.t
         assert (X[:, 2] > 0).all()
@@ -215,29 +203,15 @@ def blob_scene(root: Path, fmt: str) -> np.ndarray:
     pts = np.array([[x, y, 1.0] for x in (-0.55, 0.0, 0.55) for y in (-0.4, 0.0, 0.4)])
     d = cam.img_from_cam(pts)
     ii, jj = np.meshgrid(np.arange(w) + 0.5, np.arange(h) + 0.5)  # pixel centres
-    img = sum(np.exp(-((ii - u) ** 2 + (jj - v) ** 2) / (2 * 1.5**2)) for u, v in d)
+    img = sum(np.exp(-((ii - u) ** 2 + (jj - v) ** 2) / (2 * 1.5 ** 2)) for u, v in d)
     write_image(root / "images" / "a.png", np.repeat(img[..., None], 3, axis=2))
     if fmt == "colmap":
         write_colmap(root, f"OPENCV {w} {h} {' '.join(map(str, params))}", size=None)
     else:
         fx, fy, cx, cy, k1, k2, p1, p2 = params
-        (root / "transforms.json").write_text(
-            json.dumps(
-                {
-                    "fl_x": fx,
-                    "fl_y": fy,
-                    "cx": cx,
-                    "cy": cy,
-                    "w": w,
-                    "h": h,
-                    "k1": k1,
-                    "k2": k2,
-                    "p1": p1,
-                    "p2": p2,
-                    "frames": [{"file_path": "images/a.png", "transform_matrix": gl_c2w(np.eye(3), np.zeros(3))}],
-                }
-            )
-        )
+        (root / "transforms.json").write_text(json.dumps({
+            "fl_x": fx, "fl_y": fy, "cx": cx, "cy": cy, "w": w, "h": h, "k1": k1, "k2": k2, "p1": p1, "p2": p2,
+            "frames": [{"file_path": "images/a.png", "transform_matrix": gl_c2w(np.eye(3), np.zeros(3))}]}))
     return pts
 
 
@@ -253,7 +227,7 @@ def test_undistorted_points_land_on_pinhole_projection(tmp_path, fmt):
     w, h, params = DISTORTED
     for X in pts:
         u, v = cam.fx * X[0] / X[2] + cam.cx, cam.fy * X[1] / X[2] + cam.cy
-        near = (ii - u) ** 2 + (jj - v) ** 2 < 5**2
+        near = (ii - u) ** 2 + (jj - v) ** 2 < 5 ** 2
         centroid = np.array([(ii * img)[near].sum(), (jj * img)[near].sum()]) / img[near].sum()
         assert np.linalg.norm(centroid - [u, v]) < 0.5
     # Not a trivial pass: the corner points moved by several pixels.
@@ -277,7 +251,6 @@ def test_undistortion_cache_reused_invalidated_and_outside_input(tmp_path, monke
     # A new scene reads the cached file instead of undistorting again.
     def no_undistort(*args):
         raise AssertionError("undistorted again instead of using the cache")
-
     with monkeypatch.context() as m:
         m.setattr(pycolmap, "undistort_image", no_undistort)
         again = load_scene(root, cache_dir=cache, test_every=0)
@@ -289,7 +262,7 @@ def test_undistortion_cache_reused_invalidated_and_outside_input(tmp_path, monke
     changed = load_scene(root, cache_dir=cache, test_every=0)
     changed.read_image(changed.train[0])
     assert len(list(cache.iterdir())) == 2
-    assert not [p for p in cache.iterdir() if p.name.startswith(".")]  # no temporary file left
+    assert not [p for p in cache.iterdir() if p.name.startswith(".")]   # no temporary file left
 
     # Without cache_dir the cache goes to a temporary folder; the input folder is never written.
     default = load_scene(root, test_every=0)
@@ -302,7 +275,7 @@ def test_rgba_distorted_image_keeps_alpha(tmp_path):
     w, h, params = DISTORTED
     rgba = np.zeros((h, w, 4))
     rgba[..., 0] = 1.0
-    rgba[h // 4 : 3 * h // 4, w // 4 : 3 * w // 4, 3] = 1.0  # opaque red centre, transparent border
+    rgba[h // 4:3 * h // 4, w // 4:3 * w // 4, 3] = 1.0  # opaque red centre, transparent border
     write_image(tmp_path / "s" / "images" / "a.png", rgba)
     write_colmap(tmp_path / "s", f"OPENCV {w} {h} {' '.join(map(str, params))}", size=None)
     for bg in (0.0, 1.0):
@@ -320,9 +293,8 @@ C_TRUE = np.array([1.0, 2.0, -3.0])
 T_TRUE = -R_TRUE @ C_TRUE
 
 
-def nerf_scene(
-    root: Path, meta: dict, frames: list[dict], name: str = "transforms.json", size=(8, 6), rgba: bool = False
-) -> Path:
+def nerf_scene(root: Path, meta: dict, frames: list[dict], name: str = "transforms.json",
+               size=(8, 6), rgba: bool = False) -> Path:
     """transforms JSON with the given frames (each gets the known pose unless it has its own);
     an image is written for every file_path (.png where it has no extension)."""
     for f in frames:
@@ -350,9 +322,8 @@ def test_nerf_pose_and_camera_angle(tmp_path):
     assert (c.width, c.height) == (8, 6) == c.source_size
     assert np.allclose([c.fx, c.fy, c.cx, c.cy], [fx, fx, 4, 3])
 
-    s = load_scene(
-        nerf_scene(tmp_path / "y", {"camera_angle_x": angle, "camera_angle_y": 0.8}, [{"file_path": "a"}]), test_every=0
-    )
+    s = load_scene(nerf_scene(tmp_path / "y", {"camera_angle_x": angle, "camera_angle_y": 0.8},
+                              [{"file_path": "a"}]), test_every=0)
     assert s.train[0].fy == pytest.approx(0.5 * 6 / math.tan(0.4))
 
 
@@ -368,11 +339,8 @@ def test_nerf_intrinsics_top_level_and_per_frame(tmp_path):
 
 def test_nerf_extension_order_and_jpg(tmp_path):
     write_image(tmp_path / "img" / "x.jpg", np.full((6, 8, 3), 0.25))
-    (tmp_path / "transforms.json").write_text(
-        json.dumps(
-            {"camera_angle_x": 1.0, "frames": [{"file_path": "./img/x", "transform_matrix": gl_c2w(R_TRUE, T_TRUE)}]}
-        )
-    )
+    (tmp_path / "transforms.json").write_text(json.dumps({"camera_angle_x": 1.0, "frames": [
+        {"file_path": "./img/x", "transform_matrix": gl_c2w(R_TRUE, T_TRUE)}]}))
     s = load_scene(tmp_path, test_every=0)
     assert s.train[0].image_path == tmp_path / "img" / "x.jpg"
     assert np.allclose(s.read_image(s.train[0]), 0.25, atol=0.02)
@@ -407,11 +375,8 @@ def test_blender_split_files_and_instant_ngp_split(tmp_path):
 def test_nerf_fisheye_and_full_opencv_are_undistorted(tmp_path):
     meta = {"fl_x": 6.0, "cx": 4, "cy": 3, "w": 8, "h": 6, "k1": 0.01, "k2": 0.0, "k3": 0.02, "k4": 0.0}
     full = load_scene(nerf_scene(tmp_path / "a", meta, [{"file_path": "a"}]), cache_dir=tmp_path / "c", test_every=0)
-    fish = load_scene(
-        nerf_scene(tmp_path / "b", {**meta, "is_fisheye": True}, [{"file_path": "a"}]),
-        cache_dir=tmp_path / "c",
-        test_every=0,
-    )
+    fish = load_scene(nerf_scene(tmp_path / "b", {**meta, "is_fisheye": True}, [{"file_path": "a"}]),
+                      cache_dir=tmp_path / "c", test_every=0)
     for s in (full, fish):
         c = s.train[0]
         assert c.source_size == (c.width, c.height) and s.read_image(c).shape == (c.height, c.width, 3)
@@ -420,7 +385,6 @@ def test_nerf_fisheye_and_full_opencv_are_undistorted(tmp_path):
 
 
 # ---------------------------------------------------------------------------------------------- resolution
-
 
 def test_resolution_default_and_divisor(tmp_path):
     write_colmap(tmp_path, "PINHOLE 2001 999 1000 1000 1000.5 499.5", size=(2001, 999))
@@ -435,7 +399,6 @@ def test_resolution_default_and_divisor(tmp_path):
 
 
 # ---------------------------------------------------------------------------------------------- bad input
-
 
 def raises_naming(name, *args, **kwargs) -> InputError:
     with pytest.raises(InputError) as e:
@@ -465,11 +428,8 @@ def test_corrupt_image(tmp_path):
     nerf = tmp_path / "nerf"
     nerf.mkdir()
     (nerf / "x.jpg").write_bytes(b"\x00garbage, not a JPEG" * 10)
-    (nerf / "transforms.json").write_text(
-        json.dumps(
-            {"camera_angle_x": 1.0, "frames": [{"file_path": "x.jpg", "transform_matrix": gl_c2w(R_TRUE, T_TRUE)}]}
-        )
-    )
+    (nerf / "transforms.json").write_text(json.dumps({"camera_angle_x": 1.0, "frames": [
+        {"file_path": "x.jpg", "transform_matrix": gl_c2w(R_TRUE, T_TRUE)}]}))
     raises_naming("x.jpg", nerf)
 
 
@@ -480,14 +440,8 @@ def test_colmap_image_missing_on_disk(tmp_path):
 
 
 def test_nerf_image_missing_on_disk(tmp_path):
-    (tmp_path / "transforms.json").write_text(
-        json.dumps(
-            {
-                "camera_angle_x": 1.0,
-                "frames": [{"file_path": "./train/r_9", "transform_matrix": gl_c2w(R_TRUE, T_TRUE)}],
-            }
-        )
-    )
+    (tmp_path / "transforms.json").write_text(json.dumps({"camera_angle_x": 1.0, "frames": [
+        {"file_path": "./train/r_9", "transform_matrix": gl_c2w(R_TRUE, T_TRUE)}]}))
     raises_naming("r_9", tmp_path)
 
 
@@ -548,7 +502,6 @@ def test_output_names_stay_inside_the_output_folder_and_clashes_are_refused(tmp_
     from dc4gs_cl.model import initial_model
     from dc4gs_cl.render import DeviceGaussians, Renderer
     from dc4gs_cl.scene.builtin import builtin_scene
-
     outside = tmp_path / "outside"
     names = [f"{outside}/secret.png", "../../up.png", "..png", "a/../b.png"]
     scene = builtin_scene(resolution=8)
@@ -561,7 +514,7 @@ def test_output_names_stay_inside_the_output_folder_and_clashes_are_refused(tmp_
     assert not outside.exists()
 
     frames = [{"file_path": "a"}, {"file_path": "b"}, {"file_path": "a"}]
-    with pytest.raises(InputError, match="'a' is listed twice") as e:  # named: the file listing the views
+    with pytest.raises(InputError, match="'a' is listed twice") as e:   # named: the file listing the views
         load_scene(nerf_scene(tmp_path / "twice", {"camera_angle_x": 1.0}, frames), test_every=0)
     assert e.value.path == str(tmp_path / "twice" / "transforms.json")
     frames = [{"file_path": "x/y"}, {"file_path": "x_y"}]
@@ -573,32 +526,12 @@ def test_the_scene_line_states_mixed_view_sizes(tmp_path, capsys):
     """A scene whose views differ in size says so on train's scene line (it showed the first view's size alone,
     as if a 16x12 scene held a 1x1 view)."""
     from dc4gs_cl.cli import main
-
     root = tmp_path / "scene"
     root.mkdir()
-    write_image(root / "odd.png", np.full((1, 1, 3), 0.5))  # a 1x1 view among 16x12 ones
-    nerf_scene(
-        root,
-        {"camera_angle_x": 0.9},
-        [{"file_path": f"./v{i}"} for i in range(3)] + [{"file_path": "./odd"}],
-        size=(16, 12),
-    )
-    assert (
-        main(
-            [
-                "train",
-                "--scene",
-                str(root),
-                "--iterations",
-                "1",
-                "--test-every",
-                "0",
-                "--out",
-                str(tmp_path / "out"),
-                "--no-progress",
-            ]
-        )
-        == 0
-    )
+    write_image(root / "odd.png", np.full((1, 1, 3), 0.5))      # a 1x1 view among 16x12 ones
+    nerf_scene(root, {"camera_angle_x": 0.9}, [{"file_path": f"./v{i}"} for i in range(3)] + [{"file_path": "./odd"}],
+               size=(16, 12))
+    assert main(["train", "--scene", str(root), "--iterations", "1", "--test-every", "0", "--out", str(tmp_path / "out"),
+                 "--no-progress"]) == 0
     line = next(entry for entry in capsys.readouterr().err.splitlines() if entry.startswith("scene:"))
     assert "16x12 x 3, 1x1 x 1" in line, line

@@ -25,20 +25,12 @@ SORT_SHAPES = {**SHAPES, "gpu-long-runs": replace(SHAPES["gpu"], sort_blocks=3)}
 @pytest.mark.parametrize("shape", SORT_SHAPES)
 def test_radix_sort_is_a_stable_sort_of_the_requested_bits(rt, rng, shape):
     widths = [(lo, lo + width) for width in range(1, 33) for lo in [int(rng.integers(0, 33 - width))]]
-    cases = [
-        (1, 0, 32),
-        (2, 0, 32),
-        (1000, 0, 32),
-        (int(rng.integers(10_000, 200_000)), 0, 32),
-        (50_000, 0, 11),
-        (30_000, 4, 20),
-        (777, 0, 1),
-        *[(int(rng.integers(1_500, 5_000)), lo, hi) for lo, hi in widths],
-    ]
+    cases = [(1, 0, 32), (2, 0, 32), (1000, 0, 32), (int(rng.integers(10_000, 200_000)), 0, 32), (50_000, 0, 11),
+             (30_000, 4, 20), (777, 0, 1), *[(int(rng.integers(1_500, 5_000)), lo, hi) for lo, hi in widths]]
     for n, lo, hi in cases:
-        sort = RadixSort(StageContext(rt, SORT_SHAPES[shape], poison=True))  # fresh poisoned scratch per case
+        sort = RadixSort(StageContext(rt, SORT_SHAPES[shape], poison=True))   # fresh poisoned scratch per case
         keys = rng.integers(0, 2**32, n, dtype=np.uint64).astype(np.uint32)
-        if n > 10:  # many duplicates, so that stability matters, and the largest key (the ranked tiles' padding)
+        if n > 10:   # many duplicates, so that stability matters, and the largest key (the ranked tiles' padding)
             keys[rng.random(n) < 0.5] = keys[0]
             keys[rng.random(n) < 0.1] = 0xFFFFFFFF
         vals = np.arange(n, dtype=np.uint32)

@@ -1,6 +1,5 @@
 """Densification rules on hand-built states: clone, split, prune, opacity reset and clamp, the three
 criteria, and Adam moments staying with their Gaussians through every operation."""
-
 from dataclasses import replace
 
 import numpy as np
@@ -17,13 +16,9 @@ EXTENT = 2.0
 def hand_built(rng, n=6, sh=4):
     """n Gaussians whose parameters and moments encode their index, so every row can be traced."""
     idx = np.arange(n, dtype=np.float32)[:, None]
-    params = {
-        "means": idx + np.zeros((n, 3)),
-        "log_scales": np.full((n, 3), np.log(0.01), np.float32),
-        "quats": rng.normal(size=(n, 4)).astype(np.float32),
-        "opacity_logits": np.zeros((n, 1), np.float32),
-        "sh": idx + np.zeros((n, 3 * sh), np.float32),
-    }
+    params = {"means": idx + np.zeros((n, 3)), "log_scales": np.full((n, 3), np.log(0.01), np.float32),
+              "quats": rng.normal(size=(n, 4)).astype(np.float32), "opacity_logits": np.zeros((n, 1), np.float32),
+              "sh": idx + np.zeros((n, 3 * sh), np.float32)}
     m = {k: v * 0 + idx + 100 for k, v in params.items()}
     v = {k: v * 0 + idx + 200 for k, v in params.items()}
     return GaussianSet({k: np.asarray(a, np.float32) for k, a in params.items()}, m, v)
@@ -60,14 +55,11 @@ def test_random_split_replaces_parent_by_two_children(rng):
     parent = {k: v[2].copy() for k, v in gs.params.items()}
     assert ops.split_random(gs, np.array([0, 0, 1, 0, 0, 0], bool), np.random.default_rng(1)) == 1
     assert gs.n == 7
-    np.testing.assert_array_equal(gs.params["means"][:5, 0], [0, 1, 3, 4, 5])  # parent removed, order kept
+    np.testing.assert_array_equal(gs.params["means"][:5, 0], [0, 1, 3, 4, 5])   # parent removed, order kept
     np.testing.assert_array_equal(gs.m["means"][:5, 0], 100 + np.array([0, 1, 3, 4, 5]))
     children = slice(5, 7)
-    np.testing.assert_allclose(
-        np.exp(gs.params["log_scales"][children]),
-        np.broadcast_to(np.exp(parent["log_scales"]) / 1.6, (2, 3)),
-        rtol=1e-6,
-    )
+    np.testing.assert_allclose(np.exp(gs.params["log_scales"][children]),
+                               np.broadcast_to(np.exp(parent["log_scales"]) / 1.6, (2, 3)), rtol=1e-6)
     for k in ("quats", "opacity_logits", "sh"):
         np.testing.assert_array_equal(gs.params[k][children], np.broadcast_to(parent[k], gs.params[k][children].shape))
     # Offsets in the parent's frame are N(0, S): large along its first axis, small along the others.
@@ -80,12 +72,12 @@ def test_random_split_replaces_parent_by_two_children(rng):
 def test_densify_clones_small_splits_large_and_never_splits_clones(rng):
     s = at_extent(Strategy(DensifyConfig(percent_dense=0.01)))
     gs = hand_built(rng)
-    gs.params["log_scales"][3:] = np.log(0.1)  # 3, 4, 5 are large (> 0.01 * EXTENT)
+    gs.params["log_scales"][3:] = np.log(0.1)          # 3, 4, 5 are large (> 0.01 * EXTENT)
     gs.params["opacity_logits"][:] = 2.0
     stats = window(6)
-    stats["grad"][:] = 10 * np.array([3e-4, 1e-4, 2e-4, 3e-4, 1e-4, 2e-4])  # mean 3e-4, 1e-4, exactly 2e-4
+    stats["grad"][:] = 10 * np.array([3e-4, 1e-4, 2e-4, 3e-4, 1e-4, 2e-4])   # mean 3e-4, 1e-4, exactly 2e-4
     report = s.densify(gs, stats, it=1000, rng=rng)
-    assert (report.cloned, report.split, report.pruned) == (2, 2, 0)  # >= threshold, as the release
+    assert (report.cloned, report.split, report.pruned) == (2, 2, 0)       # >= threshold, as the release
     # kept 0, 1, 2, 4; clones of 0, 2; children of 3, 5
     np.testing.assert_array_equal(gs.params["sh"][:, 0], [0, 1, 2, 4, 0, 2, 3, 3, 5, 5])
 
@@ -94,7 +86,7 @@ def test_before_densify_observes_each_step_before_it_changes_anything(rng):
     s = at_extent(Strategy())
     gs = hand_built(rng)
     gs.params["opacity_logits"][:] = 2.0
-    stats = window(6, grad=10 * 3e-4)  # every one is cloned
+    stats = window(6, grad=10 * 3e-4)                    # every one is cloned
     seen = []
     s.before_densify = lambda g, w, it: seen.append((g is gs, g.n, w is stats, it))
     assert s.densify(gs, stats, it=1000, rng=rng).cloned == 6
@@ -104,12 +96,11 @@ def test_before_densify_observes_each_step_before_it_changes_anything(rng):
 def test_dcs_middle_splits_at_the_middle_without_costs(rng):
     """--split-pick middle (an ablation): DCS' deterministic split at x = 0.5 (children at mu -/+ 1.5 sigma p,
     half the scale along the axis and half the opacity), no split costs gathered nor needed in the window."""
-    s = at_extent(
-        AbsGS(DensifyConfig(split_threshold=4e-4, percent_dense=0.01), DC4GSConfig(dcs=True, split_pick="middle"))
-    )
+    s = at_extent(AbsGS(DensifyConfig(split_threshold=4e-4, percent_dense=0.01),
+                        DC4GSConfig(dcs=True, split_pick="middle")))
     assert s.split_candidates == 0 and s.statistics.split_candidates == 0
     gs = hand_built(rng)
-    gs.params["log_scales"][3] = np.log([0.02, 0.3, 0.1])  # large; its principal axis is y
+    gs.params["log_scales"][3] = np.log([0.02, 0.3, 0.1])         # large; its principal axis is y
     gs.params["opacity_logits"][:] = 2.0
     parent = {k: v[3].astype(np.float64) for k, v in gs.params.items()}
     stats = window(6)
@@ -125,16 +116,16 @@ def test_dcs_middle_splits_at_the_middle_without_costs(rng):
 
 def test_prune_rules(rng):
     gs = hand_built(rng)
-    gs.params["opacity_logits"][:, 0] = [-6.0, 2.0, 2.0, 2.0, 2.0, 2.0]  # sigmoid(-6) < 0.005
-    gs.params["log_scales"][2] = np.log(0.3)  # > 0.1 * EXTENT
+    gs.params["opacity_logits"][:, 0] = [-6.0, 2.0, 2.0, 2.0, 2.0, 2.0]   # sigmoid(-6) < 0.005
+    gs.params["log_scales"][2] = np.log(0.3)                            # > 0.1 * EXTENT
     stats = window(6, max_radius=5.0)
     stats["max_radius"][4] = 30.0
     early = at_extent(Strategy(DensifyConfig(big_world_after=3000)))
     report = early.densify(gs, stats, it=2000, rng=rng)
-    assert report.pruned == 1 and gs.n == 5  # opacity only before 3,000
+    assert report.pruned == 1 and gs.n == 5                             # opacity only before 3,000
     late = at_extent(Strategy(DensifyConfig(big_world_after=3000, screen_size_px=20)))
     stats = window(5, max_radius=5.0)
-    stats["max_radius"][3] = 30.0  # former index 4
+    stats["max_radius"][3] = 30.0                                       # former index 4
     report = late.densify(gs, stats, it=3100, rng=rng)
     assert report.pruned == 2
     np.testing.assert_array_equal(gs.params["sh"][:, 0], [1, 3, 5])
@@ -167,18 +158,17 @@ def test_cap_takes_the_highest_criteria_of_clones_and_splits_together(rng):
     by criterion over threshold (AbsGS: clones on grad / 2e-4, splits on abs / 4e-4)."""
     n = 8
     gs = hand_built(rng, n=n)
-    gs.params["log_scales"][:4] = np.log(0.001)  # 0-3 small (clone; AbsGS: <= 0.001 x extent)
-    gs.params["log_scales"][4:] = np.log(0.5)  # 4-7 large (split)
+    gs.params["log_scales"][:4] = np.log(0.001)                    # 0-3 small (clone; AbsGS: <= 0.001 x extent)
+    gs.params["log_scales"][4:] = np.log(0.5)                      # 4-7 large (split)
     gs.params["opacity_logits"][:] = 2.0
-    ratios = rng.permutation(np.linspace(1.1, 3.0, n))  # every one qualifies, distinct scores
+    ratios = rng.permutation(np.linspace(1.1, 3.0, n))             # every one qualifies, distinct scores
     stats = window(n)
     stats["grad"][:4] = 10 * 2e-4 * ratios[:4]
     stats["abs"][4:] = 10 * 4e-4 * ratios[4:]
     for room in (0, 1, 3, 5, 8, 20):
         g = GaussianSet({k: v.copy() for k, v in gs.params.items()}, dict(gs.m), dict(gs.v))
         report = at_extent(AbsGS(replace(AbsGS.default_config(), max_gaussians=n + room))).densify(
-            g, {k: v.copy() for k, v in stats.items()}, it=1000, rng=rng
-        )
+            g, {k: v.copy() for k, v in stats.items()}, it=1000, rng=rng)
         taken = min(room, n)
         assert g.n == n + taken and report.cloned + report.split == taken and report.capped == n - taken
         winners = set(np.argsort(-ratios)[:taken])
@@ -186,17 +176,17 @@ def test_cap_takes_the_highest_criteria_of_clones_and_splits_together(rng):
         split = winners - cloned
         assert (report.cloned, report.split) == (len(cloned), len(split))
         # the originals stay in order less the split parents; clones of the winners follow, then children
-        np.testing.assert_array_equal(g.params["sh"][: n - len(split), 0], sorted(set(range(n)) - split))
-        np.testing.assert_array_equal(g.params["sh"][n - len(split) : n - len(split) + len(cloned), 0], sorted(cloned))
+        np.testing.assert_array_equal(g.params["sh"][:n - len(split), 0], sorted(set(range(n)) - split))
+        np.testing.assert_array_equal(g.params["sh"][n - len(split):n - len(split) + len(cloned), 0], sorted(cloned))
 
 
 def test_cap_growth_ties_and_growth(rng):
     clone = np.array([1, 0, 1, 0], bool)
     split = np.array([0, 1, 0, 1], bool)
-    score = np.ones(4)  # all tied: lower index first
+    score = np.ones(4)                                            # all tied: lower index first
     c, s = ops.cap_growth(2, [(clone, score, 1), (split, score, 1)])
     np.testing.assert_array_equal(c | s, [1, 1, 0, 0])
-    c, s = ops.cap_growth(3, [(clone, score, 1), (split, score, 2)])  # a split adding two needs room for two
+    c, s = ops.cap_growth(3, [(clone, score, 1), (split, score, 2)])   # a split adding two needs room for two
     assert c.sum() + 2 * s.sum() <= 3 and c[0] and s[1]
     c, s = ops.cap_growth(-5, [(clone, score, 1), (split, score, 1)])  # already past the cap: nothing
     assert not c.any() and not s.any()
@@ -222,58 +212,43 @@ def test_schedule_follows_the_recipe():
 class ToyBase(Strategy):
     """A new base strategy, added by subclassing alone: clone on Pixel-GS' per-pixel criterion, split on AbsGS'
     homodirectional one at twice 3DGS' threshold. DC4GS applies to it as to any base."""
-
     name = "toy"
     clone_criterion = GRAD_PER_PIXEL
     base_split_criterion = ABS_PER_VIEW
 
     @staticmethod
     def default_config() -> DensifyConfig:
-        return DensifyConfig(
-            split_threshold=4e-4, densify_from=10, densify_until=60, densify_every=10, opacity_reset_every=1000
-        )
+        return DensifyConfig(split_threshold=4e-4, densify_from=10, densify_until=60, densify_every=10,
+                             opacity_reset_every=1000)
 
 
 def test_a_new_base_strategy_is_a_subclass(rng):
     s = at_extent(ToyBase())
     gs = hand_built(rng, n=4)
-    gs.params["log_scales"][2:] = np.log(0.5)  # 0, 1 small; 2, 3 large
+    gs.params["log_scales"][2:] = np.log(0.5)                       # 0, 1 small; 2, 3 large
     gs.params["opacity_logits"][:] = 2.0
     stats = window(4, pix=50.0)
     stats["pix_grad"][:] = 50 * np.array([3e-4, 1e-4, 3e-4, 3e-4])  # per pixel: clones 0 (2 is large)
-    stats["abs"][:] = 10 * np.array([9e-4, 9e-4, 5e-4, 3e-4])  # per view: splits 2 (0, 1 are small)
+    stats["abs"][:] = 10 * np.array([9e-4, 9e-4, 5e-4, 3e-4])       # per view: splits 2 (0, 1 are small)
     report = s.densify(gs, stats, it=1000, rng=rng)
     assert (report.cloned, report.split) == (1, 1)
     from dc4gs_cl.densify import DC4GSConfig
     from dc4gs_cl.statistics import DCC_ABS
+    assert ToyBase(dc4gs=DC4GSConfig(dcc=True)).split_criterion.total == DCC_ABS   # DCC weights its own term
 
-    assert ToyBase(dc4gs=DC4GSConfig(dcc=True)).split_criterion.total == DCC_ABS  # DCC weights its own term
 
-
-@pytest.mark.parametrize(
-    "settings, label",
-    [
-        (DC4GSConfig(), "toy"),
-        (DC4GSConfig(dcc=True, dcs=True), "toy+DC4GS"),
-        (DC4GSConfig(dcs=True, split_pick="middle"), "toy+DCS"),
-    ],
-    ids=["toy", "toy+DC4GS", "toy+DCS-middle"],
-)
+@pytest.mark.parametrize("settings, label", [
+    (DC4GSConfig(), "toy"), (DC4GSConfig(dcc=True, dcs=True), "toy+DC4GS"),
+    (DC4GSConfig(dcs=True, split_pick="middle"), "toy+DCS")], ids=["toy", "toy+DC4GS", "toy+DCS-middle"])
 def test_a_new_base_strategy_trains(rt, tmp_path, settings, label):
     """The trainer takes the subclass as it is: its window on the device, its hooks, its densification."""
     from dc4gs_cl.config import TrainConfig
     from dc4gs_cl.scene.loader import load_scene
     from dc4gs_cl.train import Trainer
-
     scene = load_scene("builtin", resolution=4)
     strategy = ToyBase(dc4gs=settings)
-    trainer = Trainer(
-        TrainConfig(scene="builtin", iterations=80, resolution=4, dc4gs=settings),
-        scene,
-        rt,
-        tmp_path,
-        strategy=strategy,
-    )
+    trainer = Trainer(TrainConfig(scene="builtin", iterations=80, resolution=4, dc4gs=settings), scene, rt, tmp_path,
+                      strategy=strategy)
     assert trainer.strategy is strategy and strategy.label == label
     start = trainer.model.n
     trainer.run(progress="none")

@@ -1,6 +1,5 @@
 """Numerical stress: degenerate Gaussians and images never put NaN or Inf into images, gradients or
 parameters; and the emulated float atomic add is exact under contention."""
-
 import numpy as np
 import pytest
 
@@ -16,19 +15,8 @@ from dc4gs_cl.scene.camera import Camera
 from dc4gs_cl.statistics import SumsLayout
 from dc4gs_cl.reference.testing import random_model
 
-CASES = [
-    "zero scales",
-    "huge scales",
-    "needles",
-    "near plane",
-    "behind camera",
-    "coincident",
-    "opacity +30",
-    "opacity -30",
-    "zero quaternions",
-    "one-colour image",
-    "all at once",
-]
+CASES = ["zero scales", "huge scales", "needles", "near plane", "behind camera", "coincident", "opacity +30",
+         "opacity -30", "zero quaternions", "one-colour image", "all at once"]
 
 
 def degenerate_model(rng, case, cam, n=600):
@@ -41,9 +29,7 @@ def degenerate_model(rng, case, cam, n=600):
         "huge scales": lambda i: model.log_scales.__setitem__(i, 15.0),
         "needles": lambda i: model.log_scales.__setitem__((i, 0), -30.0),
         "near plane": lambda i: model.means.__setitem__(i, cam.center + forward * rng.uniform(0.1, 0.3, (len(i), 1))),
-        "behind camera": lambda i: model.means.__setitem__(
-            i, cam.center - forward * rng.uniform(0.0, 1.0, (len(i), 1))
-        ),
+        "behind camera": lambda i: model.means.__setitem__(i, cam.center - forward * rng.uniform(0.0, 1.0, (len(i), 1))),
         "coincident": lambda i: model.means.__setitem__(i, model.means[i[0]]),
         "opacity +30": lambda i: model.opacity_logits.__setitem__(i, 30.0),
         "opacity -30": lambda i: model.opacity_logits.__setitem__(i, -30.0),
@@ -61,11 +47,8 @@ def degenerate_model(rng, case, cam, n=600):
 def test_degenerate_gaussians_stay_finite_through_a_training_step(rt, rng, case):
     cam = Camera.look_at("c", (0.0, -3.0, 0.5), (0.0, 0.0, 0.0), 96, 64, fov_x=1.0)
     model = degenerate_model(rng, case, cam)
-    target = (
-        np.full((64, 96, 3), 0.37, np.float32)
-        if case in ("one-colour image", "all at once")
+    target = np.full((64, 96, 3), 0.37, np.float32) if case in ("one-colour image", "all at once") \
         else rng.uniform(0, 1, (64, 96, 3)).astype(np.float32)
-    )
     g = DeviceGaussians(rt, model)
     renderer = Renderer(rt, poison=True)
     widths = group_widths(g.sh_coeffs)
@@ -81,14 +64,14 @@ def test_degenerate_gaussians_stay_finite_through_a_training_step(rt, rng, case)
         image = res.image(rt)
         assert np.isfinite(image).all()
         for buf in list(grads.buffers.values()) + [grad_image]:
-            rt.fill(buf, POISON, buf.size)  # every value the kernels below should write, poisoned first
+            rt.fill(buf, POISON, buf.size)    # every value the kernels below should write, poisoned first
         loss(res.raster.image, target_buf, cam.width, cam.height, grad_image)
         sums = rasterize_backward(res, grad_image, (0.2, 0.3, 0.4), layout)
         assert np.isfinite(rt.to_host(sums, (g.n, layout.width))).all()
         project_backward.gradients(g, cam, 3, res, sums, layout, grads.buffers)
         for name, values in grads.download().items():
             assert np.isfinite(values).all(), name
-        project_backward.step(g, cam, 3, res, sums, layout, adam.step_value(lrs), adam.m, adam.v)  # as training does
+        project_backward.step(g, cam, 3, res, sums, layout, adam.step_value(lrs), adam.m, adam.v)   # as training does
         for name, values in g.download().items():
             assert np.isfinite(values).all(), name
     assert np.isfinite(loss.read_stats()["loss"])
@@ -109,7 +92,6 @@ def test_emulated_float_atomic_add_is_exact_under_contention(rt):
     import pyopencl as cl
 
     from dc4gs_cl.runtime import kernel_source
-
     source = kernel_source("common.h") + ATOMIC_TEST.replace('#include "common.h"', "")
     prg = cl.Program(rt.context, source).build(options=rt.build_options())
     items, slots, reps = 1 << 14, 3, 64
@@ -123,7 +105,7 @@ def test_emulated_float_atomic_add_is_exact_under_contention(rt):
 
 # ------------------------------------------------------------------------------ whole training steps, fuzzed
 
-TRAINING_FUZZ_CASES = 20  # per strategy in CI; a larger budget: DC4GS_TRAINING_FUZZ_CASES=N
+TRAINING_FUZZ_CASES = 20        # per strategy in CI; a larger budget: DC4GS_TRAINING_FUZZ_CASES=N
 
 
 def extreme_scene(rng, extent_scale: float):
@@ -132,7 +114,6 @@ def extreme_scene(rng, extent_scale: float):
     from pathlib import Path
 
     from dc4gs_cl.scene.camera import Scene
-
     cams = []
     for i, angle in enumerate(rng.uniform(0, 2 * np.pi, 4)):
         w, h = int(rng.integers(8, 40)), int(rng.integers(8, 40))
@@ -146,22 +127,12 @@ def extreme_scene(rng, extent_scale: float):
         elif kind == "principal point outside":
             cam = replace(cam, cx=float(rng.choice([-10, 10])) * w, cy=float(rng.choice([-10, 10])) * h)
         cams.append(cam)
-    images = {
-        c.name: {"black": np.zeros, "white": np.ones}.get(
-            str(rng.choice(["black", "white", "noise"])), lambda s, dtype: rng.uniform(0, 1, s).astype(dtype)
-        )((c.height, c.width, 3), dtype=np.float32)
-        for c in cams
-    }
+    images = {c.name: {"black": np.zeros, "white": np.ones}.get(str(rng.choice(["black", "white", "noise"])),
+                                                                lambda s, dtype: rng.uniform(0, 1, s).astype(dtype))
+              ((c.height, c.width, 3), dtype=np.float32) for c in cams}
     points = rng.normal(0, extent_scale, (300, 3))
-    return Scene(
-        root=Path("."),
-        train=cams,
-        test=[],
-        points=points,
-        colors=rng.uniform(0, 1, (300, 3)).astype(np.float32),
-        background=np.zeros(3, np.float32),
-        read_image=lambda cam: images[cam.name],
-    )
+    return Scene(root=Path("."), train=cams, test=[], points=points, colors=rng.uniform(0, 1, (300, 3)).astype(np.float32),
+                 background=np.zeros(3, np.float32), read_image=lambda cam: images[cam.name])
 
 
 def describe(cams) -> str:
@@ -175,36 +146,28 @@ def make_extreme(rng, params: dict, cams, extent: float) -> list[str]:
     for edit in rng.choice(["scales", "quaternions", "opacity", "near plane", "behind", "sh"], 3, replace=False):
         pick = rng.random(n) < 0.3
         k = int(pick.sum())
-        if edit == "scales":  # 1e-8 to 1e8 of the scene extent, per axis
+        if edit == "scales":         # 1e-8 to 1e8 of the scene extent, per axis
             params["log_scales"][pick] = np.log(extent) + rng.uniform(np.log(1e-8), np.log(1e8), (k, 3))
         elif edit == "quaternions":  # zero, or tiny
             params["quats"][pick] = rng.choice([0.0, 1e-30, 1e-20]) * rng.normal(size=(k, 4))
         elif edit == "opacity":
             params["opacity_logits"][pick] = rng.choice([-80.0, 80.0], (k, 1))
-        elif edit in ("near plane", "behind"):  # on, just in front of, or behind a camera's near plane
+        elif edit in ("near plane", "behind"):   # on, just in front of, or behind a camera's near plane
             cam = cams[int(rng.integers(len(cams)))]
-            depth = (
-                rng.choice([NEAR_PLANE, NEAR_PLANE * (1 + 1e-6), NEAR_PLANE * (1 - 1e-6)], k)
-                if edit == "near plane"
-                else -rng.uniform(0, 2, k)
-            )
+            depth = (rng.choice([NEAR_PLANE, NEAR_PLANE * (1 + 1e-6), NEAR_PLANE * (1 - 1e-6)], k) if edit == "near plane"
+                     else -rng.uniform(0, 2, k))
             offset = rng.uniform(-1, 1, (k, 2)) * np.abs(depth)[:, None] * 0.5
             cam_space = np.column_stack([offset, depth])
-            params["means"][pick] = (cam_space - cam.t) @ cam.R  # camera -> world
-        else:  # huge SH values (colours far outside [0, 1])
+            params["means"][pick] = (cam_space - cam.t) @ cam.R   # camera -> world
+        else:                        # huge SH values (colours far outside [0, 1])
             params["sh"][pick] = rng.choice([-1.0, 1.0], (k, params["sh"].shape[1])) * 10.0 ** rng.uniform(3, 30)
         done.append(edit)
     return done
 
 
 DC4GS = {"dcc": True, "dcs": True}
-STRATEGIES = {
-    "3dgs": ("3dgs", {}),
-    "absgs+dc4gs": ("absgs", DC4GS),
-    "pixelgs+dc4gs": ("pixelgs", DC4GS),
-    "mcmc": ("mcmc", {}),
-    "mcmc+dcs": ("mcmc", {"dcs": True}),
-}
+STRATEGIES = {"3dgs": ("3dgs", {}), "absgs+dc4gs": ("absgs", DC4GS), "pixelgs+dc4gs": ("pixelgs", DC4GS),
+              "mcmc": ("mcmc", {}), "mcmc+dcs": ("mcmc", {"dcs": True})}
 
 
 def fuzz_training(rt, rng, strategy: str, dc4gs: dict, cases: int, out) -> None:
@@ -214,17 +177,15 @@ def fuzz_training(rt, rng, strategy: str, dc4gs: dict, cases: int, out) -> None:
     from dc4gs_cl.densify import DC4GSConfig
     from dc4gs_cl.finite import NonFiniteError
     from dc4gs_cl.train import Trainer
-
     for case in range(cases):
         extent_scale = float(10.0 ** rng.uniform(-3, 3))
         scene = extreme_scene(rng, extent_scale)
-        cfg = TrainConfig(
-            scene="fuzz", iterations=30_000, strategy=strategy, test_every=0, sh_degree=3, dc4gs=DC4GSConfig(**dc4gs)
-        )
+        cfg = TrainConfig(scene="fuzz", iterations=30_000, strategy=strategy, test_every=0, sh_degree=3,
+                          dc4gs=DC4GSConfig(**dc4gs))
         trainer = Trainer(cfg, scene, rt, out, check_finite=True)
         gs = trainer.model.download()
         edits = make_extreme(rng, gs.params, scene.train, scene.extent)
-        densify_at = 600  # the default schedule densifies at multiples of 100 past 500
+        densify_at = 600                      # the default schedule densifies at multiples of 100 past 500
         assert trainer.strategy.densify_now(densify_at)
         trainer.start_from(gs, densify_at - 3)
         for _ in range(4):
@@ -240,10 +201,8 @@ def fuzz_training(rt, rng, strategy: str, dc4gs: dict, cases: int, out) -> None:
 @pytest.mark.parametrize("label", list(STRATEGIES))
 def test_training_steps_on_extreme_gaussians_cameras_and_images_stay_finite(rt, rng, label, tmp_path):
     import os
-
-    fuzz_training(
-        rt, rng, *STRATEGIES[label], int(os.environ.get("DC4GS_TRAINING_FUZZ_CASES", TRAINING_FUZZ_CASES)), tmp_path
-    )
+    fuzz_training(rt, rng, *STRATEGIES[label], int(os.environ.get("DC4GS_TRAINING_FUZZ_CASES", TRAINING_FUZZ_CASES)),
+                  tmp_path)
 
 
 # Draws that found bugs (seed, cases per strategy): colours of 1e30 overflowed the loss's fourth powers (now
@@ -255,6 +214,6 @@ FOUND = [(1835551293, 10), (821985884, 10), (260321161, 40), (1182492579, 40)]
 
 @pytest.mark.parametrize("seed, cases", FOUND, ids=[str(seed) for seed, _ in FOUND])
 def test_training_fuzz_draws_that_found_bugs(rt, seed, cases, tmp_path):
-    for label in ("3dgs", "absgs+dc4gs", "pixelgs+dc4gs"):  # the strategies of those runs, each from its own
-        # generator of that seed (MCMC came later)
+    for label in ("3dgs", "absgs+dc4gs", "pixelgs+dc4gs"):   # the strategies of those runs, each from its own
+                                                              # generator of that seed (MCMC came later)
         fuzz_training(rt, np.random.default_rng(seed), *STRATEGIES[label], cases, tmp_path)

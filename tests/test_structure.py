@@ -1,7 +1,6 @@
 """The package's layering, read from the import statements of every module: render knows nothing of the
 backward or of training, the backward nothing of training, and production code never uses the float64
 test references; the settings, the run folder, report and export import without an OpenCL runtime."""
-
 import ast
 import subprocess
 import sys
@@ -20,11 +19,11 @@ def imported_modules(path: Path) -> set[str]:
         if isinstance(node, ast.Import):
             out |= {a.name for a in node.names if a.name.startswith("dc4gs_cl")}
         elif isinstance(node, ast.ImportFrom):
-            base = package[: len(package) - node.level + 1] if node.level else []
+            base = package[:len(package) - node.level + 1] if node.level else []
             name = ".".join(base + ([node.module] if node.module else []))
             if name.startswith("dc4gs_cl"):
                 out.add(name)
-                out |= {f"{name}.{a.name}" for a in node.names}  # "from . import ops" imports a module too
+                out |= {f"{name}.{a.name}" for a in node.names}   # "from . import ops" imports a module too
     return out
 
 
@@ -34,7 +33,7 @@ def modules(folder: str = "") -> dict[str, set[str]]:
 
 COMMANDS = ("dc4gs_cl.apps", "dc4gs_cl.cli")
 LOOP = ("dc4gs_cl.train", "dc4gs_cl.run_folder") + COMMANDS
-FORBIDDEN = {  # folder -> packages its modules must not import: the layers above it
+FORBIDDEN = {   # folder -> packages its modules must not import: the layers above it
     "render": ("dc4gs_cl.backward", "dc4gs_cl.optim", "dc4gs_cl.densify", "dc4gs_cl.config") + LOOP,
     "backward": ("dc4gs_cl.optim", "dc4gs_cl.densify", "dc4gs_cl.config") + LOOP,
     "optim": ("dc4gs_cl.densify",) + LOOP,
@@ -49,15 +48,12 @@ def test_lower_layers_do_not_import_higher_ones(folder):
     assert not {m: i for m, i in bad.items() if i}
 
 
-REFERENCE_USERS = {"apps/bench.py"}  # `dc4gs-cl bench` reports each stage's error against the references
+REFERENCE_USERS = {"apps/bench.py"}   # `dc4gs-cl bench` reports each stage's error against the references
 
 
 def test_production_code_does_not_import_the_references():
-    users = {
-        m
-        for m, imports in modules().items()
-        if not m.startswith("reference/") and any(i.startswith("dc4gs_cl.reference") for i in imports)
-    }
+    users = {m for m, imports in modules().items()
+             if not m.startswith("reference/") and any(i.startswith("dc4gs_cl.reference") for i in imports)}
     assert users == REFERENCE_USERS
 
 
@@ -68,14 +64,8 @@ def test_the_import_reader_sees_imports():
     assert "dc4gs_cl.densify.ops" in imported_modules(ROOT / "densify" / "strategy.py")
 
 
-DEVICE_FREE = (
-    "dc4gs_cl.config",
-    "dc4gs_cl.statistics",
-    "dc4gs_cl.run_folder",
-    "dc4gs_cl.apps.report",
-    "dc4gs_cl.apps.export",
-    "dc4gs_cl.cli",
-)
+DEVICE_FREE = ("dc4gs_cl.config", "dc4gs_cl.statistics", "dc4gs_cl.run_folder", "dc4gs_cl.apps.report",
+               "dc4gs_cl.apps.export", "dc4gs_cl.cli")
 # what those must not reach: the OpenCL runtime, and the scene readers' libraries (the names the settings and the
 # command line take from scene/: test splits, the built-in scene's name, path kinds, live in modules without them)
 HEAVY = ("pyopencl", "pycolmap", "OpenImageIO")
@@ -94,5 +84,4 @@ def test_the_strategies_are_the_settings_strategy_names():
     """config.STRATEGY_NAMES validates --strategy without importing the strategies; it must name each of them."""
     from dc4gs_cl.config import STRATEGY_NAMES
     from dc4gs_cl.densify import STRATEGIES
-
     assert tuple(STRATEGIES) == STRATEGY_NAMES

@@ -1,6 +1,5 @@
 """tools/toy2d.py, the paper's 2D toy study of the DC-guided split: its positional gradients against
 finite differences, a short study's scores, and a hand-built edge."""
-
 import importlib.util
 import json
 from pathlib import Path
@@ -40,9 +39,9 @@ def test_positional_gradient_matches_finite_differences(gt, loss):
         step = np.eye(2)[axis] * h
         up, down = (_loss_per_pixel(case, mean + s * step, colour, loss) for s in (1, -1))
         fd = (up - down) / (2 * h)
-        if loss == "l2":  # per pixel: g_j = dL_j / dmu'
+        if loss == "l2":    # per pixel: g_j = dL_j / dmu'
             assert np.allclose(g[safe, axis], fd[safe], rtol=1e-5, atol=1e-7 * np.abs(g).max())
-        else:  # the training loss couples pixels through SSIM: the sum over pixels
+        else:               # the training loss couples pixels through SSIM: the sum over pixels
             assert np.isclose(g[safe, axis].sum(), fd, rtol=1e-5, atol=1e-7 * np.abs(g).sum())
 
 
@@ -58,7 +57,7 @@ def test_short_study_scores_are_finite_ssims(tmp_path, capsys, gt, loss):
             v = np.array([r[score][m] for m in toy2d.METHODS])
             assert np.isfinite(v).all() and (np.abs(v) <= 1 + 1e-9).all(), (score, v)
         assert all(0 < r["x"][m] < 1 for m in ("dense", "poly", "argmin"))
-    if gt == "gaussians":  # the split at the true crossing rebuilds the two-Gaussian ground truth exactly
+    if gt == "gaussians":   # the split at the true crossing rebuilds the two-Gaussian ground truth exactly
         two = [r for r in data["cases"] if not r["three"]]
         assert two and all(r["image"]["boundary"] > 0.999 for r in two)
 
@@ -68,12 +67,8 @@ def _edge_case(background):
     vertical boundary with its principal axis across it, so the boundary is at x = 0.5."""
     size = 64
     q = toy2d.pixel_centres(size)
-    case = {
-        "gt": np.where(q[:, :1] < size / 2, 0.8, 0.2) * np.ones(3),
-        "bg": np.full(3, background),
-        "size": size,
-        "parent": toy2d.make_parent((size / 2, size / 2), 8.0, 4.0, 0.0, 0.9),
-    }
+    case = {"gt": np.where(q[:, :1] < size / 2, 0.8, 0.2) * np.ones(3), "bg": np.full(3, background),
+            "size": size, "parent": toy2d.make_parent((size / 2, size / 2), 8.0, 4.0, 0.0, 0.9)}
     g, blended, _, _ = toy2d.parent_gradients(case)
     return q, g, blended, case
 

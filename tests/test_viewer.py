@@ -1,7 +1,6 @@
 """The browser viewer: viser poses and our cameras agree, the server serves and refuses a taken port, and a
 headless Chromium shows exactly what our renderer renders for the camera the browser reports, both for a
 shown model and for one published by a training loop."""
-
 import argparse
 import contextlib
 import base64
@@ -27,14 +26,7 @@ from dc4gs_cl.reference.testing import random_camera, random_model
 
 viser = pytest.importorskip("viser", reason='viser is not installed (pip install "dc4gs-cl[viewer]")')
 from dc4gs_cl.apps.viewer import (  # noqa: E402 (after the importorskip above)
-    MOVING_SCALE,
-    Viewer,
-    add_arguments,
-    cmd_view,
-    frame_size,
-    view_camera,
-    viser_pose,
-)
+    MOVING_SCALE, Viewer, add_arguments, cmd_view, frame_size, view_camera, viser_pose)
 
 WIDTH, HEIGHT = 128, 96
 
@@ -64,8 +56,8 @@ def test_a_viser_pose_renders_as_our_camera_built_directly(rt, rng):
     np.testing.assert_allclose([cam.fx, cam.fy, cam.cx, cam.cy], [direct.fx, direct.fy, direct.cx, direct.cy])
     ours = renderer.render(gaussians, cam, 1).image(rt)
     theirs = renderer.render(gaussians, direct, 1).image(rt)
-    assert ours.std() > 0.01  # the model is in view
-    np.testing.assert_allclose(ours, theirs, atol=1e-5)  # float64 poses agree to 1e-12: float32 rounding only
+    assert ours.std() > 0.01                                 # the model is in view
+    np.testing.assert_allclose(ours, theirs, atol=1e-5)      # float64 poses agree to 1e-12: float32 rounding only
 
 
 def test_a_training_camera_round_trips_through_its_viser_pose(rng):
@@ -81,7 +73,7 @@ def test_a_training_camera_round_trips_through_its_viser_pose(rng):
 def test_frames_fit_the_canvas_in_the_largest_side():
     assert frame_size(1920, 1080, 640) == (640, 360)
     assert frame_size(1920, 1080, 640, MOVING_SCALE) == (320, 180)
-    assert frame_size(400, 300, 640) == (400, 300)  # never upscaled
+    assert frame_size(400, 300, 640) == (400, 300)       # never upscaled
 
 
 def look_at_origin(rng, width: int, height: int, fov_y: float) -> Camera:
@@ -116,15 +108,10 @@ def connect(viewer, path: str, origin: str | None = None):
     code once the viewer has decided (None: still open after a second), and whether it was sent any message."""
     from websockets.exceptions import ConnectionClosed
     from websockets.sync.client import connect as ws_connect
-
     port = viewer.server.get_port()
     headers = {"Origin": origin} if origin else None
-    with ws_connect(
-        f"ws://127.0.0.1:{port}{path}",
-        subprotocols=[f"viser-v{viser.__version__}"],
-        additional_headers=headers,
-        open_timeout=10,
-    ) as ws:
+    with ws_connect(f"ws://127.0.0.1:{port}{path}", subprotocols=[f"viser-v{viser.__version__}"],
+                    additional_headers=headers, open_timeout=10) as ws:
         got = False
         try:
             while True:
@@ -155,22 +142,9 @@ def test_a_connection_needs_the_token_and_the_page_s_own_origin(served, capsys):
 def camera_message(**values) -> bytes:
     """A viser client's camera message (what the browser sends as the view moves), with these values."""
     import msgspec
-
-    return msgspec.msgpack.encode(
-        {
-            "type": "ViewerCameraMessage",
-            "wxyz": [1.0, 0.0, 0.0, 0.0],
-            "position": [0.0, -3.0, 0.0],
-            "fov": 1.0,
-            "near": 0.01,
-            "far": 100.0,
-            "image_height": 96,
-            "image_width": 128,
-            "look_at": [0.0, 0.0, 0.0],
-            "up_direction": [0.0, 0.0, 1.0],
-            **values,
-        }
-    )
+    return msgspec.msgpack.encode({"type": "ViewerCameraMessage", "wxyz": [1.0, 0.0, 0.0, 0.0], "position": [0.0, -3.0, 0.0],
+                                   "fov": 1.0, "near": 0.01, "far": 100.0, "image_height": 96, "image_width": 128,
+                                   "look_at": [0.0, 0.0, 0.0], "up_direction": [0.0, 0.0, 1.0], **values})
 
 
 def test_a_fuzzing_client_leaves_the_viewer_serving(served, rng, capsys):
@@ -180,12 +154,11 @@ def test_a_fuzzing_client_leaves_the_viewer_serving(served, rng, capsys):
     import msgspec
     from websockets.exceptions import ConnectionClosed
     from websockets.sync.client import connect as ws_connect
-
     viewer, _, _ = served
     port = viewer.server.get_port()
     address = f"ws://127.0.0.1:{port}/{viewer.token}"
     slider = viewer._max_side._impl.uuid
-    bad = [float("nan"), float("inf"), -1e30, 1e30, -5, 0, 10**12, "x", None, [1, 2], True, {}]
+    bad = [float("nan"), float("inf"), -1e30, 1e30, -5, 0, 10 ** 12, "x", None, [1, 2], True, {}]
     fields = ["wxyz", "position", "fov", "near", "far", "image_height", "image_width", "look_at", "up_direction"]
     for case in range(36):
         kind = case % 3
@@ -194,9 +167,8 @@ def test_a_fuzzing_client_leaves_the_viewer_serving(served, rng, capsys):
         elif kind == 1:
             message = camera_message(**{fields[int(rng.integers(len(fields)))]: bad[int(rng.integers(len(bad)))]})
         else:
-            message = msgspec.msgpack.encode(
-                {"type": "GuiUpdateMessage", "uuid": slider, "updates": {"value": bad[int(rng.integers(len(bad)))]}}
-            )
+            message = msgspec.msgpack.encode({"type": "GuiUpdateMessage", "uuid": slider,
+                                              "updates": {"value": bad[int(rng.integers(len(bad)))]}})
         with ws_connect(address, subprotocols=[f"viser-v{viser.__version__}"], open_timeout=10) as ws:
             try:
                 ws.send(camera_message())
@@ -210,7 +182,7 @@ def test_a_fuzzing_client_leaves_the_viewer_serving(served, rng, capsys):
     with ws_connect(address, subprotocols=[f"viser-v{viser.__version__}"], open_timeout=10) as ws:
         ws.send(camera_message())
         deadline = time.monotonic() + 30
-        while time.monotonic() < deadline:  # its view, once rendered full size and sent, keeps the frame's camera
+        while time.monotonic() < deadline:   # its view, once rendered full size and sent, keeps the frame's camera
             framed = [v for k, v in list(viewer._views.items()) if k not in before and v.camera is not None]
             if framed:
                 assert (framed[0].camera.width, framed[0].camera.height) == (128, 96)
@@ -218,9 +190,7 @@ def test_a_fuzzing_client_leaves_the_viewer_serving(served, rng, capsys):
             with contextlib.suppress(TimeoutError):
                 ws.recv(timeout=0.2)
         else:
-            raise AssertionError(
-                f"no frame for a well-behaved client after the fuzzing: {capsys.readouterr().err[-2000:]}"
-            )
+            raise AssertionError(f"no frame for a well-behaved client after the fuzzing: {capsys.readouterr().err[-2000:]}")
     assert viewer._worker.is_alive()
 
 
@@ -238,7 +208,7 @@ def test_view_names_a_missing_source_and_a_taken_port(tmp_path):
         taken.bind(("127.0.0.1", 0))
         taken.listen()
         port = taken.getsockname()[1]
-        with pytest.raises(InputError, match=f"^--port {port}: already in use"):  # before reading the model
+        with pytest.raises(InputError, match=f"^--port {port}: already in use"):   # before reading the model
             cmd_view(view_args(str(tmp_path / "nothing.ply"), "--port", str(port)))
 
 
@@ -247,13 +217,9 @@ def test_sigterm_stops_a_serving_viewer_with_one_line(tmp_path, rng):
     native stack dump."""
     import signal
     from dc4gs_cl.ply import write_ply
-
     write_ply(tmp_path / "m.ply", random_model(rng, 50, sh_degree=0))
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "dc4gs_cl", "view", str(tmp_path / "m.ply"), "--port", "0"],
-        stderr=subprocess.PIPE,
-        text=True,
-    )
+    proc = subprocess.Popen([sys.executable, "-m", "dc4gs_cl", "view", str(tmp_path / "m.ply"), "--port", "0"],
+                            stderr=subprocess.PIPE, text=True)
     lines = []
     while not any(line.startswith("viewer: http") for line in lines) and proc.poll() is None:
         lines.append(proc.stderr.readline())
@@ -264,7 +230,7 @@ def test_sigterm_stops_a_serving_viewer_with_one_line(tmp_path, rng):
 
 
 def test_without_viser_the_viewer_says_how_to_install_it(monkeypatch, tmp_path):
-    monkeypatch.setitem(sys.modules, "viser", None)  # makes `import viser` fail
+    monkeypatch.setitem(sys.modules, "viser", None)   # makes `import viser` fail
     with pytest.raises(InputError, match=r'pip install "dc4gs-cl\[viewer\]"'):
         cmd_view(view_args(str(tmp_path)))
 
@@ -272,12 +238,11 @@ def test_without_viser_the_viewer_says_how_to_install_it(monkeypatch, tmp_path):
 def test_publish_renders_nothing_without_a_browser(served):
     viewer, _, _ = served
     for i in range(1000):
-        viewer.publish(None, 0, i)  # a model of None would fail any render: nobody is watching, none is made
+        viewer.publish(None, 0, i)   # a model of None would fail any render: nobody is watching, none is made
 
 
 class ClientCamera:
     """What a websocket client sets: viser's CameraHandle fields, any values it likes."""
-
     def __init__(self, **values):
         self.image_width, self.image_height, self.fov, self.aspect = 640, 480, 1.0, 640 / 480
         self.wxyz, self.position = (1.0, 0.0, 0.0, 0.0), (0.0, -3.0, 0.0)
@@ -287,35 +252,25 @@ class ClientCamera:
 def client_view(camera: ClientCamera, sent: list):
     from types import SimpleNamespace
     from dc4gs_cl.apps.viewer import _View
-
     scene = SimpleNamespace(set_background_image=lambda image, **_: sent.append(image.shape))
     return _View(SimpleNamespace(camera=camera, scene=scene))
 
 
-@pytest.mark.parametrize(
-    "values",
-    [
-        {"image_width": 8000, "image_height": 40},
-        {"image_width": 100_000},
-        {"fov": float("nan")},
-        {"image_width": -5},
-        {"aspect": float("inf")},
-        {"position": (1e300, 0, 0)},
-        {"wxyz": (0, 0, 0, 0)},
-        {"image_height": "tall"},
-    ],
-)
+@pytest.mark.parametrize("values", [{"image_width": 8000, "image_height": 40}, {"image_width": 100_000},
+                                    {"fov": float("nan")},
+                                    {"image_width": -5}, {"aspect": float("inf")}, {"position": (1e300, 0, 0)},
+                                    {"wxyz": (0, 0, 0, 0)}, {"image_height": "tall"}])
 def test_a_client_cannot_ask_for_an_unbounded_frame(served, capsys, values):
     """A client's canvas size, field of view and pose are whatever it sends (a frame size of 100000 killed
     training with the viewer on): a frame is at most the slider's largest side, and a value that is not a finite
     number in range gets no frame and one warning, not an exception in the training thread."""
     viewer, _, _ = served
     sent = []
-    viewer._max_side.value = 100_000  # what a client's slider message may carry
+    viewer._max_side.value = 100_000          # what a client's slider message may carry
     for _ in range(3):
         viewer._send_frame(client_view(ClientCamera(**values), sent), 1.0, in_training=False)
     err = capsys.readouterr().err
-    if values.get("image_width") == 8000:  # the slider's value clamped to its largest side
+    if values.get("image_width") == 8000:     # the slider's value clamped to its largest side
         assert sent and sent[0][:2] == (20, 4096) and not err, (sent, err)
     else:
         assert not sent and err.count("viewer: ") == 1, err
@@ -337,7 +292,6 @@ def free_port() -> int:
 
 def test_train_with_the_viewer_and_a_taken_port(tmp_path, capsys):
     from dc4gs_cl.cli import main
-
     small = ["train", "--scene", "builtin", "-r", "4", "--iterations", "20", "--no-progress", "--viewer"]
     assert main([*small, "--port", str(free_port()), "--out", str(tmp_path / "live")]) == 0
     assert "viewer: http://" in capsys.readouterr().err
@@ -353,13 +307,13 @@ def test_train_with_the_viewer_and_a_taken_port(tmp_path, capsys):
 
 # the browser --------------------------------------------------------------------------------------------------
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
-WINDOW = (640, 480)  # CSS px at device scale 1: the canvas, and (under MAX_FRAME_SIDE) the frame
+WINDOW = (640, 480)              # CSS px at device scale 1: the canvas, and (under MAX_FRAME_SIDE) the frame
 # viser draws its control panel (top right), a software-WebGL notice (top left) and an axes gizmo (bottom left)
 # over the picture, and the frustum of the camera the browser looks through outlines it: compare inside of them
-EDGE = 4  # px
+EDGE = 4                         # px
 CLEAR = (slice(WINDOW[1] // 2, WINDOW[1] - EDGE), slice(WINDOW[0] // 4, WINDOW[0] - EDGE))
-MIN_PSNR = 35.0  # dB: the frame travels as a quality-90 JPEG (about 45 dB here)
-TIMEOUT = 20.0  # s, for each wait on the browser
+MIN_PSNR = 35.0                  # dB: the frame travels as a quality-90 JPEG (about 45 dB here)
+TIMEOUT = 20.0                   # s, for each wait on the browser
 
 
 class DevTools:
@@ -367,7 +321,6 @@ class DevTools:
 
     def __init__(self, profile):
         from websockets.sync.client import connect
-
         port_file = profile / "DevToolsActivePort"
         deadline = time.monotonic() + TIMEOUT
         while not port_file.is_file() or not port_file.read_text().strip():
@@ -382,7 +335,7 @@ class DevTools:
     def call(self, method: str, **params) -> dict:
         self.calls += 1
         self.ws.send(json.dumps({"id": self.calls, "method": method, "params": params}))
-        while True:  # events arrive in between; the answer carries our id
+        while True:   # events arrive in between; the answer carries our id
             message = json.loads(self.ws.recv(timeout=TIMEOUT))
             if message.get("id") == self.calls:
                 assert "error" not in message, message
@@ -398,26 +351,14 @@ def browser(tmp_path):
     if CHROMIUM is None:
         pytest.skip("no Chromium installed (Debian: apt-get install chromium)")
     profile = tmp_path / "profile"
-    proc = subprocess.Popen(
-        [
-            CHROMIUM,
-            "--headless=new",
-            "--no-sandbox",
-            "--remote-debugging-port=0",
-            f"--user-data-dir={profile}",
-            f"--window-size={WINDOW[0]},{WINDOW[1]}",
-            "--use-angle=swiftshader",
-            "--enable-unsafe-swiftshader",
-            "about:blank",
-        ],
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.DEVNULL,
-    )
+    proc = subprocess.Popen([CHROMIUM, "--headless=new", "--no-sandbox", "--remote-debugging-port=0",
+                             f"--user-data-dir={profile}", f"--window-size={WINDOW[0]},{WINDOW[1]}",
+                             "--use-angle=swiftshader", "--enable-unsafe-swiftshader", "about:blank"],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     try:
         tools = DevTools(profile)
-        tools.call(
-            "Emulation.setDeviceMetricsOverride", width=WINDOW[0], height=WINDOW[1], deviceScaleFactor=1, mobile=False
-        )
+        tools.call("Emulation.setDeviceMetricsOverride", width=WINDOW[0], height=WINDOW[1], deviceScaleFactor=1,
+                   mobile=False)
         yield tools
         tools.ws.close()
     finally:
@@ -453,16 +394,13 @@ def test_the_browser_shows_our_render_of_the_training_camera_it_starts_at(served
     camera = wait_for_frame(viewer, centre=home.center)
     # the browser's canvas, seen from the training camera with its vertical field of view
     fov_y = 2 * math.atan(0.5 * home.height / home.fy)
-    expected_camera = Camera.look_at(
-        "expected", home.center, np.zeros(3), *WINDOW, 2 * math.atan(math.tan(0.5 * fov_y) * WINDOW[0] / WINDOW[1])
-    )
-    np.testing.assert_allclose(camera.R, expected_camera.R, atol=1e-5)  # the browser computes in float32
+    expected_camera = Camera.look_at("expected", home.center, np.zeros(3), *WINDOW,
+                                     2 * math.atan(math.tan(0.5 * fov_y) * WINDOW[0] / WINDOW[1]))
+    np.testing.assert_allclose(camera.R, expected_camera.R, atol=1e-5)   # the browser computes in float32
     np.testing.assert_allclose(camera.t, expected_camera.t, atol=1e-5)
-    np.testing.assert_allclose(
-        [camera.fx, camera.fy, camera.cx, camera.cy],
-        [expected_camera.fx, expected_camera.fy, expected_camera.cx, expected_camera.cy],
-        rtol=1e-5,
-    )
+    np.testing.assert_allclose([camera.fx, camera.fy, camera.cx, camera.cy],
+                               [expected_camera.fx, expected_camera.fy, expected_camera.cx, expected_camera.cy],
+                               rtol=1e-5)
     renderer = Renderer(rt)
     expected = renderer.render(DeviceGaussians(rt, model), expected_camera, model.sh_degree).image(rt)
     shot = shows(browser, expected, tmp_path / "shown.png")

@@ -4,7 +4,6 @@ parallel.MPIGroup.sum_gradients (device to host, MPI Allreduce, host to device) 
 
     mpirun -n 2 python tools/bench_allreduce.py [--gaussians 1000000 ...] [--rounds 10] [--device D]
 """
-
 from __future__ import annotations
 
 import argparse
@@ -28,14 +27,10 @@ def main(argv=None) -> int:
     if group.size < 2:
         ap.error("run it under mpirun with 2 or more processes")
     rt = Runtime(device_of_process(group, args.device))
-    widths = group_widths(16)  # SH degree 3
+    widths = group_widths(16)   # SH degree 3
     rng = np.random.default_rng(group.rank)
-    lines = [
-        f"{group.size} processes, {describe(rt.device)}",
-        "",
-        "| Gaussians | MB each process sends | ms (median) |",
-        "|---:|---:|---:|",
-    ]
+    lines = [f"{group.size} processes, {describe(rt.device)}", "",
+             "| Gaussians | MB each process sends | ms (median) |", "|---:|---:|---:|"]
     for n in args.gaussians:
         sums = DeviceArrays(rt, widths, n)
         sums.upload({k: rng.normal(size=(n, w)).astype(np.float32) for k, w in widths.items()})

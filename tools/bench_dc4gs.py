@@ -16,7 +16,6 @@ visible Gaussian (instead of only those large enough to be split), and no statis
 iteration costs once the densification window has closed). The trained state is reached without DC4GS,
 so the tracking rows start a window with every Gaussian tracked, as every window does.
 """
-
 from __future__ import annotations
 
 import argparse
@@ -31,11 +30,8 @@ from dc4gs_cl.runtime import Runtime, describe
 from dc4gs_cl.scene.loader import load_scene
 from dc4gs_cl.train import Trainer
 
-CONFIGURATIONS = {  # name -> DC4GSConfig settings; "_" keys are the benchmark's own switches
-    "base": {},
-    "+DCC": {"dcc": True},
-    "+DCS": {"dcs": True},
-    "+DC4GS": {"dcc": True, "dcs": True},
+CONFIGURATIONS = {   # name -> DC4GSConfig settings; "_" keys are the benchmark's own switches
+    "base": {}, "+DCC": {"dcc": True}, "+DCS": {"dcs": True}, "+DC4GS": {"dcc": True, "dcs": True},
     "+DC4GS window": {"dcc": True, "dcs": True, "pooling": "window"},
     "+DC4GS, tracking 0.5": {"dcc": True, "dcs": True, "track": 0.5},
     "+DC4GS, tracking 0.25": {"dcc": True, "dcs": True, "track": 0.25},
@@ -51,15 +47,8 @@ def trainer_at(state, scene, rt, settings: dict, base: str, resolution) -> Train
     """A trainer holding the given Gaussians (a GaussianSet), that gathers statistics but never densifies."""
     dc4gs = DC4GSConfig(**{k: v for k, v in settings.items() if not k.startswith("_")})
     cfg = TrainConfig(scene="bench", iterations=30_000, strategy=base, resolution=resolution, dc4gs=dc4gs)
-    return frozen_trainer(
-        cfg,
-        scene,
-        rt,
-        state,
-        1_000,
-        closed=settings.get("_closed", False),
-        split_costs_for_all=settings.get("_all", False),
-    )
+    return frozen_trainer(cfg, scene, rt, state, 1_000, closed=settings.get("_closed", False),
+                          split_costs_for_all=settings.get("_all", False))
 
 
 def main(argv=None) -> int:
@@ -75,27 +64,20 @@ def main(argv=None) -> int:
 
     rt = Runtime(args.device, profiling=True)
     scene = load_scene(args.scene, resolution=args.resolution)
-    warm = Trainer(
-        TrainConfig(
-            scene="bench", iterations=max(args.warm_iterations * 2, 2), strategy=args.base, resolution=args.resolution
-        ),
-        scene,
-        rt,
-    )
+    warm = Trainer(TrainConfig(scene="bench", iterations=max(args.warm_iterations * 2, 2), strategy=args.base,
+                               resolution=args.resolution), scene, rt)
     for _ in range(args.warm_iterations):
         warm.step()
     state = warm.model.download()
     cam = scene.train[0]
-    print(
-        f"device: {describe(rt.device)}\nscene {args.scene} {cam.width}x{cam.height}, {args.base} trained "
-        f"{args.warm_iterations} iterations: {warm.params.n:,} Gaussians; {args.iterations} iterations x "
-        f"{args.rounds} rounds per configuration"
-    )
+    print(f"device: {describe(rt.device)}\nscene {args.scene} {cam.width}x{cam.height}, {args.base} trained "
+          f"{args.warm_iterations} iterations: {warm.params.n:,} Gaussians; {args.iterations} iterations x "
+          f"{args.rounds} rounds per configuration")
 
     configs = CONFIGURATIONS
     trainers = {name: trainer_at(state, scene, rt, s, args.base, args.resolution) for name, s in configs.items()}
     times = {name: [] for name in configs}
-    for name, trainer in trainers.items():  # warm-up: kernels built outside the timed rounds
+    for name, trainer in trainers.items():       # warm-up: kernels built outside the timed rounds
         trainer.step()
         rt.stage_times()
     for _ in range(args.rounds):
@@ -104,19 +86,13 @@ def main(argv=None) -> int:
                 trainer.step()
             times[name].append({k: v / args.iterations * 1e3 for k, v in rt.stage_times().items()})
     stages = list(dict.fromkeys(k for runs in times.values() for t in runs for k in t))
-    medians = {
-        name: {s: float(np.median([t.get(s, 0.0) for t in runs])) for s in stages} for name, runs in times.items()
-    }
+    medians = {name: {s: float(np.median([t.get(s, 0.0) for t in runs])) for s in stages} for name, runs in times.items()}
     base_total = sum(medians["base"].values())
     print("| configuration | device ms/it | vs base | " + " | ".join(stages) + " |")
     print("|---|---|---|" + "---|" * len(stages))
     for name, m in medians.items():
         total = sum(m.values())
-        print(
-            f"| {name} | {total:.2f} | {total / base_total - 1:+.1%} | "
-            + " | ".join(f"{m[s]:.2f}" for s in stages)
-            + " |"
-        )
+        print(f"| {name} | {total:.2f} | {total / base_total - 1:+.1%} | " + " | ".join(f"{m[s]:.2f}" for s in stages) + " |")
     return 0
 
 

@@ -11,7 +11,6 @@ built-in scene). Each format is written to a temporary folder and read back with
 which decode as the formats' reference readers do; a read-back model renders with the SH degree its file
 holds (.splat: colour only, as its viewers show it).
 """
-
 from __future__ import annotations
 
 import argparse
@@ -58,7 +57,6 @@ def main(argv=None) -> int:
     def renders(m):
         g = DeviceGaussians(rt, m)
         return [renderer.render(g, cam, background=scene.background).image(rt) for cam in cams]
-
     original = renders(model)
     truth = [scene.image(cam) for cam in cams]
     rows = [("original model", "", "", "", "", f"{np.mean([psnr(a, b) for a, b in zip(original, truth)]):.2f}")]
@@ -68,29 +66,17 @@ def main(argv=None) -> int:
             path = Path(tmp) / f"model{suffix}"
             export_model(model, path)
             size = path.stat().st_size
-            ply_size = ply_size or size  # "ply" comes first
+            ply_size = ply_size or size   # "ply" comes first
             images = renders(READERS[fmt](path))
             vs_original = [psnr(a, b) for a, b in zip(images, original)]
-            rows.append(
-                (
-                    fmt,
-                    f"{size / 1e6:.2f}",
-                    f"{size / len(model):.1f}",
-                    f"{size / ply_size:.1%}",
-                    "identical"
-                    if np.isinf(vs_original).all()
-                    else f"{np.mean(vs_original):.2f} / {np.min(vs_original):.2f}",
-                    f"{np.mean([psnr(a, b) for a, b in zip(images, truth)]):.2f}",
-                )
-            )
-    print(
-        f"{what}: {len(model):,} Gaussians, SH degree {model.sh_degree}; {len(cams)} views of "
-        f"{cams[0].width}x{cams[0].height}; device {describe(rt.device)}\n"
-    )
-    print(
-        "| format | MB | bytes / Gaussian | of the PLY | PSNR vs the model's renders, dB (mean / worst view) "
-        "| PSNR vs ground truth, dB |"
-    )
+            rows.append((fmt, f"{size / 1e6:.2f}", f"{size / len(model):.1f}", f"{size / ply_size:.1%}",
+                         "identical" if np.isinf(vs_original).all()
+                         else f"{np.mean(vs_original):.2f} / {np.min(vs_original):.2f}",
+                         f"{np.mean([psnr(a, b) for a, b in zip(images, truth)]):.2f}"))
+    print(f"{what}: {len(model):,} Gaussians, SH degree {model.sh_degree}; {len(cams)} views of "
+          f"{cams[0].width}x{cams[0].height}; device {describe(rt.device)}\n")
+    print("| format | MB | bytes / Gaussian | of the PLY | PSNR vs the model's renders, dB (mean / worst view) "
+          "| PSNR vs ground truth, dB |")
     print("|---|--:|--:|--:|--:|--:|")
     for row in rows:
         print("| " + " | ".join(row) + " |")

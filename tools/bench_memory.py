@@ -9,7 +9,6 @@ memory an iteration uses), for the base strategy and with DC4GS (view and window
 again with --low-memory (float-atomic backward, no per-pair slots); the peak of the bytes held in device buffers
 (Runtime.memory_peak) is divided by N. What is held per Gaussian is listed below the table.
 """
-
 from __future__ import annotations
 
 import argparse
@@ -27,14 +26,11 @@ from dc4gs_cl.reference.testing import random_model
 from dc4gs_cl.train import Trainer
 
 DC4GS = DC4GSConfig(dcc=True, dcs=True)
-CONFIGS = {  # name -> TrainConfig settings; low_memory (--low-memory): the backward adds into per-Gaussian
-    # sums with float atomics instead of per-pair slots (as fast, not bit-reproducible)
-    "absgs": {},
-    "absgs+DC4GS": {"dc4gs": DC4GS},
+CONFIGS = {   # name -> TrainConfig settings; low_memory (--low-memory): the backward adds into per-Gaussian
+             # sums with float atomics instead of per-pair slots (as fast, not bit-reproducible)
+    "absgs": {}, "absgs+DC4GS": {"dc4gs": DC4GS},
     "absgs+DC4GS window": {"dc4gs": DC4GSConfig(dcc=True, dcs=True, pooling="window")},
-    "absgs --low-memory": {"low_memory": True},
-    "absgs+DC4GS --low-memory": {"dc4gs": DC4GS, "low_memory": True},
-}
+    "absgs --low-memory": {"low_memory": True}, "absgs+DC4GS --low-memory": {"dc4gs": DC4GS, "low_memory": True}}
 
 
 def trained_state(rt: Runtime, scene, n: int, iterations: int, settings: dict) -> tuple[Trainer, int]:
@@ -46,7 +42,7 @@ def trained_state(rt: Runtime, scene, n: int, iterations: int, settings: dict) -
     model = random_model(np.random.default_rng(0), n, sh_degree=3, spread=1.5, scale_range=(0.005, 0.03))
     params = model.groups()
     moments = lambda: {k: np.zeros_like(v) for k, v in params.items()}
-    trainer.start_from(GaussianSet(params, moments(), moments()), 1_000)  # inside the window, between steps
+    trainer.start_from(GaussianSet(params, moments(), moments()), 1_000)   # inside the window, between steps
     for _ in range(iterations):
         trainer.step()
     rt.queue.finish()
@@ -57,12 +53,8 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--gaussians", type=int, nargs="+", default=[100_000, 400_000])
     ap.add_argument("--iterations", type=int, default=5)
-    ap.add_argument(
-        "--size",
-        default="192x144",
-        help="the views' width x height in pixels (the per-pair buffers "
-        "grow with the frame: the backward's per-pair slots are held for runs of tiles on large frames)",
-    )
+    ap.add_argument("--size", default="192x144", help="the views' width x height in pixels (the per-pair buffers "
+                    "grow with the frame: the backward's per-pair slots are held for runs of tiles on large frames)")
     ap.add_argument("--device", default=None)
     args = ap.parse_args(argv)
     rt = Runtime(args.device)

@@ -35,7 +35,6 @@ wide (-r = ceil(width / 400)); the 3DGS schedule is scaled to --iterations by th
 its own output folder (DIR/<scene>-<strategy> with --out, else a temporary one) holding the final PLY,
 results.json and the test renders, which `dc4gs-cl eval` can read.
 """
-
 from __future__ import annotations
 
 import argparse
@@ -63,23 +62,13 @@ from dc4gs_cl.scene.colmap import model_dir
 from dc4gs_cl.train import Trainer
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
-MAX_WIDTH = 400  # default -r: images at most this wide
+MAX_WIDTH = 400                # default -r: images at most this wide
 QUICK_SCENES = ("temple_sparse_ring", "fountain_p11")
-STAGES = (
-    "project",
-    "isect",
-    "sort",
-    "rasterize",
-    "loss",
-    "split_geometry",
-    "rasterize_backward",
-    "sum_pairs",
-    "project_backward",
-    "densify_stats",
-)
-TURN = 100  # iterations each run trains before the next run's turn (interleaved)
-EVENTS_EVERY = 100  # iterations between collections of the profiling events (bounds how many are held)
-MB = 2**20
+STAGES = ("project", "isect", "sort", "rasterize", "loss", "split_geometry", "rasterize_backward", "sum_pairs",
+          "project_backward", "densify_stats")
+TURN = 100                     # iterations each run trains before the next run's turn (interleaved)
+EVENTS_EVERY = 100             # iterations between collections of the profiling events (bounds how many are held)
+MB = 2 ** 20
 
 
 def colmap_scenes() -> list[str]:
@@ -97,7 +86,7 @@ def reset_host_peak() -> bool:
 
 def host_peak_bytes() -> int:
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-    return peak if sys.platform == "darwin" else peak * 1024  # bytes on macOS, kilobytes elsewhere
+    return peak if sys.platform == "darwin" else peak * 1024   # bytes on macOS, kilobytes elsewhere
 
 
 def load(name: str, resolution: int | None, cache: Path, test_split: str = "llff") -> tuple[Scene, int]:
@@ -114,38 +103,25 @@ def load(name: str, resolution: int | None, cache: Path, test_split: str = "llff
 
 DC4GS_TABLE = ("3dgs", "3dgs+dc4gs", "absgs", "absgs+dcc", "absgs+dcs", "absgs+dc4gs", "pixelgs", "pixelgs+dc4gs")
 PARTS = {"dc4gs": {"dcc": True, "dcs": True}, "dcc": {"dcc": True}, "dcs": {"dcs": True}}
-OPTIONS = {
-    "view": ("pooling", "view"),
-    "window": ("pooling", "window"),
-    "poly": ("split_pick", "poly"),
-    "argmin": ("split_pick", "argmin"),
-    "dense": ("split_pick", "dense"),
-    "middle": ("split_pick", "middle"),
-    "shrink": ("other_scale", 1 / SPLIT_SCALE_DIVISOR),
-    "abs": ("dcc_reading", "abs"),
-    "base": ("dcc_reading", "base"),
-}
+OPTIONS = {"view": ("pooling", "view"), "window": ("pooling", "window"), "poly": ("split_pick", "poly"),
+           "argmin": ("split_pick", "argmin"), "dense": ("split_pick", "dense"), "middle": ("split_pick", "middle"),
+           "shrink": ("other_scale", 1 / SPLIT_SCALE_DIVISOR),
+           "abs": ("dcc_reading", "abs"), "base": ("dcc_reading", "base")}
 # "track=0.5": the DC4GSConfig field (or, for cap, the TrainConfig one: MCMC's --max-gaussians) and its type
 VALUED = {"track": ("track", float), "every": ("cost_every", int), "cap": ("max_gaussians", int)}
 
 
 def variant(spec: str) -> dict:
-    """ "absgs+dc4gs:window:track=0.5" -> {"strategy": base, **DC4GSConfig settings} (raises ValueError on
+    """"absgs+dc4gs:window:track=0.5" -> {"strategy": base, **DC4GSConfig settings} (raises ValueError on
     anything unknown)."""
     head, *options = spec.split(":")
     base, *parts = head.split("+")
     valued = dict(o.split("=", 1) for o in options if "=" in o)
     options = [o for o in options if "=" not in o]
-    if (
-        base not in STRATEGIES
-        or any(p not in PARTS for p in parts)
-        or any(o not in OPTIONS for o in options)
-        or any(k not in VALUED for k in valued)
-    ):
-        raise ValueError(
-            f"unknown strategy {spec!r}: a base ({', '.join(STRATEGIES)}), then +dc4gs, +dcc or "
-            f"+dcs, then :options ({', '.join(OPTIONS)}, or {', '.join(k + '=' for k in VALUED)})"
-        )
+    if (base not in STRATEGIES or any(p not in PARTS for p in parts) or any(o not in OPTIONS for o in options)
+            or any(k not in VALUED for k in valued)):
+        raise ValueError(f"unknown strategy {spec!r}: a base ({', '.join(STRATEGIES)}), then +dc4gs, +dcc or "
+                         f"+dcs, then :options ({', '.join(OPTIONS)}, or {', '.join(k + '=' for k in VALUED)})")
     settings = {"strategy": base}
     for p in parts:
         settings.update(PARTS[p])
@@ -161,24 +137,15 @@ def config(scene: Scene, strategy: str, iterations: int, resolution: int, **sett
     dc4gs = variant(strategy)
     if "max_gaussians" in dc4gs:
         settings = {"max_gaussians": dc4gs.pop("max_gaussians"), **settings}
-    return TrainConfig(
-        scene=str(scene.root),
-        iterations=iterations,
-        resolution=resolution,
-        strategy=dc4gs.pop("strategy"),
-        dc4gs=DC4GSConfig(**dc4gs),
-        **settings,
-    )
+    return TrainConfig(scene=str(scene.root), iterations=iterations, resolution=resolution,
+                       strategy=dc4gs.pop("strategy"), dc4gs=DC4GSConfig(**dc4gs), **settings)
 
 
 def dc4gs_summary(runs: list[dict]) -> list[str]:
     """Each DC4GS row against its base on the same scene: Gaussians and PSNR, and the paper's claim."""
-    lines = [
-        "| scene | variant | Gaussians vs base | PSNR vs base | SSIM vs base | wall time vs base |",
-        "|---|---|---|---|---|---|",
-    ]
+    lines = ["| scene | variant | Gaussians vs base | PSNR vs base | SSIM vs base | wall time vs base |", "|---|---|---|---|---|---|"]
     by_key = {(r["scene"], r["strategy"]): r for r in runs}
-    fewer, gain = {}, {}  # per variant ("+dc4gs", "+dcc", "+dc4gs:window", ...): over scenes and bases
+    fewer, gain = {}, {}   # per variant ("+dc4gs", "+dcc", "+dc4gs:window", ...): over scenes and bases
     for r in runs:
         base_name = variant(r["strategy"])["strategy"]
         base = by_key.get((r["scene"], base_name))
@@ -186,20 +153,16 @@ def dc4gs_summary(runs: list[dict]) -> list[str]:
             continue
         dg = r["gaussians_final"] / base["gaussians_final"] - 1
         dp = r["psnr"] - base["psnr"]
-        lines.append(
-            f"| {r['scene']} | {r['strategy']} | {dg:+.1%} | {dp:+.2f} dB | {r['ssim'] - base['ssim']:+.4f} | "
-            f"{r['wall_ms_per_it'] / base['wall_ms_per_it'] - 1:+.1%} |"
-        )
-        key = r["strategy"][len(base_name) :]
+        lines.append(f"| {r['scene']} | {r['strategy']} | {dg:+.1%} | {dp:+.2f} dB | {r['ssim'] - base['ssim']:+.4f} | "
+                     f"{r['wall_ms_per_it'] / base['wall_ms_per_it'] - 1:+.1%} |")
+        key = r["strategy"][len(base_name):]
         fewer.setdefault(key, []).append(-dg)
         gain.setdefault(key, []).append(dp)
     lines.append("")
     for key in fewer:
         n = len(fewer[key])
-        lines.append(
-            f"{key} over {n} (scene, base) pairs: {sum(fewer[key]) / n:.1%} fewer Gaussians on average, "
-            f"PSNR {sum(gain[key]) / n:+.2f} dB on average"
-        )
+        lines.append(f"{key} over {n} (scene, base) pairs: {sum(fewer[key]) / n:.1%} fewer Gaussians on average, "
+                     f"PSNR {sum(gain[key]) / n:+.2f} dB on average")
     lines.append("(paper, for +dc4gs: 17-24% fewer Gaussians at equal or better PSNR)")
     return lines
 
@@ -218,7 +181,7 @@ class BenchRun:
     measurements listed at the top."""
 
     def __init__(self, rt: Runtime, scene: Scene, cfg: TrainConfig, out: Path, reset_rss: bool):
-        gc.collect()  # released buffers go before the peaks restart
+        gc.collect()                           # released buffers go before the peaks restart
         self.rt, self.scene, self.cfg = rt, scene, cfg
         self.at_start = rt.memory_in_use
         rt.reset_memory_peak()
@@ -244,41 +207,25 @@ class BenchRun:
             trainer.step()
             self.peak = max(self.peak, trainer.params.n)
             if trainer.iteration % EVENTS_EVERY == 0 or trainer.iteration == stop:
-                self.stages.update(self.rt.stage_times())  # waits for the queue
+                self.stages.update(self.rt.stage_times())   # waits for the queue
         self.wall += time.perf_counter() - start
 
     def finish(self) -> dict:
         rt, trainer, cfg = self.rt, self.trainer, self.cfg
         device_peak, host_peak = rt.memory_peak, host_peak_bytes()
         trainer.save_model()
-        result = evaluate(
-            rt,
-            trainer.renderer,
-            trainer.params,
-            self.scene,
-            self.scene.test,
-            trainer.sh_degree,
-            self.run.views_dir("test", cfg.iterations),
-        )
+        result = evaluate(rt, trainer.renderer, trainer.params, self.scene, self.scene.test, trainer.sh_degree,
+                          self.run.views_dir("test", cfg.iterations))
         self.run.write_results(cfg.iterations, result)
         per_it = 1e3 / cfg.iterations
-        return {
-            "psnr": result["mean"]["PSNR"],
-            "ssim": result["mean"]["SSIM"],
-            "test_views": result["views"],
-            "per_view_psnr": result["per_view"]["PSNR"],
-            "gaussians_initial": self.initial,
-            "gaussians_final": trainer.params.n,
-            "gaussians_peak": self.peak,
-            "wall_ms_per_it": self.wall * per_it,
-            "device_ms_per_it": {s: t * per_it for s, t in self.stages.items()},
-            "device_peak_bytes": device_peak,
-            "device_bytes_at_start": self.at_start,
-            "bytes_per_gaussian": device_peak / self.peak,
-            "host_peak_rss_bytes": host_peak,
-            "host_peak_rss_per_run": self.rss_per_run,
-            "output": str(self.run.path),
-        }
+        return {"psnr": result["mean"]["PSNR"], "ssim": result["mean"]["SSIM"], "test_views": result["views"],
+                "per_view_psnr": result["per_view"]["PSNR"],
+                "gaussians_initial": self.initial, "gaussians_final": trainer.params.n, "gaussians_peak": self.peak,
+                "wall_ms_per_it": self.wall * per_it,
+                "device_ms_per_it": {s: t * per_it for s, t in self.stages.items()},
+                "device_peak_bytes": device_peak, "device_bytes_at_start": self.at_start,
+                "bytes_per_gaussian": device_peak / self.peak, "host_peak_rss_bytes": host_peak,
+                "host_peak_rss_per_run": self.rss_per_run, "output": str(self.run.path)}
 
 
 def train_one(rt: Runtime, scene: Scene, cfg: TrainConfig, out: Path) -> dict:
@@ -288,17 +235,8 @@ def train_one(rt: Runtime, scene: Scene, cfg: TrainConfig, out: Path) -> dict:
     return run.finish()
 
 
-def train_scene(
-    device: str | None,
-    name: str,
-    scene: Scene,
-    strategies: list[str],
-    iterations: int,
-    resolution: int,
-    root: Path,
-    warm: Path,
-    turn: int,
-) -> list[dict]:
+def train_scene(device: str | None, name: str, scene: Scene, strategies: list[str], iterations: int,
+                resolution: int, root: Path, warm: Path, turn: int) -> list[dict]:
     """Train every strategy on the scene, `turn` iterations each in turn (0: one run after the other); the
     results in the order of `strategies`."""
     runtimes = [Runtime(device, profiling=True) for _ in strategies]
@@ -316,60 +254,37 @@ def train_scene(
     return [{**run.finish(), "host_peak_rss_per_scene": rss_scene} for run in runs]
 
 
-HEADER = (
-    "| scene | strategy | size | PSNR | SSIM | G init | G final | G peak | wall ms/it | "
-    + " | ".join(STAGES)
-    + " | B/Gaussian | device MB | RSS MB |"
-)
+HEADER = ("| scene | strategy | size | PSNR | SSIM | G init | G final | G peak | wall ms/it | "
+          + " | ".join(STAGES) + " | B/Gaussian | device MB | RSS MB |")
 
 
 def table_row(r: dict) -> str:
     stage_ms = " | ".join(f"{r['device_ms_per_it'].get(s, 0.0):.2f}" for s in STAGES)
-    return (
-        f"| {r['scene']} | {r['strategy']} | {r['size']} | {r['psnr']:.2f} | {r['ssim']:.4f} | "
-        f"{r['gaussians_initial']:,} | {r['gaussians_final']:,} | {r['gaussians_peak']:,} | "
-        f"{r['wall_ms_per_it']:.1f} | {stage_ms} | {r['bytes_per_gaussian']:,.0f} | "
-        f"{r['device_peak_bytes'] / MB:.1f} | {r['host_peak_rss_bytes'] / MB:.0f} |"
-    )
+    return (f"| {r['scene']} | {r['strategy']} | {r['size']} | {r['psnr']:.2f} | {r['ssim']:.4f} | "
+            f"{r['gaussians_initial']:,} | {r['gaussians_final']:,} | {r['gaussians_peak']:,} | "
+            f"{r['wall_ms_per_it']:.1f} | {stage_ms} | {r['bytes_per_gaussian']:,.0f} | "
+            f"{r['device_peak_bytes'] / MB:.1f} | {r['host_peak_rss_bytes'] / MB:.0f} |")
 
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument(
-        "--scenes",
-        nargs="+",
-        default=None,
-        help=f"scene folders of ../shared/data (default: every COLMAP one), or {BUILTIN_SCENE}",
-    )
-    ap.add_argument(
-        "--strategies",
-        nargs="+",
-        default=None,
-        help="densification strategies, e.g. absgs absgs+dc4gs absgs+dcc:window (default: 3dgs absgs pixelgs)",
-    )
+    ap.add_argument("--scenes", nargs="+", default=None,
+                    help=f"scene folders of ../shared/data (default: every COLMAP one), or {BUILTIN_SCENE}")
+    ap.add_argument("--strategies", nargs="+", default=None,
+                    help="densification strategies, e.g. absgs absgs+dc4gs absgs+dcc:window (default: 3dgs absgs pixelgs)")
     ap.add_argument("--dc4gs", action="store_true", help=f"the DC4GS results table: {' '.join(DC4GS_TABLE)}")
     ap.add_argument("--iterations", type=int, default=None, help="iterations per run (default 3000)")
-    ap.add_argument(
-        "-r",
-        "--resolution",
-        type=int,
-        default=None,
-        help=f"downscale factor for every scene (default: per scene, at most {MAX_WIDTH} px wide)",
-    )
-    ap.add_argument(
-        "--turn",
-        type=int,
-        default=TURN,
-        help=f"iterations each of a scene's runs trains in its turn (default {TURN}; 0: one run after the other)",
-    )
+    ap.add_argument("-r", "--resolution", type=int, default=None,
+                    help=f"downscale factor for every scene (default: per scene, at most {MAX_WIDTH} px wide)")
+    ap.add_argument("--turn", type=int, default=TURN,
+                    help=f"iterations each of a scene's runs trains in its turn (default {TURN}; 0: one run after "
+                         "the other)")
     ap.add_argument("--out", type=Path, default=None, help="keep each run's folder under DIR (default: temporary)")
-    ap.add_argument("--json", type=Path, default=None, help="also write the results here (rewritten after each scene)")
+    ap.add_argument("--json", type=Path, default=None,
+                    help="also write the results here (rewritten after each scene)")
     ap.add_argument("--device", default=None)
-    ap.add_argument(
-        "--quick",
-        action="store_true",
-        help=f"smoke test: one scene ({' or '.join(QUICK_SCENES)}), strategy 3dgs, 200 iterations",
-    )
+    ap.add_argument("--quick", action="store_true",
+                    help=f"smoke test: one scene ({' or '.join(QUICK_SCENES)}), strategy 3dgs, 200 iterations")
     args = ap.parse_args(argv)
     available = colmap_scenes() if DATA.is_dir() else []
     if args.quick:
@@ -378,10 +293,8 @@ def main(argv=None) -> int:
         args.iterations = args.iterations or 200
     scenes = args.scenes or available
     if not scenes:
-        print(
-            f"no scene data at {DATA}: nothing to benchmark (the COLMAP scenes of ../shared/data are needed; "
-            f"--scenes {BUILTIN_SCENE} trains the built-in scene)"
-        )
+        print(f"no scene data at {DATA}: nothing to benchmark (the COLMAP scenes of ../shared/data are needed; "
+              f"--scenes {BUILTIN_SCENE} trains the built-in scene)")
         return 0
     strategies = args.strategies or (list(DC4GS_TABLE) if args.dc4gs else ["3dgs", "absgs", "pixelgs"])
     for spec in strategies:
@@ -409,14 +322,10 @@ def main(argv=None) -> int:
                 continue
             cam = scene.train[0]
             size = f"{cam.width}x{cam.height}"
-            print(
-                f"{name}: -r {r} -> {size}, {len(scene.train)} train / {len(scene.test)} test views, "
-                f"{len(scene.points):,} SfM points",
-                file=sys.stderr,
-            )
-            runs = train_scene(
-                args.device, name, scene, strategies, iterations, r, root, Path(tmp) / "warm-up", args.turn
-            )
+            print(f"{name}: -r {r} -> {size}, {len(scene.train)} train / {len(scene.test)} test views, "
+                  f"{len(scene.points):,} SfM points", file=sys.stderr)
+            runs = train_scene(args.device, name, scene, strategies, iterations, r, root, Path(tmp) / "warm-up",
+                               args.turn)
             for strategy, run in zip(strategies, runs):
                 row = {"scene": name, "strategy": strategy, "resolution": r, "size": size, **run}
                 report["runs"].append(row)

@@ -21,7 +21,6 @@ Per densification step (tables in DIR/decisions.md, every number in DIR/decision
 - DIR/withheld-<iteration>.jpg at the middle densification step: a test view rendered from the model, from the
   withheld Gaussians alone, from those DCC splits alone, and the model's error.
 """
-
 from __future__ import annotations
 
 import argparse
@@ -44,16 +43,16 @@ from dc4gs_cl.scene.camera import TEST_SPLITS
 from dc4gs_cl.statistics import SPLIT_COSTS
 from dc4gs_cl.train import Trainer
 
-SAMPLES = 61  # points along a candidate's axis, -3 to 3 sigma
-EDGE_STEP = 0.15  # a colour step (sum over RGB, 0.1 sigma apart) at least this large is an edge
-PROFILE_VIEWS = 8  # training cameras ray cast per candidate (those that see its centre, spread over the ring)
+SAMPLES = 61          # points along a candidate's axis, -3 to 3 sigma
+EDGE_STEP = 0.15      # a colour step (sum over RGB, 0.1 sigma apart) at least this large is an edge
+PROFILE_VIEWS = 8     # training cameras ray cast per candidate (those that see its centre, spread over the ring)
 
 
 def axis_profiles(means: np.ndarray, sigma: np.ndarray, direction: np.ndarray, cams) -> tuple[np.ndarray, np.ndarray]:
     """Colour steps along each Gaussian's axis, averaged over the cameras that see its centre: (M, SAMPLES - 1)
     steps, and (M,) how many cameras saw it."""
     t = np.linspace(-3, 3, SAMPLES)
-    points = means[:, None, :] + t[None, :, None] * sigma[:, None, None] * direction[:, None, :]  # (M, S, 3)
+    points = means[:, None, :] + t[None, :, None] * sigma[:, None, None] * direction[:, None, :]   # (M, S, 3)
     steps = np.zeros((len(means), SAMPLES - 1))
     seen = np.zeros(len(means))
     for cam in cams[:: max(1, len(cams) // PROFILE_VIEWS)]:
@@ -81,10 +80,10 @@ class Recorder:
 
     def __init__(self, trainer: Trainer, known_geometry: bool):
         self.trainer, self.known_geometry, self.steps, self.snapshot = trainer, known_geometry, [], None
-        self.uniform = np.random.default_rng(0)  # the baseline of cuts drawn uniformly over DCS' search interval
+        self.uniform = np.random.default_rng(0)   # the baseline of cuts drawn uniformly over DCS' search interval
         trainer.strategy.before_densify = self.record
         c = trainer.strategy.config
-        self.show_at = (c.densify_from + c.densify_until) // 2  # the panels: the first step from here on
+        self.show_at = (c.densify_from + c.densify_until) // 2   # the panels: the first step from here on
 
     def record(self, gs, window, it) -> None:
         s = self.trainer.strategy
@@ -95,58 +94,43 @@ class Recorder:
         split = large & (dcc_v >= c.split_threshold)
         withheld = candidates & ~split
         factor = np.where(base_v > 0, dcc_v / np.where(base_v > 0, base_v, 1), 0)[candidates]
-        step = {
-            "iteration": it,
-            "gaussians": gs.n,
-            "candidates": int(candidates.sum()),
-            "split": int(split.sum()),
-            "withheld": int(withheld.sum()),
-            "split_not_candidates": int((split & ~candidates).sum()),
-            "one_minus_kappa_quartiles": np.percentile(factor, [25, 50, 75]).tolist() if len(factor) else [],
-        }
+        step = {"iteration": it, "gaussians": gs.n, "candidates": int(candidates.sum()), "split": int(split.sum()),
+                "withheld": int(withheld.sum()), "split_not_candidates": int((split & ~candidates).sum()),
+                "one_minus_kappa_quartiles": np.percentile(factor, [25, 50, 75]).tolist() if len(factor) else []}
         if self.known_geometry and candidates.any():
             idx = np.flatnonzero(candidates)
             _, sigma, direction = principal_axis(gs.params["log_scales"][idx], gs.params["quats"][idx])
-            steps, seen = axis_profiles(
-                gs.params["means"][idx].astype(np.float64), sigma, direction, self.trainer.scene.train
-            )
-            at = (np.arange(SAMPLES - 1) + 0.5) * 6 / (SAMPLES - 1) - 3  # where each step lies, in sigma
+            steps, seen = axis_profiles(gs.params["means"][idx].astype(np.float64), sigma, direction,
+                                        self.trainer.scene.train)
+            at = (np.arange(SAMPLES - 1) + 0.5) * 6 / (SAMPLES - 1) - 3     # where each step lies, in sigma
             peak = steps.max(axis=1)
             is_split = split[idx]
             x = split_positions(window[SPLIT_COSTS][idx], s.dc4gs.split_pick)
             cut = 6 * x - 3
             edge = (peak >= EDGE_STEP) & (seen > 0)
             on_edge = edge & is_split
-            edges = np.where(steps >= EDGE_STEP, at, np.inf)  # (M, SAMPLES - 1): the edges' positions
+            edges = np.where(steps >= EDGE_STEP, at, np.inf)             # (M, SAMPLES - 1): the edges' positions
             nearest = lambda cut_at: np.abs(cut_at[:, None] - edges).min(axis=1)
-            step.update(
-                {
-                    "seen": int((seen > 0).sum()),
-                    "edge_fraction_split": float(edge[is_split].mean()) if is_split.any() else None,
-                    "edge_fraction_withheld": float(edge[~is_split].mean()) if (~is_split).any() else None,
-                    "colour_variation_split": float(np.median(steps[is_split].sum(axis=1))) if is_split.any() else None,
-                    "colour_variation_withheld": float(np.median(steps[~is_split].sum(axis=1)))
-                    if (~is_split).any()
-                    else None,
-                    "cut_to_edge": nearest(cut)[on_edge].tolist(),
-                    "middle_to_edge": nearest(np.zeros_like(cut))[on_edge].tolist(),
-                    "uniform_to_edge": nearest(
-                        6 * self.uniform.uniform(*search_interval(window[SPLIT_COSTS].shape[1]), len(cut)) - 3
-                    )[on_edge].tolist(),
-                    "cut_is_middle": float(np.mean(x[on_edge] == 0.5)) if on_edge.any() else None,
-                }
-            )
+            step.update({
+                "seen": int((seen > 0).sum()),
+                "edge_fraction_split": float(edge[is_split].mean()) if is_split.any() else None,
+                "edge_fraction_withheld": float(edge[~is_split].mean()) if (~is_split).any() else None,
+                "colour_variation_split": float(np.median(steps[is_split].sum(axis=1))) if is_split.any() else None,
+                "colour_variation_withheld": float(np.median(steps[~is_split].sum(axis=1))) if (~is_split).any() else None,
+                "cut_to_edge": nearest(cut)[on_edge].tolist(),
+                "middle_to_edge": nearest(np.zeros_like(cut))[on_edge].tolist(),
+                "uniform_to_edge": nearest(6 * self.uniform.uniform(*search_interval(window[SPLIT_COSTS].shape[1]), len(cut)) - 3)[
+                    on_edge].tolist(),
+                "cut_is_middle": float(np.mean(x[on_edge] == 0.5)) if on_edge.any() else None})
         self.steps.append(step)
         if self.snapshot is None and it >= self.show_at:
             self.snapshot = (it, self.trainer.sh_degree, {k: v.copy() for k, v in gs.params.items()}, withheld, split)
 
 
-def render_panels(
-    rt: Runtime, trainer: Trainer, sh_degree: int, params: dict, withheld: np.ndarray, split: np.ndarray, path: Path
-) -> bool:
+def render_panels(rt: Runtime, trainer: Trainer, sh_degree: int, params: dict, withheld: np.ndarray,
+                  split: np.ndarray, path: Path) -> bool:
     try:
         import matplotlib
-
         matplotlib.use("Agg")
         import matplotlib.pyplot as plt
     except ImportError:
@@ -162,85 +146,57 @@ def render_panels(
         return trainer.renderer.render(DeviceGaussians(rt, model), cam, sh_degree, scene.background).image(rt)
 
     everything = render(np.ones(len(withheld), bool))
-    panels = [
-        (everything, "model"),
-        (render(withheld), f"withheld by DCC ({withheld.sum():,})"),
-        (render(split), f"split by DCC ({split.sum():,})"),
-        (np.clip(np.abs(everything - target).sum(axis=2) * 2, 0, 1), "model error x2 (sum over RGB)"),
-        (target, "ground truth"),
-    ]
+    panels = [(everything, "model"), (render(withheld), f"withheld by DCC ({withheld.sum():,})"),
+              (render(split), f"split by DCC ({split.sum():,})"),
+              (np.clip(np.abs(everything - target).sum(axis=2) * 2, 0, 1), "model error x2 (sum over RGB)"),
+              (target, "ground truth")]
     fig, axes = plt.subplots(1, len(panels), figsize=(3.2 * len(panels), 3.2 * target.shape[0] / target.shape[1] + 0.4))
     for ax, (image, title) in zip(axes, panels):
         ax.imshow(np.clip(image, 0, 1), cmap="magma" if image.ndim == 2 else None)
         ax.set_title(title, fontsize=8)
         ax.axis("off")
     fig.tight_layout()
-    fig.savefig(path, dpi=110, pil_kwargs={"quality": 88})  # a JPEG: the panels are photographs
+    fig.savefig(path, dpi=110, pil_kwargs={"quality": 88})   # a JPEG: the panels are photographs
     plt.close(fig)
     return True
 
 
 def markdown(report: dict) -> str:
-    lines = [
-        f"# DC4GS decisions: {report['scene']} ({report['size']}), {report['strategy']}, "
-        f"{report['iterations']:,} iterations",
-        "",
-        f"Device: {report['device']}. Split threshold "
-        f"{report['threshold']:g}; candidates = what the base would split, withheld = candidates DCC does not "
-        "split; 1 - kappa = DCC criterion / base criterion over the candidates (25th / 50th / 75th percentile).",
-        "",
-        "| iteration | Gaussians | candidates | DCC splits | withheld | 1 - kappa |",
-        "|---:|---:|---:|---:|---:|---|",
-    ]
+    lines = [f"# DC4GS decisions: {report['scene']} ({report['size']}), {report['strategy']}, "
+             f"{report['iterations']:,} iterations", "", f"Device: {report['device']}. Split threshold "
+             f"{report['threshold']:g}; candidates = what the base would split, withheld = candidates DCC does not "
+             "split; 1 - kappa = DCC criterion / base criterion over the candidates (25th / 50th / 75th percentile).",
+             "", "| iteration | Gaussians | candidates | DCC splits | withheld | 1 - kappa |", "|---:|---:|---:|---:|---:|---|"]
     for s in report["steps"]:
-        lines.append(
-            f"| {s['iteration']:,} | {s['gaussians']:,} | {s['candidates']:,} | {s['split']:,} | "
-            f"{s['withheld']:,} | {' / '.join(f'{q:.2f}' for q in s['one_minus_kappa_quartiles']) or '-'} |"
-        )
+        lines.append(f"| {s['iteration']:,} | {s['gaussians']:,} | {s['candidates']:,} | {s['split']:,} | "
+                     f"{s['withheld']:,} | {' / '.join(f'{q:.2f}' for q in s['one_minus_kappa_quartiles']) or '-'} |")
     total = {k: sum(s[k] for s in report["steps"]) for k in ("candidates", "split", "withheld", "split_not_candidates")}
-    lines += [
-        "",
-        f"Over the run: {total['candidates']:,} candidates, DCC split {total['split']:,} "
-        f"({total['split'] / max(total['candidates'], 1):.0%}), withheld {total['withheld']:,}; split by DCC "
-        f"but not a candidate: {total['split_not_candidates']:,}.",
-    ]
+    lines += ["", f"Over the run: {total['candidates']:,} candidates, DCC split {total['split']:,} "
+                  f"({total['split'] / max(total['candidates'], 1):.0%}), withheld {total['withheld']:,}; split by DCC "
+                  f"but not a candidate: {total['split_not_candidates']:,}."]
     geo = [s for s in report["steps"] if "seen" in s]
     if geo:
-
         def pooled(key):
             return np.array([v for s in geo for v in s[key]])
-
         def mean_of(key):
             vals = [s[key] for s in geo if s[key] is not None]
             return f"{np.mean(vals):.2f}" if vals else "-"
-
         cut, middle, uniform = pooled("cut_to_edge"), pooled("middle_to_edge"), pooled("uniform_to_edge")
-        lines += [
-            "",
-            "## Known geometry (the scene's ray caster along each candidate's axis, -3 to 3 sigma)",
-            "",
-            "| | split by DCC | withheld by DCC |",
-            "|---|---:|---:|",
-            f"| has an edge (a colour step >= {EDGE_STEP}), mean over steps | {mean_of('edge_fraction_split')} | "
-            f"{mean_of('edge_fraction_withheld')} |",
-            f"| colour variation along the axis (sum of steps), median, mean over steps | "
-            f"{mean_of('colour_variation_split')} | {mean_of('colour_variation_withheld')} |",
-            "",
-            f"DCS' cut against the edges: {len(cut):,} split Gaussians with an edge on their axis; distance from "
-            "the nearest edge, in sigma:",
-            "",
-            "| cut | quartiles | within 0.25 sigma | within 0.5 sigma | nearer than DCS' cut |",
-            "|---|---|---:|---:|---:|",
-        ]
-        for label, dist in (
-            ("DCS (its x_opt)", cut),
-            ("the middle (x = 0.5)", middle),
-            ("uniform over DCS' search interval", uniform),
-        ):
+        lines += ["", "## Known geometry (the scene's ray caster along each candidate's axis, -3 to 3 sigma)", "",
+                  "| | split by DCC | withheld by DCC |", "|---|---:|---:|",
+                  f"| has an edge (a colour step >= {EDGE_STEP}), mean over steps | {mean_of('edge_fraction_split')} | "
+                  f"{mean_of('edge_fraction_withheld')} |",
+                  f"| colour variation along the axis (sum of steps), median, mean over steps | "
+                  f"{mean_of('colour_variation_split')} | {mean_of('colour_variation_withheld')} |", "",
+                  f"DCS' cut against the edges: {len(cut):,} split Gaussians with an edge on their axis; distance from "
+                  "the nearest edge, in sigma:", "",
+                  "| cut | quartiles | within 0.25 sigma | within 0.5 sigma | nearer than DCS' cut |",
+                  "|---|---|---:|---:|---:|"]
+        for label, dist in (("DCS (its x_opt)", cut), ("the middle (x = 0.5)", middle),
+                            ("uniform over DCS' search interval", uniform)):
             nearer = "-" if dist is cut else f"{np.mean(dist < cut):.0%}"
-            lines.append(
-                f"| {label} | {quartiles(dist)} | {np.mean(dist <= 0.25):.0%} | {np.mean(dist <= 0.5):.0%} | {nearer} |"
-            )
+            lines.append(f"| {label} | {quartiles(dist)} | {np.mean(dist <= 0.25):.0%} | {np.mean(dist <= 0.5):.0%} | "
+                         f"{nearer} |")
     return "\n".join(lines) + "\n"
 
 
@@ -250,40 +206,25 @@ def main(argv=None) -> int:
     ap.add_argument("--base", default="absgs", choices=sorted(STRATEGIES))
     ap.add_argument("--iterations", type=int, default=3000)
     ap.add_argument("-r", "--resolution", type=int, default=None)
-    ap.add_argument(
-        "--test-split", choices=TEST_SPLITS, default="llff", help="the held-out views (the panels show the first)"
-    )
+    ap.add_argument("--test-split", choices=TEST_SPLITS, default="llff", help="the held-out views (the panels show the first)")
     ap.add_argument("--out", type=Path, default=Path("decisions"))
     ap.add_argument("--device", default=None)
     args = ap.parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)
-    scene = load_scene(
-        args.scene, resolution=args.resolution, cache_dir=args.out / "undistorted", test_split=args.test_split
-    )
+    scene = load_scene(args.scene, resolution=args.resolution, cache_dir=args.out / "undistorted",
+                       test_split=args.test_split)
     scene.read_all_images()
     rt = Runtime(args.device)
-    cfg = TrainConfig(
-        scene=args.scene,
-        iterations=args.iterations,
-        resolution=args.resolution,
-        strategy=args.base,
-        test_split=args.test_split,
-        dc4gs=DC4GSConfig(dcc=True, dcs=True),
-    )
-    trainer = Trainer(cfg, scene, rt)  # steps alone: no checkpoint nor model to write
+    cfg = TrainConfig(scene=args.scene, iterations=args.iterations, resolution=args.resolution, strategy=args.base,
+                      test_split=args.test_split, dc4gs=DC4GSConfig(dcc=True, dcs=True))
+    trainer = Trainer(cfg, scene, rt)   # steps alone: no checkpoint nor model to write
     recorder = Recorder(trainer, known_geometry=args.scene == builtin.BUILTIN_SCENE)
     while trainer.iteration < cfg.iterations:
         trainer.step()
     cam = scene.train[0]
-    report = {
-        "device": describe(rt.device),
-        "scene": args.scene,
-        "size": f"{cam.width}x{cam.height}",
-        "strategy": trainer.strategy.label,
-        "iterations": args.iterations,
-        "threshold": trainer.strategy.config.split_threshold,
-        "steps": recorder.steps,
-    }
+    report = {"device": describe(rt.device), "scene": args.scene, "size": f"{cam.width}x{cam.height}",
+              "strategy": trainer.strategy.label, "iterations": args.iterations,
+              "threshold": trainer.strategy.config.split_threshold, "steps": recorder.steps}
     if recorder.snapshot is not None:
         at, *snapshot = recorder.snapshot
         if render_panels(rt, trainer, *snapshot, args.out / f"withheld-{at}.jpg"):

@@ -28,7 +28,6 @@ each point of a method, "vs base at equal Gaussians" is its PSNR minus the base'
 --seeds a point is the mean over them (PSNR and Gaussians), drawn with the PSNR's spread (min to max) as a bar:
 single test views move by more than a dB between seeds.
 """
-
 from __future__ import annotations
 
 import argparse
@@ -53,30 +52,14 @@ from dc4gs_cl.scene.camera import TEST_SPLITS  # noqa: E402
 
 # method -> bench_train strategy suffix (mcmc: the strategy itself, its cap swept); the last four are not run by
 # default (see the docstring)
-METHODS = {
-    "base": "",
-    "dc4gs": "+dc4gs",
-    "dcc": "+dcc",
-    "dcs": "+dcs",
-    "dcs-middle": "+dcs:middle",
-    "dc4gs-middle": "+dc4gs:middle",
-    "dc4gs-shrink": "+dc4gs:shrink",
-    "mcmc": None,
-    "mcmc-dcs": None,
-}
+METHODS = {"base": "", "dc4gs": "+dc4gs", "dcc": "+dcc", "dcs": "+dcs", "dcs-middle": "+dcs:middle",
+           "dc4gs-middle": "+dc4gs:middle", "dc4gs-shrink": "+dc4gs:shrink", "mcmc": None,
+           "mcmc-dcs": None}
 DEFAULT_METHODS = ("base", "dc4gs", "dcc", "dcs")
 SCALES = (0.5, 1.0, 1.5, 2.0, 4.0)
-COLOURS = {
-    "base": "black",
-    "dc4gs": "tab:red",
-    "dcc": "tab:blue",
-    "dcs": "tab:green",
-    "dcs-middle": "tab:olive",
-    "dc4gs-middle": "tab:purple",
-    "dc4gs-shrink": "tab:orange",
-    "mcmc": "tab:cyan",
-    "mcmc-dcs": "tab:pink",
-}
+COLOURS = {"base": "black", "dc4gs": "tab:red", "dcc": "tab:blue", "dcs": "tab:green", "dcs-middle": "tab:olive",
+           "dc4gs-middle": "tab:purple", "dc4gs-shrink": "tab:orange", "mcmc": "tab:cyan",
+           "mcmc-dcs": "tab:pink"}
 
 
 def run_key(scene: str, base: str, method: str, scale: float, iterations: int, test_split: str, seed: int = 0) -> str:
@@ -125,47 +108,27 @@ def mean_points(runs: list[dict]) -> list[dict]:
     by_scale: dict[float, list[dict]] = {}
     for r in runs:
         by_scale.setdefault(r["scale"], []).append(r)
-    return [
-        {
-            "scale": scale,
-            "seeds": len(rs),
-            "psnr": float(np.mean([r["psnr"] for r in rs])),
-            "psnr_min": min(r["psnr"] for r in rs),
-            "psnr_max": max(r["psnr"] for r in rs),
-            "gaussians_final": float(np.exp(np.mean([math.log(r["gaussians_final"]) for r in rs]))),
-            "wall_s": float(np.mean([r["wall_s"] for r in rs])),
-        }
-        for scale, rs in sorted(by_scale.items())
-    ]
+    return [{"scale": scale, "seeds": len(rs), "psnr": float(np.mean([r["psnr"] for r in rs])),
+             "psnr_min": min(r["psnr"] for r in rs), "psnr_max": max(r["psnr"] for r in rs),
+             "gaussians_final": float(np.exp(np.mean([math.log(r["gaussians_final"]) for r in rs]))),
+             "wall_s": float(np.mean([r["wall_s"] for r in rs]))} for scale, rs in sorted(by_scale.items())]
 
 
 def markdown(report: dict) -> str:
-    lines = [
-        f"# DC4GS frontiers ({report['device']})",
-        "",
-        'PSNR on the test views against final Gaussians, the base\'s split threshold scaled; "vs base" is the '
-        "PSNR minus the base curve's at the same Gaussian count (log-linear between its runs; - outside them); "
-        "with several seeds the summary compares their means.",
-        "",
-    ]
-    summary = [
-        "## Summary: mean PSNR vs base (and vs base + DC4GS) at equal Gaussians",
-        "",
-        "| scene | size | base | iterations | test split | method | points in base's range | mean vs base | "
-        "range | vs base + DC4GS (points in its range) |",
-        "|---|---|---|---:|---|---|---:|---:|---|---:|",
-    ]
+    lines = [f"# DC4GS frontiers ({report['device']})", "",
+             "PSNR on the test views against final Gaussians, the base's split threshold scaled; \"vs base\" is the "
+             "PSNR minus the base curve's at the same Gaussian count (log-linear between its runs; - outside them); "
+             "with several seeds the summary compares their means.", ""]
+    summary = ["## Summary: mean PSNR vs base (and vs base + DC4GS) at equal Gaussians", "",
+               "| scene | size | base | iterations | test split | method | points in base's range | mean vs base | "
+               "range | vs base + DC4GS (points in its range) |", "|---|---|---|---:|---|---|---:|---:|---|---:|"]
     tables = []
     for (scene, base, iterations, split), methods in curves(report["runs"]).items():
         base_pts = mean_points(methods.get("base", []))
         size = next(iter(methods.values()))[0]["size"]
-        tables += [
-            f"## {scene} ({size}), {base}, {iterations:,} iterations, {split} test views",
-            "",
-            "| method | scale | seed | split threshold (mcmc: cap) | Gaussians | PSNR | SSIM | vs base at equal G | "
-            "wall s | per view PSNR (worst first) |",
-            "|---|---:|---:|---:|---:|---:|---:|---:|---:|---|",
-        ]
+        tables += [f"## {scene} ({size}), {base}, {iterations:,} iterations, {split} test views", "",
+                   "| method | scale | seed | split threshold (mcmc: cap) | Gaussians | PSNR | SSIM | vs base at equal G | "
+                   "wall s | per view PSNR (worst first) |", "|---|---:|---:|---:|---:|---:|---:|---:|---:|---|"]
         for method in METHODS:
             for r in methods.get(method, []):
                 d = at_equal_gaussians(r, base_pts) if method != "base" else None
@@ -174,18 +137,15 @@ def markdown(report: dict) -> str:
                 tables.append(
                     f"| {method} | {r['scale']:g} | {r.get('seed', 0)} | {limit} | {r['gaussians_final']:,} | "
                     f"{r['psnr']:.2f} | {r['ssim']:.4f} | {'-' if d is None else f'{d:+.2f}'} | "
-                    f"{r['wall_s']:.0f} | {', '.join(f'{Path(n).stem} {p:.2f}' for n, p in views)} |"
-                )
+                    f"{r['wall_s']:.0f} | {', '.join(f'{Path(n).stem} {p:.2f}' for n, p in views)} |")
             if method != "base" and methods.get(method):
                 ds = versus(methods[method], base_pts)
                 mean = f"{np.mean(ds):+.2f} dB" if ds else "-"
                 spread = f"{min(ds):+.2f} to {max(ds):+.2f}" if ds else "-"
                 dc = versus(methods[method], mean_points(methods.get("dc4gs", []))) if method != "dc4gs" else []
-                summary.append(
-                    f"| {scene} | {size} | {base} | {iterations:,} | {split} | {method} | "
-                    f"{len(ds)} of {len(mean_points(methods[method]))} | {mean} | {spread} | "
-                    f"{f'{np.mean(dc):+.2f} dB ({len(dc)})' if dc else '-'} |"
-                )
+                summary.append(f"| {scene} | {size} | {base} | {iterations:,} | {split} | {method} | "
+                               f"{len(ds)} of {len(mean_points(methods[method]))} | {mean} | {spread} | "
+                               f"{f'{np.mean(dc):+.2f} dB ({len(dc)})' if dc else '-'} |")
         tables.append("")
     return "\n".join(lines + summary + [""] + tables)
 
@@ -194,7 +154,6 @@ def plot(report: dict, out: Path) -> list[Path]:
     """One PNG per (scene, base, iterations, test split); [] without matplotlib."""
     try:
         import matplotlib
-
         matplotlib.use("Agg")
         import matplotlib.pyplot as plt
     except ImportError:
@@ -207,35 +166,19 @@ def plot(report: dict, out: Path) -> list[Path]:
             pts = mean_points(runs)
             spread = [[p["psnr"] - p["psnr_min"] for p in pts], [p["psnr_max"] - p["psnr"] for p in pts]]
             for ax, x in ((by_count, [p["gaussians_final"] for p in pts]), (by_time, [p["wall_s"] for p in pts])):
-                ax.errorbar(
-                    x,
-                    [p["psnr"] for p in pts],
-                    yerr=spread,
-                    fmt="o-",
-                    capsize=2,
-                    color=COLOURS[method],
-                    label=label if pts[0]["seeds"] == 1 else f"{label} (mean of {pts[0]['seeds']} seeds)",
-                )
+                ax.errorbar(x, [p["psnr"] for p in pts], yerr=spread, fmt="o-", capsize=2, color=COLOURS[method],
+                            label=label if pts[0]["seeds"] == 1 else f"{label} (mean of {pts[0]['seeds']} seeds)")
                 for xi, p in zip(x, pts):
-                    ax.annotate(
-                        f"{p['scale']:g}x",
-                        (xi, p["psnr"]),
-                        textcoords="offset points",
-                        xytext=(3, 3),
-                        fontsize=7,
-                        color=COLOURS[method],
-                    )
+                    ax.annotate(f"{p['scale']:g}x", (xi, p["psnr"]), textcoords="offset points", xytext=(3, 3),
+                                fontsize=7, color=COLOURS[method])
         by_count.set_xscale("log")
         by_count.set_xlabel("final Gaussians")
         by_time.set_xlabel("training wall time, s")
         by_count.set_ylabel("test PSNR, dB")
         by_count.legend(fontsize=8)
         size = next(iter(methods.values()))[0]["size"]
-        fig.suptitle(
-            f"{scene} {size}, {base}, {iterations:,} iterations, {split} test views: "
-            f"split threshold x scale (labels; mcmc: capped at the base's count there)",
-            fontsize=10,
-        )
+        fig.suptitle(f"{scene} {size}, {base}, {iterations:,} iterations, {split} test views: "
+                     f"split threshold x scale (labels; mcmc: capped at the base's count there)", fontsize=10)
         fig.tight_layout()
         path = out / f"{scene}-{base}-{iterations}{'' if split == 'llff' else '-' + split}.png"
         fig.savefig(path, dpi=110)
@@ -265,32 +208,18 @@ def record(path: Path, device: str, entry: dict) -> dict:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument(
-        "--scenes",
-        nargs="+",
-        default=None,
-        help=f'"{BUILTIN_SCENE}" and / or COLMAP scene folders of ../shared/data (default: all of them)',
-    )
+    ap.add_argument("--scenes", nargs="+", default=None,
+                    help=f"\"{BUILTIN_SCENE}\" and / or COLMAP scene folders of ../shared/data (default: all of them)")
     ap.add_argument("--bases", nargs="+", default=["absgs", "3dgs"], choices=sorted(STRATEGIES))
     ap.add_argument("--methods", nargs="+", default=list(DEFAULT_METHODS), choices=list(METHODS))
-    ap.add_argument(
-        "--scales",
-        nargs="+",
-        type=float,
-        default=list(SCALES),
-        help="multiples of the base's split threshold (default: %(default)s)",
-    )
+    ap.add_argument("--scales", nargs="+", type=float, default=list(SCALES),
+                    help="multiples of the base's split threshold (default: %(default)s)")
     ap.add_argument("--seeds", nargs="+", type=int, default=[0], help="a run per seed at each point (default 0)")
     ap.add_argument("--iterations", type=int, default=3000)
     ap.add_argument("--test-split", choices=TEST_SPLITS, default="llff")
-    ap.add_argument(
-        "-r",
-        "--resolution",
-        type=int,
-        default=None,
-        help=f"downscale factor (default: per scene, at most {bench_train.MAX_WIDTH} px wide; a resumed "
-        "sweep keeps the one its recorded runs of the scene used)",
-    )
+    ap.add_argument("-r", "--resolution", type=int, default=None,
+                    help=f"downscale factor (default: per scene, at most {bench_train.MAX_WIDTH} px wide; a resumed "
+                         "sweep keeps the one its recorded runs of the scene used)")
     ap.add_argument("--out", type=Path, default=Path("frontier"), help="results and run folders (default: %(default)s)")
     ap.add_argument("--device", default=None)
     ap.add_argument("--report-only", action="store_true", help="rewrite the tables and plots from DIR/frontier.json")
@@ -311,21 +240,16 @@ def main(argv=None) -> int:
     scenes = args.scenes or [BUILTIN_SCENE, *available]
     unknown = [s for s in scenes if s != BUILTIN_SCENE and s not in available]
     if unknown:
-        ap.error(
-            f"not COLMAP scenes of {bench_train.DATA}: {', '.join(unknown)} "
-            f"(there are: {', '.join(available) or 'none'})"
-        )
+        ap.error(f"not COLMAP scenes of {bench_train.DATA}: {', '.join(unknown)} "
+                 f"(there are: {', '.join(available) or 'none'})")
 
-    resolution = {}  # per scene: its recorded runs' -r (one curve, one image size), else the given or default one
+    resolution = {}     # per scene: its recorded runs' -r (one curve, one image size), else the given or default one
     for name in scenes:
-        recorded = {
-            r["resolution"] for r in report["runs"] if r["scene"] == name and r["test_split"] == args.test_split
-        }
+        recorded = {r["resolution"] for r in report["runs"]
+                    if r["scene"] == name and r["test_split"] == args.test_split}
         if args.resolution and recorded and recorded != {args.resolution}:
-            ap.error(
-                f"{path} holds {name}'s runs at -r {', '.join(map(str, sorted(recorded)))}, not -r "
-                f"{args.resolution}: give that -r or another --out"
-            )
+            ap.error(f"{path} holds {name}'s runs at -r {', '.join(map(str, sorted(recorded)))}, not -r "
+                     f"{args.resolution}: give that -r or another --out")
         resolution[name] = args.resolution or (min(recorded) if recorded else None)
 
     rt = Runtime(args.device, profiling=True)
@@ -336,13 +260,8 @@ def main(argv=None) -> int:
     with tempfile.TemporaryDirectory(prefix="frontier-") as tmp:
         for name in scenes:
             for base in args.bases:
-                todo = [
-                    (scale, method, seed)
-                    for scale in args.scales
-                    for seed in args.seeds
-                    for method in args.methods
-                    if run_key(name, base, method, scale, args.iterations, args.test_split, seed) not in done
-                ]
+                todo = [(scale, method, seed) for scale in args.scales for seed in args.seeds for method in args.methods
+                        if run_key(name, base, method, scale, args.iterations, args.test_split, seed) not in done]
                 if not todo:
                     continue
                 try:
@@ -351,58 +270,35 @@ def main(argv=None) -> int:
                     print(f"{name}: skipped, the scene does not load: {e}", file=sys.stderr)
                     break
                 cam = scene.train[0]
-                strategies = [strategy_of(base, m, 10**9) for m in args.methods]
+                strategies = [strategy_of(base, m, 10 ** 9) for m in args.methods]
                 bench_train.warm_up(rt, scene, strategies, r, Path(tmp) / "warm-up")
                 threshold = STRATEGIES[base].default_config().split_threshold
                 for scale, method, seed in todo:
                     key = run_key(name, base, method, scale, args.iterations, args.test_split, seed)
-                    if key in done:  # a sweep running beside this one has recorded it meanwhile
+                    if key in done:          # a sweep running beside this one has recorded it meanwhile
                         continue
                     cap = None
-                    if method.startswith("mcmc"):  # the base's final count at this scale and seed (run or recorded)
+                    if method.startswith("mcmc"):   # the base's final count at this scale and seed (run or recorded)
                         base_key = run_key(name, base, "base", scale, args.iterations, args.test_split, seed)
                         cap = next(r["gaussians_final"] for r in report["runs"] if r["key"] == base_key)
                     settings = {} if method.startswith("mcmc") else {"split_threshold": threshold * scale}
-                    cfg = bench_train.config(
-                        scene,
-                        strategy_of(base, method, cap),
-                        args.iterations,
-                        r,
-                        seed=seed,
-                        test_split=args.test_split,
-                        **settings,
-                    )
+                    cfg = bench_train.config(scene, strategy_of(base, method, cap), args.iterations, r, seed=seed,
+                                             test_split=args.test_split, **settings)
                     folder = args.out / "runs" / key.replace("|", "-")
                     run = bench_train.train_one(rt, scene, cfg, folder)
                     entry = {
-                        "key": key,
-                        "scene": name,
-                        "base": base,
-                        "method": method,
-                        "scale": scale,
-                        "seed": seed,
-                        "split_threshold": None if cap else threshold * scale,
-                        "cap": cap,
+                        "key": key, "scene": name, "base": base, "method": method, "scale": scale, "seed": seed,
+                        "split_threshold": None if cap else threshold * scale, "cap": cap,
                         "iterations": args.iterations,
-                        "test_split": args.test_split,
-                        "resolution": r,
-                        "size": f"{cam.width}x{cam.height}",
-                        "psnr": run["psnr"],
-                        "ssim": run["ssim"],
-                        "per_view_psnr": run["per_view_psnr"],
-                        "gaussians_final": run["gaussians_final"],
-                        "gaussians_peak": run["gaussians_peak"],
+                        "test_split": args.test_split, "resolution": r, "size": f"{cam.width}x{cam.height}",
+                        "psnr": run["psnr"], "ssim": run["ssim"], "per_view_psnr": run["per_view_psnr"],
+                        "gaussians_final": run["gaussians_final"], "gaussians_peak": run["gaussians_peak"],
                         "wall_s": run["wall_ms_per_it"] * args.iterations / 1e3,
-                        "device_ms_per_it": sum(run["device_ms_per_it"].values()),
-                        "output": str(folder),
-                    }
+                        "device_ms_per_it": sum(run["device_ms_per_it"].values()), "output": str(folder)}
                     report = record(path, report["device"], entry)
                     done = {r["key"] for r in report["runs"]}
-                    print(
-                        f"{key}: {run['gaussians_final']:,} Gaussians, PSNR {run['psnr']:.2f} dB, "
-                        f"{entry['wall_s']:.0f} s",
-                        flush=True,
-                    )
+                    print(f"{key}: {run['gaussians_final']:,} Gaussians, PSNR {run['psnr']:.2f} dB, "
+                          f"{entry['wall_s']:.0f} s", flush=True)
     write_reports(report, args.out)
     return 0
 

@@ -21,7 +21,6 @@ naming no file, a truncated or emptied file read without error, a non-finite val
 first error case of each format is also run through the command line (exit 2, one line on stderr, no
 output folder).
 """
-
 from __future__ import annotations
 
 import argparse
@@ -50,26 +49,21 @@ from dc4gs_cl.run_folder import RunFolder
 from dc4gs_cl.scene.loader import load_scene
 from dc4gs_cl.reference.testing import random_model
 
-FOLDER = "fuzz scène ü"  # every input lives under a name with a space and non-ASCII letters
-W, H = 24, 16  # image size
+FOLDER = "fuzz scène ü"     # every input lives under a name with a space and non-ASCII letters
+W, H = 24, 16               # image size
 
 
 # ------------------------------------------------------------------------------------------------ inputs
 
-
 def write_image(path: Path, pixels: np.ndarray, dtype: str) -> None:
     """Write (H, W, C) float pixels as 8- or 16-bit integers or half floats (EXR)."""
     import OpenImageIO as oiio
-
     path.parent.mkdir(parents=True, exist_ok=True)
     if dtype == "half":
         kind, data = oiio.HALF, np.ascontiguousarray(pixels, np.float32)
     else:
         top = np.iinfo(dtype).max
-        kind, data = (
-            {"uint8": oiio.UINT8, "uint16": oiio.UINT16}[dtype],
-            (np.clip(pixels, 0, 1) * top + 0.5).astype(dtype),
-        )
+        kind, data = {"uint8": oiio.UINT8, "uint16": oiio.UINT16}[dtype], (np.clip(pixels, 0, 1) * top + 0.5).astype(dtype)
     out = oiio.ImageOutput.create(str(path))
     assert out.open(str(path), oiio.ImageSpec(data.shape[1], data.shape[0], data.shape[2], kind)), oiio.geterror()
     assert out.write_image(data), oiio.geterror()
@@ -95,31 +89,25 @@ def look_at_c2w(center, target=(0.0, 0.0, 0.0)) -> list:
     return m.tolist()
 
 
-def nerf_scene(
-    root: Path, rng, ext: str = ".png", dtype: str = "uint8", channels: int = 3, style: str = "instant-ngp"
-) -> Path:
+def nerf_scene(root: Path, rng, ext: str = ".png", dtype: str = "uint8", channels: int = 3,
+               style: str = "instant-ngp") -> Path:
     """A 3-frame NeRF scene; returns its first image (instant-ngp style) or its JSON file."""
     names = [f"vue {i} é{ext}" for i in range(3)]
     for name in names:
         write_image(root / "images" / name, image_pixels(rng, channels), dtype)
-    frames = [
-        {"file_path": f"images/{n}", "transform_matrix": look_at_c2w((3 * math.cos(a), 3 * math.sin(a), 1.0))}
-        for n, a in zip(names, (0.0, 0.6, 1.2))
-    ]
+    frames = [{"file_path": f"images/{n}", "transform_matrix": look_at_c2w((3 * math.cos(a), 3 * math.sin(a), 1.0))}
+              for n, a in zip(names, (0.0, 0.6, 1.2))]
     if style == "blender":
         write_json(root / "transforms_train.json", {"camera_angle_x": 0.8, "frames": frames})
         return root / "transforms_train.json"
-    write_json(
-        root / "transforms.json",
-        {"fl_x": 20.0, "fl_y": 21.0, "cx": W / 2, "cy": H / 2, "w": W, "h": H, "frames": frames},
-    )
+    write_json(root / "transforms.json", {"fl_x": 20.0, "fl_y": 21.0, "cx": W / 2, "cy": H / 2, "w": W, "h": H,
+                                          "frames": frames})
     return root / "images" / names[0] if style == "image" else root / "transforms.json"
 
 
 def colmap_scene(root: Path, rng, kind: str) -> Path:
     """A COLMAP model (2 cameras, 3 images, 40 points seen by 2-3 images each) as pycolmap writes it."""
     import pycolmap
-
     names = [f"vue_{i}_é.png" for i in range(3)]
     for name in names:
         write_image(root / "images" / name, image_pixels(rng, 3), "uint8")
@@ -134,17 +122,14 @@ def colmap_scene(root: Path, rng, kind: str) -> Path:
         angle = 0.5 * i
         R = np.array([[math.cos(angle), 0, -math.sin(angle)], [0, 1, 0], [math.sin(angle), 0, math.cos(angle)]])
         t = np.array([0.0, 0.0, 4.0])
-        q = np.array([math.cos(-angle / 2), 0.0, math.sin(-angle / 2), 0.0])  # COLMAP (w, x, y, z) of R
+        q = np.array([math.cos(-angle / 2), 0.0, math.sin(-angle / 2), 0.0])   # COLMAP (w, x, y, z) of R
         for p_id, xyz in enumerate(points, start=1):
-            if (p_id + i) % 4 == 0:  # every point seen by 2 or 3 of the images
+            if (p_id + i) % 4 == 0:                  # every point seen by 2 or 3 of the images
                 continue
             c = R @ xyz + t
             observations[i].append((20 * c[0] / c[2] + 12, 21 * c[1] / c[2] + 8, p_id))
-        lines.append(
-            f"{i + 1} {' '.join(map(str, q))} {' '.join(map(str, t))} {1 + i % 2} {name}\n"
-            + " ".join(f"{x} {y} {p}" for x, y, p in observations[i])
-            + "\n"
-        )
+        lines.append(f"{i + 1} {' '.join(map(str, q))} {' '.join(map(str, t))} {1 + i % 2} {name}\n"
+                     + " ".join(f"{x} {y} {p}" for x, y, p in observations[i]) + "\n")
     (text / "images.txt").write_text("".join(lines))
     for p_id, xyz in enumerate(points, start=1):
         track = [(i + 1, k) for i in range(3) for k, o in enumerate(observations[i]) if o[2] == p_id]
@@ -155,7 +140,7 @@ def colmap_scene(root: Path, rng, kind: str) -> Path:
     rec = pycolmap.Reconstruction(str(text))
     (rec.write_binary if kind == "bin" else rec.write_text)(str(model))
     shutil.rmtree(text)
-    for extra in ("rigs", "frames"):  # as in models from COLMAP before 3.12 (the shared scenes)
+    for extra in ("rigs", "frames"):                 # as in models from COLMAP before 3.12 (the shared scenes)
         for p in model.glob(f"{extra}.*"):
             p.unlink()
     return model
@@ -164,17 +149,13 @@ def colmap_scene(root: Path, rng, kind: str) -> Path:
 def read_scene(root: Path):
     scene = load_scene(root, test_every=0)
     scene.read_all_images()
-    for c in scene.train:  # every view's outputs named inside the folder they go to
+    for c in scene.train:   # every view's outputs named inside the folder they go to
         stem = c.file_stem
         if "/" in stem or "\\" in stem or stem in ("", ".", ".."):
             raise AssertionError(f"view {c.name!r}: output name {stem!r} leaves its folder")
     cams = [(c.name, c.width, c.height, c.fx, c.fy, c.cx, c.cy, c.R, c.t) for c in scene.train]
-    return {
-        "cameras": cams,
-        "points": scene.points,
-        "colors": scene.colors,
-        "images": [scene.image(c) for c in scene.train],
-    }
+    return {"cameras": cams, "points": scene.points, "colors": scene.colors,
+            "images": [scene.image(c) for c in scene.train]}
 
 
 def ply_input(root: Path, rng) -> Path:
@@ -185,39 +166,27 @@ def ply_input(root: Path, rng) -> Path:
 
 def export_input(fmt: str):
     """A random model exported in `fmt` (apps/export), as `render --ply` and `view` read it."""
-
     def build(root: Path, rng) -> Path:
         path = root / f"modèle un{EXPORT_FORMATS[fmt][0]}"
         root.mkdir(parents=True, exist_ok=True)
-        export_model(random_model(rng, 300, sh_degree=1), path)  # compressed PLY: two chunks
+        export_model(random_model(rng, 300, sh_degree=1), path)   # compressed PLY: two chunks
         return path
-
     return build
 
 
 def read_ply_values(path: Path, read=read_ply):
     m = read(path)
-    return {
-        "means": m.means,
-        "scales": m.log_scales,
-        "quats": m.quats,
-        "opacity": m.opacity_logits,
-        "sh": m.sh,
-        "degree": m.sh_degree,
-    }
+    return {"means": m.means, "scales": m.log_scales, "quats": m.quats, "opacity": m.opacity_logits,
+            "sh": m.sh, "degree": m.sh_degree}
 
 
 def checkpoint_input(root: Path, rng) -> Path:
     run = RunFolder(root)
-    arrays = {
-        "param/means": rng.normal(size=(6, 3)).astype(np.float32),
-        "m/means": rng.normal(size=(6, 3)).astype(np.float32),
-        "window/count": rng.integers(0, 5, 6).astype(np.float32),
-    }
-    run.write_checkpoint(
-        arrays,
-        {"iteration": 40, "config": TrainConfig(scene="builtin").to_json(), "camera_stack": [3, 1, 2], "gaussians": 6},
-    )
+    arrays = {"param/means": rng.normal(size=(6, 3)).astype(np.float32),
+              "m/means": rng.normal(size=(6, 3)).astype(np.float32),
+              "window/count": rng.integers(0, 5, 6).astype(np.float32)}
+    run.write_checkpoint(arrays, {"iteration": 40, "config": TrainConfig(scene="builtin").to_json(),
+                                  "camera_stack": [3, 1, 2], "gaussians": 6})
     return run.checkpoint_path
 
 
@@ -235,7 +204,6 @@ def config_input(root: Path, rng) -> Path:
 
 # ------------------------------------------------------------------------------------------------ mutations
 
-
 def truncate(data: bytes, rng, path) -> bytes:
     return data[: int(rng.integers(0, len(data)))]
 
@@ -243,11 +211,9 @@ def truncate(data: bytes, rng, path) -> bytes:
 def truncate_off_records(width: int):
     """Truncation inside a record: a format without a count (.splat) cut at a record boundary is a smaller valid
     file, which no reader can tell from the real thing."""
-
     def mutate(data: bytes, rng, path) -> bytes:
         cut = int(rng.integers(0, len(data)))
-        return data[: cut + 1 if cut % width == 0 else cut]
-
+        return data[:cut + 1 if cut % width == 0 else cut]
     return mutate
 
 
@@ -267,14 +233,12 @@ NON_FINITE = [float("nan"), float("inf"), -float("inf")]
 
 def binary_non_finite(width: int, start: Callable[[bytes], int]):
     """Write NaN or +-Inf (float32 or float64) at an aligned offset after `start(data)`."""
-
     def mutate(data: bytes, rng, path) -> bytes:
         first = start(data)
         slots = (len(data) - first) // width
         at = first + width * int(rng.integers(0, slots))
         value = np.array([rng.choice(NON_FINITE)], "<f4" if width == 4 else "<f8").tobytes()
-        return data[:at] + value + data[at + width :]
-
+        return data[:at] + value + data[at + width:]
     return mutate
 
 
@@ -290,8 +254,8 @@ def bin_huge_count(data: bytes, rng, path) -> bytes:
     """The record count at the start of a COLMAP binary file, or (images.bin) an image's point count."""
     value = np.array([rng.choice([2**32, 2**40, 2**63 - 1])], "<u8").tobytes()
     if path.name == "images.bin" and rng.random() < 0.5:
-        at = data.index(b"\0", 8 + 64) + 1  # the first image's number of 2D points
-        return data[:at] + value + data[at + 8 :]
+        at = data.index(b"\0", 8 + 64) + 1          # the first image's number of 2D points
+        return data[:at] + value + data[at + 8:]
     return value + data[8:]
 
 
@@ -347,8 +311,8 @@ def json_type(value) -> str:
 
 def json_wrong_type(data: bytes, rng, path) -> bytes:
     doc = json.loads(data)
-    paths = [where for where in json_paths(doc) if json_get(doc, where) is not None]  # null often means
-    where = paths[int(rng.integers(len(paths)))]  # "unset": any type fits
+    paths = [where for where in json_paths(doc) if json_get(doc, where) is not None]   # null often means
+    where = paths[int(rng.integers(len(paths)))]                                     # "unset": any type fits
     current = json_get(doc, where)
     others = [v for v in ("text", [], {}, None, True, 7, 2.5, [1, 2]) if json_type(v) != json_type(current)]
     return json.dumps(json_replace(doc, where, others[int(rng.integers(len(others)))])).encode()
@@ -363,7 +327,6 @@ def json_non_finite(data: bytes, rng, path) -> bytes:
 def image_wrong_size(data: bytes, rng, path) -> bytes:
     """The same image format at another size (the camera still says W x H)."""
     import OpenImageIO as oiio
-
     inp = oiio.ImageInput.open(str(path))
     spec = inp.spec()
     inp.close()
@@ -382,7 +345,6 @@ def png_bomb(data: bytes, rng, path) -> bytes:
     pixels), its CRC made to match: refused from the header (the size, or the memory its decoding needs)."""
     import struct
     import zlib
-
     side = int(rng.choice([1 << 14, (1 << 14) - 1, 1 << 15]))
     out = bytearray(data)
     out[16:24] = struct.pack(">II", side, side)
@@ -425,13 +387,11 @@ MUST_FAIL = {"truncate", "empty", "huge count", "wrong size", "non-finite pixels
 @dataclass
 class Format:
     name: str
-    build: Callable[
-        [Path, np.random.Generator], Path
-    ]  # writes a valid input under a folder, returns the file to mutate
-    read: Callable[[Path], object]  # reads it (given that file) as the commands do
+    build: Callable[[Path, np.random.Generator], Path]   # writes a valid input under a folder, returns the file to mutate
+    read: Callable[[Path], object]                        # reads it (given that file) as the commands do
     mutations: dict[str, Callable]
-    checksum: bool = False  # a changed read is a finding too
-    cli: Callable[[Path, Path], list[str]] | None = field(default=None)  # (file, out) -> command line
+    checksum: bool = False                                # a changed read is a finding too
+    cli: Callable[[Path, Path], list[str]] | None = field(default=None)   # (file, out) -> command line
 
 
 def scene_root(path: Path) -> Path:
@@ -447,18 +407,8 @@ def read_from_scene(path: Path):
 
 
 def train_cli(path: Path, out: Path) -> list[str]:
-    return [
-        "train",
-        "--scene",
-        str(scene_root(path)),
-        "--iterations",
-        "1",
-        "--test-every",
-        "0",
-        "--no-progress",
-        "--out",
-        str(out),
-    ]
+    return ["train", "--scene", str(scene_root(path)), "--iterations", "1", "--test-every", "0", "--no-progress",
+            "--out", str(out)]
 
 
 BASIC = {"truncate": truncate, "flip": flip, "empty": empty}
@@ -469,117 +419,42 @@ SCENE_JSON = {**JSON, "hostile name": json_hostile_name, "duplicate frame": json
 
 def _formats() -> list[Format]:
     images = [
-        Format(
-            f"image {label}",
-            lambda root, rng, e=ext, d=dtype, c=ch: nerf_scene(root, rng, e, d, c, "image"),
-            read_from_scene,
-            dict(IMAGE, **extra),
-            cli=train_cli,
-        )
+        Format(f"image {label}", lambda root, rng, e=ext, d=dtype, c=ch: nerf_scene(root, rng, e, d, c, "image"),
+               read_from_scene, dict(IMAGE, **extra), cli=train_cli)
         for label, ext, dtype, ch, extra in (
-            ("png", ".png", "uint8", 3, {"bomb": png_bomb}),
-            ("png rgba", ".png", "uint8", 4, {"bomb": png_bomb}),
+            ("png", ".png", "uint8", 3, {"bomb": png_bomb}), ("png rgba", ".png", "uint8", 4, {"bomb": png_bomb}),
             ("png 16-bit", ".png", "uint16", 3, {"bomb": png_bomb}),
-            ("jpeg", ".jpg", "uint8", 3, {}),
-            ("exr", ".exr", "half", 3, {"non-finite pixels": exr_nan_pixels}),
-            ("exr rgba", ".exr", "half", 4, {"non-finite pixels": exr_nan_pixels}),
-        )
-    ]
+            ("jpeg", ".jpg", "uint8", 3, {}), ("exr", ".exr", "half", 3, {"non-finite pixels": exr_nan_pixels}),
+            ("exr rgba", ".exr", "half", 4, {"non-finite pixels": exr_nan_pixels}))]
     colmap = [
-        Format(
-            f"colmap {kind} {stem}",
-            lambda root, rng, k=kind, s=stem: colmap_scene(root, rng, k) / f"{s}.{k}",
-            read_from_scene,
-            {**BASIC, "huge count": bin_huge_count, "non-finite": binary_non_finite(8, lambda d: 8)}
-            if kind == "bin"
-            else {**BASIC, "huge count": text_huge_count, "non-finite": text_non_finite},
-            cli=train_cli,
-        )
-        for kind in ("bin", "txt")
-        for stem in ("cameras", "images", "points3D")
+        Format(f"colmap {kind} {stem}", lambda root, rng, k=kind, s=stem: colmap_scene(root, rng, k) / f"{s}.{k}",
+               read_from_scene,
+               {**BASIC, "huge count": bin_huge_count, "non-finite": binary_non_finite(8, lambda d: 8)} if kind == "bin"
+               else {**BASIC, "huge count": text_huge_count, "non-finite": text_non_finite}, cli=train_cli)
+        for kind in ("bin", "txt") for stem in ("cameras", "images", "points3D")]
+    return images + colmap + [
+        Format("ply", ply_input, read_ply_values,
+               {**BASIC, "huge count": ply_huge_count, "non-finite": binary_non_finite(4, ply_body)},
+               cli=lambda path, out: ["render", "--ply", str(path), "--scene", "builtin", "-r", "8", "--out", str(out)]),
+        *(Format(f"export {fmt}", export_input(fmt), lambda path: read_ply_values(path, read_model_file),
+                 {**BASIC, **({"truncate": truncate_off_records(SPLAT_RECORD.itemsize),
+                               "non-finite": binary_non_finite(4, lambda data: 0)} if fmt == "splat" else {})},
+                 cli=lambda path, out: ["render", "--ply", str(path), "--scene", "builtin", "-r", "8", "--out", str(out)])
+          for fmt in ("splat", "spz", "compressed-ply")),
+        Format("transforms.json (instant-ngp)", lambda root, rng: nerf_scene(root, rng), read_from_scene, SCENE_JSON,
+               cli=train_cli),
+        Format("transforms_train.json (Blender)", lambda root, rng: nerf_scene(root, rng, style="blender"),
+               read_from_scene, SCENE_JSON, cli=train_cli),
+        Format("checkpoint", checkpoint_input, read_checkpoint, BASIC, checksum=True),
+        Format("config.json", config_input, lambda path: RunFolder(path.parent).read_config().to_json(), JSON,
+               cli=lambda path, out: ["eval", "--model", str(path.parent)]),
     ]
-    return (
-        images
-        + colmap
-        + [
-            Format(
-                "ply",
-                ply_input,
-                read_ply_values,
-                {**BASIC, "huge count": ply_huge_count, "non-finite": binary_non_finite(4, ply_body)},
-                cli=lambda path, out: [
-                    "render",
-                    "--ply",
-                    str(path),
-                    "--scene",
-                    "builtin",
-                    "-r",
-                    "8",
-                    "--out",
-                    str(out),
-                ],
-            ),
-            *(
-                Format(
-                    f"export {fmt}",
-                    export_input(fmt),
-                    lambda path: read_ply_values(path, read_model_file),
-                    {
-                        **BASIC,
-                        **(
-                            {
-                                "truncate": truncate_off_records(SPLAT_RECORD.itemsize),
-                                "non-finite": binary_non_finite(4, lambda data: 0),
-                            }
-                            if fmt == "splat"
-                            else {}
-                        ),
-                    },
-                    cli=lambda path, out: [
-                        "render",
-                        "--ply",
-                        str(path),
-                        "--scene",
-                        "builtin",
-                        "-r",
-                        "8",
-                        "--out",
-                        str(out),
-                    ],
-                )
-                for fmt in ("splat", "spz", "compressed-ply")
-            ),
-            Format(
-                "transforms.json (instant-ngp)",
-                lambda root, rng: nerf_scene(root, rng),
-                read_from_scene,
-                SCENE_JSON,
-                cli=train_cli,
-            ),
-            Format(
-                "transforms_train.json (Blender)",
-                lambda root, rng: nerf_scene(root, rng, style="blender"),
-                read_from_scene,
-                SCENE_JSON,
-                cli=train_cli,
-            ),
-            Format("checkpoint", checkpoint_input, read_checkpoint, BASIC, checksum=True),
-            Format(
-                "config.json",
-                config_input,
-                lambda path: RunFolder(path.parent).read_config().to_json(),
-                JSON,
-                cli=lambda path, out: ["eval", "--model", str(path.parent)],
-            ),
-        ]
-    )
 
 
 FORMATS = {f.name: f for f in _formats()}
 
 
 # ------------------------------------------------------------------------------------------------ checking
-
 
 def same(a, b) -> bool:
     if isinstance(a, dict):
@@ -607,7 +482,7 @@ class Case:
     mutation: str
     seed: int
     outcome: str = ""
-    finding: str = ""  # empty: the case ended an allowed way
+    finding: str = ""     # empty: the case ended an allowed way
     message: str = ""
 
 
@@ -629,7 +504,7 @@ def run_case(fmt: Format, mutation: str, seed: int, template: Path, target: Path
             case.finding = "the error takes several lines"
         elif not named:
             case.finding = "the error does not name the file"
-    except Exception as e:  # anything but InputError reaches the user as a traceback
+    except Exception as e:   # anything but InputError reaches the user as a traceback
         case.outcome, case.message = "exception", f"{e.__class__.__name__}: {e}"
         case.finding = "not an InputError (the user would see a traceback)"
     else:
@@ -645,7 +520,6 @@ def run_case(fmt: Format, mutation: str, seed: int, template: Path, target: Path
 def run_cli_case(fmt: Format, case: Case, template: Path, target: Path, work: Path) -> str:
     """Run one error case through the command line: '' when it exits 2 with one line and writes nothing."""
     from dc4gs_cl.cli import main
-
     rng = np.random.default_rng(case.seed)
     folder = work / "cli" / FOLDER
     shutil.copytree(template, folder)
@@ -664,9 +538,8 @@ def run_cli_case(fmt: Format, case: Case, template: Path, target: Path, work: Pa
     return ""
 
 
-def fuzz(
-    cases: int, seed: int, formats: list[str] | None = None, cli: bool = False, log: Callable[[str], None] = print
-) -> list[Case]:
+def fuzz(cases: int, seed: int, formats: list[str] | None = None, cli: bool = False,
+         log: Callable[[str], None] = print) -> list[Case]:
     """Run `cases` cases per format (mutations in turn), seeds seed, seed + 1, ...; returns every case."""
     results = []
     with tempfile.TemporaryDirectory(prefix="dc4gs-fuzz-") as tmp:
@@ -697,10 +570,8 @@ def summary(results: list[Case]) -> str:
             row[c.outcome] += 1
         row["findings"] += bool(c.finding)
     lines = ["| format | cases | same | error | changed | findings |", "|---|---:|---:|---:|---:|---:|"]
-    lines += [
-        f"| {name} | {r['cases']} | {r['same']} | {r['error']} | {r['changed']} | {r['findings']} |"
-        for name, r in rows.items()
-    ]
+    lines += [f"| {name} | {r['cases']} | {r['same']} | {r['error']} | {r['changed']} | {r['findings']} |"
+              for name, r in rows.items()]
     return "\n".join(lines)
 
 

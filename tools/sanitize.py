@@ -22,7 +22,6 @@ Not switched on: Oclgrind's uninitialised-value checker (OCLGRIND_UNINITIALIZED)
 it crashes on the first vector shuffle with an unused lane (project.cl's colour), and it takes every buffer
 zeroed by clEnqueueFillBuffer (sums, Adam's moments, tile ranges, the loss's totals) for uninitialised.
 """
-
 from __future__ import annotations
 
 import argparse
@@ -56,12 +55,12 @@ from dc4gs_cl.reference.testing import random_camera, random_model
 from dc4gs_cl.train.schedule import Schedule
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "tests"))  # the work shapes live with the tests that run them on PoCL
+sys.path.insert(0, str(ROOT / "tests"))   # the work shapes live with the tests that run them on PoCL
 
 from helpers import SHAPES  # noqa: E402
 from test_loss import SHAPES as LOSS_SHAPES  # noqa: E402
 
-DEVICE = "oclgrind"  # DC4GS_DEVICE for the workload: part of Oclgrind's platform name
+DEVICE = "oclgrind"    # DC4GS_DEVICE for the workload: part of Oclgrind's platform name
 CHECKS = {"OCLGRIND_DATA_RACES": "1", "OCLGRIND_UNIFORM_WRITES": "1", "OCLGRIND_CHECK_API": "1"}
 # 2 x 2 tiles (the right and bottom ones partial); Gaussians packed so that a tile holds more pairs than the
 # widest shape's batch (checked: the rasterizers' batch loop then runs more than once in every shape).
@@ -70,15 +69,15 @@ API_ERROR = "Oclgrind - OpenCL runtime error detected"
 # pyopencl itself asks every device for NVIDIA's CL_DEVICE_COMPUTE_CAPABILITY_MAJOR_NV (0x4000) at each
 # program build and kernel creation and takes the refusal as "not NVIDIA": Oclgrind reports each refusal.
 PYOPENCL_PROBE = ("Function: clGetDeviceInfo", "Error:    CL_INVALID_VALUE", "For argument 'param_name'")
-SUPPRESSED = re.compile(r"Oclgrind: \d+ errors generated - suppressing further errors")  # OCLGRIND_MAX_ERRORS
-WORKLOAD = "(workload)"  # the row of what happened outside any launch
-LAUNCH = "sanitize: launch "  # the workload's stderr line before each launch: whose API errors follow
+SUPPRESSED = re.compile(r"Oclgrind: \d+ errors generated - suppressing further errors")   # OCLGRIND_MAX_ERRORS
+WORKLOAD = "(workload)"   # the row of what happened outside any launch
+LAUNCH = "sanitize: launch "   # the workload's stderr line before each launch: whose API errors follow
 
 
 @dataclass
 class Finding:
     kernel: str
-    message: str  # Oclgrind's whole message
+    message: str   # Oclgrind's whole message
 
     @property
     def kind(self) -> str:
@@ -92,14 +91,13 @@ class Finding:
 @dataclass
 class Run:
     label: str
-    launched: Counter = field(default_factory=Counter)  # launches per kernel name
+    launched: Counter = field(default_factory=Counter)   # launches per kernel name
     findings: list[Finding] = field(default_factory=list)
-    capped: bool = False  # Oclgrind stopped reporting (OCLGRIND_MAX_ERRORS, 1000 by default)
+    capped: bool = False   # Oclgrind stopped reporting (OCLGRIND_MAX_ERRORS, 1000 by default)
     seconds: float = 0.0
 
 
 # ------------------------------------------------------------------------------------------ the harness
-
 
 def oclgrind_platform() -> str | None:
     """Oclgrind's platform name if pyopencl sees it in this environment, else None. (Through list_devices:
@@ -113,12 +111,8 @@ def oclgrind_platform() -> str | None:
 
 def kernel_names() -> set[str]:
     """Every kernel function in dc4gs_cl/kernels/*.cl."""
-    return {
-        name
-        for path in (resources.files("dc4gs_cl") / "kernels").iterdir()
-        if path.name.endswith(".cl")
-        for name in re.findall(r"__kernel\b[^;{]*?\bvoid\s+(\w+)\s*\(", path.read_text())
-    }
+    return {name for path in (resources.files("dc4gs_cl") / "kernels").iterdir() if path.name.endswith(".cl")
+            for name in re.findall(r"__kernel\b[^;{]*?\bvoid\s+(\w+)\s*\(", path.read_text())}
 
 
 def blocks(text: str) -> list[str]:
@@ -142,9 +136,9 @@ def api_errors(stderr: str) -> list[tuple[str, str]]:
     out, kernel, this_launch = [], WORKLOAD, set()
     for block in blocks(stderr):
         if block.startswith(LAUNCH):
-            kernel, this_launch = block[len(LAUNCH) :], set()
+            kernel, this_launch = block[len(LAUNCH):], set()
         elif block.startswith(API_ERROR) and not all(line in block for line in PYOPENCL_PROBE):
-            if block not in this_launch:  # pyopencl retries a refused launch once (after a garbage collection)
+            if block not in this_launch:   # pyopencl retries a refused launch once (after a garbage collection)
                 out.append((kernel, block))
             this_launch.add(block)
     return out
@@ -205,9 +199,8 @@ def examples(runs: list[Run]) -> str:
     for r in runs:
         for f in r.findings:
             seen.setdefault((f.kernel, f.kind), (f, Counter()))[1][r.label] += 1
-    return "\n\n".join(
-        f"[{', '.join(f'{label} x{n}' for label, n in where.items())}]\n{f.message}" for f, where in seen.values()
-    )
+    return "\n\n".join(f"[{', '.join(f'{label} x{n}' for label, n in where.items())}]\n{f.message}"
+                       for f, where in seen.values())
 
 
 def report(runs: list[Run]) -> str:
@@ -221,7 +214,6 @@ def report(runs: list[Run]) -> str:
 
 
 # ------------------------------------------------------------------------------------------- the workload
-
 
 class Refused(Exception):
     """A launch the device refused (Oclgrind's API error says why): what depends on it cannot run."""
@@ -256,7 +248,6 @@ class Backward:
     view folded in sum_pairs, Gaussians spanning runs carried between them), and the split sums added per column
     block (Tuning.split_sums_per_block); batch: the view's gradients added to a batch's, then Adam's step on
     their mean (optim/batch_gradients.py), rather than the fused step."""
-
     pair_sums: bool
     masked: bool
     strategy: str | None
@@ -271,29 +262,17 @@ class Backward:
 # the plain gradients, and a batch's (added, then stepped); the antialiased projection and its backward with the
 # exact switches off, and MCMC's regularised step and position noise.
 FORWARDS = (
-    (
-        {},
-        (
-            Backward(True, False, "absgs+dc4gs", runs=True),
-            Backward(True, True, "pixelgs+dcs"),
-            Backward(False, True, "absgs+dc4gs"),
-            Backward(True, False, None),
-            Backward(True, False, "mcmc", batch=True),
-        ),
-    ),
-    (
-        {"fast_exp": False, "alpha_cut": False, "early_stop": False, "antialiased": True},
-        (Backward(False, False, "3dgs"), Backward(False, False, "mcmc")),
-    ),
+    ({}, (Backward(True, False, "absgs+dc4gs", runs=True), Backward(True, True, "pixelgs+dcs"),
+          Backward(False, True, "absgs+dc4gs"), Backward(True, False, None), Backward(True, False, "mcmc", batch=True))),
+    ({"fast_exp": False, "alpha_cut": False, "early_stop": False, "antialiased": True},
+     (Backward(False, False, "3dgs"), Backward(False, False, "mcmc"))),
 )
 
 
-SANITIZED_STRATEGIES = {
-    "3dgs": lambda: Strategy(),
-    "absgs+dc4gs": lambda: AbsGS(dc4gs=DC4GSConfig(dcc=True, dcs=True)),
-    "pixelgs+dcs": lambda: PixelGS(dc4gs=DC4GSConfig(dcs=True, pooling="window", track=0.5)),
-    "mcmc": lambda: MCMC(),
-}
+SANITIZED_STRATEGIES = {"3dgs": lambda: Strategy(),
+                        "absgs+dc4gs": lambda: AbsGS(dc4gs=DC4GSConfig(dcc=True, dcs=True)),
+                        "pixelgs+dcs": lambda: PixelGS(dc4gs=DC4GSConfig(dcs=True, pooling="window", track=0.5)),
+                        "mcmc": lambda: MCMC()}
 
 
 def workload(shape: str) -> dict:
@@ -316,18 +295,13 @@ def workload(shape: str) -> dict:
         Loss(renderer.context, *LOSS_SHAPES[shape])(res.raster.image, rt.to_device(target), WIDTH, HEIGHT, None)
         ranges = rt.to_host(res.isect.ranges, (res.tiles_x * res.tiles_y, 2), np.uint32)
         if np.diff(ranges, axis=1).max() <= tuning.batch:
-            raise RuntimeError(
-                f"no tile holds more than {tuning.batch} pairs: the rasterizers' batch loop runs "
-                "once; pack more Gaussians (N_GAUSSIANS, SPREAD)"
-            )
+            raise RuntimeError(f"no tile holds more than {tuning.batch} pairs: the rasterizers' batch loop runs "
+                               "once; pack more Gaussians (N_GAUSSIANS, SPREAD)")
         for b in backwards:
             # Fresh stages and buffers per variant, each sized to it exactly (no capacity to spare, no scratch
             # left larger by another variant), so that an access past the data is one past its buffer.
-            runs = (
-                {"pair_chunk": 0.0, "min_run_tiles": 1, "max_folded_runs": 10**6, "split_sums_per_block": True}
-                if b.runs
-                else {}
-            )
+            runs = {"pair_chunk": 0.0, "min_run_tiles": 1, "max_folded_runs": 10 ** 6,
+                    "split_sums_per_block": True} if b.runs else {}
             ctx = StageContext(rt, replace(tuning, pair_sums=b.pair_sums, **runs), options)
             gaussians = TrainableGaussians(rt, model)
             keep_buf = rt.to_device(keep.astype(np.uint8)) if b.masked else None
@@ -335,60 +309,37 @@ def workload(shape: str) -> dict:
             dL_dimage = rt.buffer(target.nbytes)
             strategy = SANITIZED_STRATEGIES[b.strategy or "3dgs"]()
             strategy.attach(ctx, 1.0, gaussians.n)
-            iteration = 1 if b.strategy else strategy.config.densify_until  # no strategy: the window has closed
+            iteration = 1 if b.strategy else strategy.config.densify_until   # no strategy: the window has closed
             try:
-                Loss(ctx, *LOSS_SHAPES[shape])(
-                    res.raster.image,
-                    target_buf,
-                    WIDTH,
-                    HEIGHT,
-                    dL_dimage,
-                    keep=keep_buf,
-                    kept=int(keep.sum()) if b.masked else 0,
-                )
+                Loss(ctx, *LOSS_SHAPES[shape])(res.raster.image, target_buf, WIDTH, HEIGHT, dL_dimage,
+                                               keep=keep_buf, kept=int(keep.sum()) if b.masked else 0)
                 gathering = strategy.gather(iteration, gaussians.params, cam, res)
-                sums, layout = RasterizeBackward(ctx).folding(
-                    res, dL_dimage, background, gathering.layout, gathering.geometry, keep_buf, gathering.window
-                )
+                sums, layout = RasterizeBackward(ctx).folding(res, dL_dimage, background, gathering.layout,
+                                                              gathering.geometry, keep_buf, gathering.window)
                 project_backward = ProjectBackward(ctx)
                 regularizers = strategy.regularizers(gaussians.n)
                 if b.batch:
                     batch = BatchGradients(ctx, gaussians.widths)
                     summed = batch.start(gaussians.n)
-                    for _ in range(2):  # the second view adds to the first's
-                        project_backward.gradients(
-                            gaussians.params, cam, model.sh_degree, res, sums, layout, summed, accumulate=True
-                        )
-                    batch.step(
-                        gaussians.params,
-                        2,
-                        gaussians.adam.step_value(lrs),
-                        gaussians.adam.m,
-                        gaussians.adam.v,
-                        regularizers,
-                    )
+                    for _ in range(2):   # the second view adds to the first's
+                        project_backward.gradients(gaussians.params, cam, model.sh_degree, res, sums, layout, summed,
+                                                   accumulate=True)
+                    batch.step(gaussians.params, 2, gaussians.adam.step_value(lrs), gaussians.adam.m,
+                               gaussians.adam.v, regularizers)
                     strategy.after_step(iteration, gaussians.params, lrs, SEED)
                 elif b.strategy:
-                    project_backward.step(
-                        gaussians.params,
-                        cam,
-                        model.sh_degree,
-                        res,
-                        sums,
-                        layout,
-                        gaussians.adam.step_value(lrs),
-                        gaussians.adam.m,
-                        gaussians.adam.v,
-                        regularizers,
-                    )
+                    project_backward.step(gaussians.params, cam, model.sh_degree, res, sums, layout,
+                                          gaussians.adam.step_value(lrs), gaussians.adam.m, gaussians.adam.v,
+                                          regularizers)
                     strategy.after_step(iteration, gaussians.params, lrs, SEED)
                 else:
                     widths = group_widths(gaussians.params.sh_coeffs)
                     grads = {k: rt.buffer(4 * w * gaussians.n) for k, w in widths.items()}
-                    project_backward.gradients(gaussians.params, cam, model.sh_degree, res, sums, layout, grads)
+                    project_backward.gradients(gaussians.params, cam, model.sh_degree, res, sums, layout,
+                                               grads)
                 rt.queue.finish()
             except Refused:
-                pass  # the rest of this variant cannot run; the others go on
+                pass   # the rest of this variant cannot run; the others go on
     overflowed_view(rt, shape, model, cam, target, background, lrs)
     return {"launched": rt.launched}
 
@@ -404,24 +355,15 @@ def overflowed_view(rt: Runtime, shape: str, model, cam, target, background, lrs
         gaussians = TrainableGaussians(rt, model)
         res = renderer.render(gaussians.params, cam, model.sh_degree, background, pair_capacity=pairs // 2)
         dL_dimage = rt.buffer(target.nbytes)
-        Loss(ctx, *LOSS_SHAPES[shape])(res.raster.image, rt.to_device(target), WIDTH, HEIGHT, dL_dimage)
+        Loss(ctx, *LOSS_SHAPES[shape])(
+            res.raster.image, rt.to_device(target), WIDTH, HEIGHT, dL_dimage)
         strategy = SANITIZED_STRATEGIES["absgs+dc4gs"]()
         strategy.attach(ctx, 1.0, gaussians.n)
         gathering = strategy.gather(1, gaussians.params, cam, res)
-        sums, layout = RasterizeBackward(ctx).folding(
-            res, dL_dimage, background, gathering.layout, gathering.geometry, None, gathering.window
-        )
-        ProjectBackward(ctx).step(
-            gaussians.params,
-            cam,
-            model.sh_degree,
-            res,
-            sums,
-            layout,
-            gaussians.adam.step_value(lrs),
-            gaussians.adam.m,
-            gaussians.adam.v,
-        )
+        sums, layout = RasterizeBackward(ctx).folding(res, dL_dimage, background, gathering.layout,
+                                                      gathering.geometry, None, gathering.window)
+        ProjectBackward(ctx).step(gaussians.params, cam, model.sh_degree, res, sums, layout,
+                                  gaussians.adam.step_value(lrs), gaussians.adam.m, gaussians.adam.v)
         if not ctx.frame_counts()["OVERFLOWED"]:
             raise RuntimeError("the view given room for half its pairs did not say it overflowed")
     except Refused:
@@ -437,7 +379,7 @@ def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--shape", nargs="+", choices=list(SHAPES), default=list(SHAPES))
     p.add_argument("--log", type=Path, help="keep Oclgrind's logs in this folder")
-    p.add_argument("--workload", choices=list(SHAPES), help=argparse.SUPPRESS)  # the subprocess's side
+    p.add_argument("--workload", choices=list(SHAPES), help=argparse.SUPPRESS)   # the subprocess's side
     args = p.parse_args(argv)
     if args.workload:
         print(json.dumps(workload(args.workload)))
@@ -448,11 +390,8 @@ def main(argv=None) -> int:
         return 2
     start = time.perf_counter()
     runs = sanitize(args.shape, args.log)
-    print(
-        f"{platform} ({' '.join(f'{k}=1' for k in CHECKS)}): "
-        + ", ".join(f"{r.label} {r.seconds:.0f} s" for r in runs)
-        + f", {time.perf_counter() - start:.0f} s in all\n"
-    )
+    print(f"{platform} ({' '.join(f'{k}=1' for k in CHECKS)}): "
+          + ", ".join(f"{r.label} {r.seconds:.0f} s" for r in runs) + f", {time.perf_counter() - start:.0f} s in all\n")
     print(report(runs))
     return 1 if any(r.findings for r in runs) or not_launched(runs) else 0
 

@@ -56,7 +56,6 @@ Reported per method: mean, median and IQR (Q3 - Q1) of each score beside the pap
 median |x - x*|, the case-by-case wins of poly over argmin, and how often poly lands on an end of its
 search interval [1/12, 11/12] (the quartic through 5 samples turning down past the outer ones).
 """
-
 from __future__ import annotations
 
 import argparse
@@ -77,7 +76,7 @@ from dc4gs_cl.reference.dc4gs import candidate_points, split_costs_from_sums
 from dc4gs_cl.reference.loss import loss_gradient, ssim_map
 from dc4gs_cl.reference.loss import loss_value as train_loss
 
-PICKS = {"dense": DENSE_CANDIDATES, "poly": 5, "argmin": 5}  # pick -> candidates
+PICKS = {"dense": DENSE_CANDIDATES, "poly": 5, "argmin": 5}     # pick -> candidates
 METHODS = ("dense", "poly", "argmin", "middle", "boundary", "random", "parent")
 PAPER = {"dense": (0.983, None, None), "poly": (0.979, 0.987, 0.0136), "argmin": (0.977, 0.983, 0.0194)}
 MIN_CONTRAST = 0.3
@@ -85,15 +84,14 @@ MIN_CONTRAST = 0.3
 
 # ground truth and parent --------------------------------------------------------------------------------
 
-
 def pixel_centres(size: int) -> np.ndarray:
     ys, xs = np.mgrid[0:size, 0:size]
-    return np.stack([xs.ravel() + 0.5, ys.ravel() + 0.5], 1).astype(np.float64)  # (P, 2) as (x, y)
+    return np.stack([xs.ravel() + 0.5, ys.ravel() + 0.5], 1).astype(np.float64)      # (P, 2) as (x, y)
 
 
 def _colours(rng, n):
     c = [rng.uniform(0.05, 0.95, 3)]
-    while len(c) < n:  # each new region against region B (index 1) or A for B itself
+    while len(c) < n:       # each new region against region B (index 1) or A for B itself
         cand = rng.uniform(0.05, 0.95, 3)
         if np.linalg.norm(cand - c[min(len(c) - 1, 1)]) >= MIN_CONTRAST:
             c.append(cand)
@@ -102,13 +100,11 @@ def _colours(rng, n):
 
 def make_parent(mean2d, sigma, minor, angle, opacity) -> dict[str, np.ndarray]:
     """A 2D Gaussian held as a 3D one in the plane z = 0: (1, width) parameter arrays as GaussianSet keeps."""
-    return {
-        "means": np.array([[mean2d[0], mean2d[1], 0.0]]),
-        "log_scales": np.log([[sigma, minor, 1e-3 * minor]]),
-        "quats": np.array([[np.cos(angle / 2), 0.0, 0.0, np.sin(angle / 2)]]),
-        "opacity_logits": np.array([[float(logit(opacity))]]),
-        "sh": np.zeros((1, 3)),
-    }
+    return {"means": np.array([[mean2d[0], mean2d[1], 0.0]]),
+            "log_scales": np.log([[sigma, minor, 1e-3 * minor]]),
+            "quats": np.array([[np.cos(angle / 2), 0.0, 0.0, np.sin(angle / 2)]]),
+            "opacity_logits": np.array([[float(logit(opacity))]]),
+            "sh": np.zeros((1, 3))}
 
 
 def make_case(seed: int, index: int, size: int = 64, gt: str = "gaussians") -> dict:
@@ -128,7 +124,7 @@ def make_case(seed: int, index: int, size: int = 64, gt: str = "gaussians") -> d
     if gt == "regions":
         b = mu + (6 * x_true - 3) * sigma * p
         bend = rng.uniform(-0.6, 0.6) / size if rng.random() < 0.5 else 0.0
-        label = ((q - b) @ n + bend * ((q - b) @ t) ** 2 > 0).astype(int)  # 0: A, 1: B
+        label = ((q - b) @ n + bend * ((q - b) @ t) ** 2 > 0).astype(int)            # 0: A, 1: B
         if three:
             b2 = mu + (6 * rng.uniform(x_true, 1.0) - 3) * sigma * p
             psi = rng.uniform(0, 2 * np.pi)
@@ -137,12 +133,12 @@ def make_case(seed: int, index: int, size: int = 64, gt: str = "gaussians") -> d
         slopes = rng.uniform(-0.15, 0.15, (len(colours), 3, 2))
         rel = (q - centre) / size
         image = np.stack([np.clip(colours[k] + rel @ slopes[k].T, 0, 1) for k in range(len(colours))])
-        image = image[label, np.arange(len(q))]  # (P, 3)
+        image = image[label, np.arange(len(q))]                                      # (P, 3)
         bg = image.mean(0)
-    else:  # "gaussians": the parent's own children at x* (algorithm 4), one colour each, over black
+    else:   # "gaussians": the parent's own children at x* (algorithm 4), one colour each, over black
         hidden = _gaussian_set(parent, 1)
         split_at(hidden, np.array([0]), np.array([x_true]))
-        if three:  # the right child split again: L, RL, RR
+        if three:           # the right child split again: L, RL, RR
             split_at(hidden, np.array([1]), np.array([rng.uniform(0.3, 0.7)]))
         m, cov, o = gaussians_2d(hidden.params)
         w, T, *_ = blend(q, m[None], cov[None], o[None])
@@ -158,7 +154,6 @@ def _gaussian_set(params, copies):
 
 # rendering (the rasterizer's blending, batched over B sets of G Gaussians in front-to-back order) -----------
 
-
 def gaussians_2d(params) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Parameter arrays (n, .) -> 2D means (n, 2), covariances (n, 2, 2), opacities (n,)."""
     s = np.exp(np.asarray(params["log_scales"], np.float64))
@@ -171,12 +166,11 @@ def gaussians_2d(params) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 def blend(q, means, cov, opacity):
     """means (B, G, 2), cov (B, G, 2, 2), opacity (B, G) -> per pixel weights alpha T_before (B, P, G),
     final T (B, P), and alpha, exp(power), offsets q - mean and inverse covariances for gradients."""
-    d = q[None, :, None, :] - means[:, None]  # (B, P, G, 2)
+    d = q[None, :, None, :] - means[:, None]                                       # (B, P, G, 2)
     inv = np.linalg.inv(cov)
     dx, dy = d[..., 0], d[..., 1]
-    G = np.exp(
-        -0.5 * (inv[:, None, :, 0, 0] * dx * dx + 2 * inv[:, None, :, 0, 1] * dx * dy + inv[:, None, :, 1, 1] * dy * dy)
-    )
+    G = np.exp(-0.5 * (inv[:, None, :, 0, 0] * dx * dx + 2 * inv[:, None, :, 0, 1] * dx * dy
+                       + inv[:, None, :, 1, 1] * dy * dy))
     alpha = np.minimum(K.ALPHA_MAX, opacity[:, None] * G)
     alpha = np.where(alpha >= K.ALPHA_MIN, alpha, 0.0)
     t_after = np.cumprod(1 - alpha, axis=2)
@@ -216,7 +210,7 @@ def parent_gradients(case, mean2d=None, colour=None, loss="l2"):
         colour, _ = fit_colours(w, T, gt, bg)
     colour = np.asarray(colour, np.float64).reshape(3)
     img = w[0] @ colour[None] + T[0, :, None] * bg
-    live = (alpha[0, :, 0] > 0) & (o[0] * G[0, :, 0] < K.ALPHA_MAX)  # no gradient where alpha clamps
+    live = (alpha[0, :, 0] > 0) & (o[0] * G[0, :, 0] < K.ALPHA_MAX)   # no gradient where alpha clamps
     dalpha = np.where(live, o[0] * G[0, :, 0], 0.0)[:, None] * (d[0, :, 0] @ inv[0, 0].T)
     dL = dloss_dimage(img, gt, case["size"], loss) @ (colour - bg)
     return dL[:, None] * dalpha, alpha[0, :, 0] > 0, img, colour
@@ -229,11 +223,11 @@ def split_costs(case, g, blended, n: int) -> np.ndarray:
     norm = np.linalg.norm(g, axis=1)
     take = blended & (norm > 0)
     g, q, norm = g[take], q[take], norm[take]
-    f = np.column_stack([g / norm[:, None], np.ones(len(g)), np.abs(g)])  # (P', 5)
+    f = np.column_stack([g / norm[:, None], np.ones(len(g)), np.abs(g)])               # (P', 5)
     par = case["parent"]
     cand, end = candidate_points(par["means"], par["log_scales"], par["quats"], n)
     cand, end = cand[0, :, :2], end[0, :2]
-    left = np.einsum("ki,kpi->kp", end - cand, q[None] - cand[:, None]) < 0  # (n, P')
+    left = np.einsum("ki,kpi->kp", end - cand, q[None] - cand[:, None]) < 0            # (n, P')
     return split_costs_from_sums((left.astype(np.float64) @ f)[None], f.sum(0)[None])[0]
 
 
@@ -254,22 +248,17 @@ def run_case(index: int, seed: int = 0, size: int = 64, gt: str = "gaussians", l
     pm, pc, po = gaussians_2d(case["parent"])
     w1, T1, *_ = blend(pixel_centres(size), pm[None], pc[None], po[None])
     _, parent_img = fit_colours(w1, T1, case["gt"], case["bg"])
-    imgs = np.concatenate([imgs, parent_img])  # (B + 1, P, 3)
-    stack = imgs.reshape(-1, size, size, 3).transpose(1, 2, 3, 0)  # (H, W, 3, methods)
-    smap = ssim_map(stack, case["gt"].reshape(size, size, 3, 1)).mean(axis=2)  # (H, W, methods)
+    imgs = np.concatenate([imgs, parent_img])                                         # (B + 1, P, 3)
+    stack = imgs.reshape(-1, size, size, 3).transpose(1, 2, 3, 0)                      # (H, W, 3, methods)
+    smap = ssim_map(stack, case["gt"].reshape(size, size, 3, 1)).mean(axis=2)          # (H, W, methods)
     foot = blended.reshape(size, size)
     names = placed + ["random", "parent"]
-    return {
-        "x": x,
-        "x_true": case["x_true"],
-        "three": case["three"],
-        "image": dict(zip(names, smap.mean(axis=(0, 1)).tolist())),
-        "footprint": dict(zip(names, smap[foot].mean(axis=0).tolist())),
-    }
+    return {"x": x, "x_true": case["x_true"], "three": case["three"],
+            "image": dict(zip(names, smap.mean(axis=(0, 1)).tolist())),
+            "footprint": dict(zip(names, smap[foot].mean(axis=0).tolist()))}
 
 
 # the study ---------------------------------------------------------------------------------------------
-
 
 def summarise(results: list[dict]) -> dict:
     out = {}
@@ -278,22 +267,13 @@ def summarise(results: list[dict]) -> dict:
         for m in METHODS:
             v = np.array([r[score][m] for r in results])
             q1, med, q3 = np.percentile(v, [25, 50, 75])
-            out[score][m] = {
-                "mean": float(v.mean()),
-                "median": float(med),
-                "iqr": float(q3 - q1),
-                "min": float(v.min()),
-            }
+            out[score][m] = {"mean": float(v.mean()), "median": float(med), "iqr": float(q3 - q1),
+                             "min": float(v.min())}
         a, b = (np.array([r[score][m] for r in results]) for m in ("poly", "argmin"))
-        out[score]["poly_vs_argmin"] = {
-            "wins": int((a > b + 1e-12).sum()),
-            "losses": int((a < b - 1e-12).sum()),
-            "ties": int((np.abs(a - b) <= 1e-12).sum()),
-        }
-    out["x_error"] = {
-        m: float(np.median([abs(r["x"][m] - r["x_true"]) for r in results]))
-        for m in ("dense", "poly", "argmin", "middle")
-    }
+        out[score]["poly_vs_argmin"] = {"wins": int((a > b + 1e-12).sum()), "losses": int((a < b - 1e-12).sum()),
+                                        "ties": int((np.abs(a - b) <= 1e-12).sum())}
+    out["x_error"] = {m: float(np.median([abs(r["x"][m] - r["x_true"]) for r in results]))
+                      for m in ("dense", "poly", "argmin", "middle")}
     lo, hi = search_interval(PICKS["poly"])
     out["poly_at_ends"] = float(np.mean([r["x"]["poly"] in (lo, hi) for r in results]))
     return out
@@ -302,32 +282,19 @@ def summarise(results: list[dict]) -> dict:
 def table(summary: dict, score: str) -> str:
     def f(v):
         return "-" if v is None else f"{v:.4f}"
-
-    rows = [
-        "| method | mean | median | IQR | paper mean | paper median | paper IQR | median abs(x - x*) |",
-        "|---|---|---|---|---|---|---|---|",
-    ]
-    label = {
-        "dense": f"dense argmin (N={DENSE_CANDIDATES})",
-        "poly": "polynomial (N=5)",
-        "argmin": "argmin (N=5)",
-        "middle": "middle (x=0.5)",
-        "boundary": "true crossing (x=x*)",
-        "random": "random 3DGS split",
-        "parent": "parent, unsplit",
-    }
+    rows = ["| method | mean | median | IQR | paper mean | paper median | paper IQR | median abs(x - x*) |",
+            "|---|---|---|---|---|---|---|---|"]
+    label = {"dense": f"dense argmin (N={DENSE_CANDIDATES})", "poly": "polynomial (N=5)", "argmin": "argmin (N=5)",
+             "middle": "middle (x=0.5)", "boundary": "true crossing (x=x*)", "random": "random 3DGS split",
+             "parent": "parent, unsplit"}
     for m in METHODS:
         s, p = summary[score][m], PAPER.get(m, (None, None, None))
         xe = summary["x_error"].get(m)
-        rows.append(
-            f"| {label[m]} | {s['mean']:.4f} | {s['median']:.4f} | {s['iqr']:.4f} | "
-            f"{f(p[0])} | {f(p[1])} | {f(p[2])} | {f(xe)} |"
-        )
+        rows.append(f"| {label[m]} | {s['mean']:.4f} | {s['median']:.4f} | {s['iqr']:.4f} | "
+                    f"{f(p[0])} | {f(p[1])} | {f(p[2])} | {f(xe)} |")
     w = summary[score]["poly_vs_argmin"]
-    rows.append(
-        f"\npoly vs argmin, case by case: {w['wins']} wins, {w['losses']} losses, {w['ties']} ties; "
-        f"poly at an end of its interval in {100 * summary['poly_at_ends']:.1f}% of cases"
-    )
+    rows.append(f"\npoly vs argmin, case by case: {w['wins']} wins, {w['losses']} losses, {w['ties']} ties; "
+                f"poly at an end of its interval in {100 * summary['poly_at_ends']:.1f}% of cases")
     return "\n".join(rows)
 
 
@@ -347,17 +314,15 @@ def main(argv=None) -> None:
         pool = Pool(args.jobs)
         try:
             results = pool.map(work, range(args.cases), chunksize=50)
-        finally:  # close and join: terminate() would SIGTERM the workers
+        finally:        # close and join: terminate() would SIGTERM the workers
             pool.close()
             pool.join()
     else:
         results = [work(i) for i in range(args.cases)]
     summary = summarise(results)
     elapsed = time.perf_counter() - start
-    print(
-        f"{args.cases} cases, seed {args.seed}, {args.size}x{args.size}, ground truth {args.gt}, loss {args.loss}, "
-        f"{args.jobs} jobs: {elapsed:.1f} s\n"
-    )
+    print(f"{args.cases} cases, seed {args.seed}, {args.size}x{args.size}, ground truth {args.gt}, loss {args.loss}, "
+          f"{args.jobs} jobs: {elapsed:.1f} s\n")
     for score, what in (("image", "SSIM over the whole image"), ("footprint", "SSIM over the parent's footprint")):
         print(f"{what}\n\n{table(summary, score)}\n")
     if args.json:

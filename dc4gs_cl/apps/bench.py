@@ -23,7 +23,6 @@ The training iterations gather densification statistics but never densify, so ev
 model. Writes bench-<device>.json and .md (--out) and prints the markdown; `--compare A.json B.json` prints
 B against A line by line.
 """
-
 from __future__ import annotations
 
 import gc
@@ -66,77 +65,50 @@ from ..train.schedule import Schedule
 # --gsplat; 4: kernel arguments set (only those that changed since the kernel's last launch)
 SUITE_VERSION = 4
 # per frame or iteration, beside the times (timed_rounds): the quantity and its row in the reports
-COUNTS = {
-    "host_ms": "host ms (wall - device)",
-    "launches": "kernel launches",
-    "syncs": "blocking host syncs",
-    "arguments": "kernel arguments set",
-}
+COUNTS = {"host_ms": "host ms (wall - device)", "launches": "kernel launches", "syncs": "blocking host syncs",
+          "arguments": "kernel arguments set"}
 
 
 @dataclass(frozen=True)
 class Suite:
     builtin_sizes: tuple[tuple[int, int], ...] = ((192, 144), (384, 288))
-    warm_iterations: int = 600  # of the built-in run's 5,000-iteration schedule: 27,960 Gaussians
+    warm_iterations: int = 600        # of the built-in run's 5,000-iteration schedule: 27,960 Gaussians
     schedule: int = 5_000
     synthetic_gaussians: int = 1_000_000
     synthetic_size: tuple[int, int] = (1280, 720)
     rounds: int = 5
-    iterations: int = 10  # training iterations per round (built-in scene)
-    synthetic_iterations: int = 2  # training iterations per round (million Gaussians: seconds each)
+    iterations: int = 10              # training iterations per round (built-in scene)
+    synthetic_iterations: int = 2     # training iterations per round (million Gaussians: seconds each)
     forward_views: int = 4
-    accuracy_case: tuple[int, int, int] = (2500, 120, 90)  # Gaussians, width, height
+    accuracy_case: tuple[int, int, int] = (2500, 120, 90)   # Gaussians, width, height
     seed: int = 20261123
 
 
 FULL = Suite()
-QUICK = Suite(
-    builtin_sizes=((48, 36), (96, 72)),
-    warm_iterations=40,
-    synthetic_gaussians=20_000,
-    synthetic_size=(160, 90),
-    rounds=2,
-    iterations=2,
-    synthetic_iterations=1,
-    forward_views=2,
-    accuracy_case=(300, 48, 40),
-)
-TRAINING = {
-    "3dgs": {"strategy": "3dgs"},
-    "absgs+DC4GS": {"strategy": "absgs", "dc4gs": DC4GSConfig(dcc=True, dcs=True)},
-}
+QUICK = Suite(builtin_sizes=((48, 36), (96, 72)), warm_iterations=40, synthetic_gaussians=20_000,
+              synthetic_size=(160, 90), rounds=2, iterations=2, synthetic_iterations=1, forward_views=2,
+              accuracy_case=(300, 48, 40))
+TRAINING = {"3dgs": {"strategy": "3dgs"},
+            "absgs+DC4GS": {"strategy": "absgs", "dc4gs": DC4GSConfig(dcc=True, dcs=True)}}
 # gsplat's nearest configuration to each of TRAINING: absgrad (AbsGS) or not (gsplat has no DC4GS)
 GSPLAT_ABSGRAD = {"3dgs": False, "absgs+DC4GS": True}
-GARDEN_AT = 3_000  # iteration of the 30,000 schedule the synthetic and garden frames train at: SH 3, in the window
+GARDEN_AT = 3_000   # iteration of the 30,000 schedule the synthetic and garden frames train at: SH 3, in the window
 
 
 def median(values) -> float:
     return float(np.median(values))
 
 
-def frozen_trainer(
-    cfg: TrainConfig,
-    scene: Scene,
-    rt: Runtime,
-    state: GaussianSet,
-    iteration: int,
-    closed: bool = False,
-    split_costs_for_all: bool = False,
-) -> Trainer:
+def frozen_trainer(cfg: TrainConfig, scene: Scene, rt: Runtime, state: GaussianSet, iteration: int,
+                   closed: bool = False, split_costs_for_all: bool = False) -> Trainer:
     """A trainer holding `state` at `iteration` that gathers densification statistics but never densifies nor
     resets opacities, so benchmarks step the same model again and again. closed: no statistics either (an
     iteration after the densification window); split_costs_for_all: DC4GS split costs for every visible
     Gaussian, not only those large enough to split."""
     scaled = Schedule(cfg).strategy()
     c = scaled.config
-    strategy = type(scaled).for_run(
-        replace(
-            c,
-            densify_until=0 if closed else c.densify_until,
-            percent_dense=0.0 if split_costs_for_all else c.percent_dense,
-        ),
-        cfg,
-    )
+    strategy = type(scaled).for_run(replace(c, densify_until=0 if closed else c.densify_until,
+                                            percent_dense=0.0 if split_costs_for_all else c.percent_dense), cfg)
     trainer = Trainer(cfg, scene, rt, strategy=strategy, frozen=True)
     trainer.start_from(state, iteration)
     return trainer
@@ -153,24 +125,19 @@ def timed_rounds(rt: Runtime, rounds: int, per: int, work) -> dict:
     for _ in range(rounds):
         start = time.perf_counter()
         work()
-        times.append(rt.stage_times())  # waits for the queue
+        times.append(rt.stage_times())     # waits for the queue
         walls.append(time.perf_counter() - start)
     stages = list(dict.fromkeys(s for r in times for s in r))
     device, wall = median([sum(r.values()) for r in times]) * 1e3 / per, median(walls) * 1e3 / per
-    return {
-        "stages_ms": {s: median([r.get(s, 0.0) for r in times]) * 1e3 / per for s in stages},
-        "device_ms": device,
-        "wall_ms": wall,
-        "host_ms": wall - device,
-        "launches": (rt.launches - launches) / (rounds * per),
-        "syncs": (rt.syncs - syncs) / (rounds * per),
-        "arguments": (rt.arguments_set - arguments) / (rounds * per),
-    }
+    return {"stages_ms": {s: median([r.get(s, 0.0) for r in times]) * 1e3 / per for s in stages},
+            "device_ms": device, "wall_ms": wall, "host_ms": wall - device,
+            "launches": (rt.launches - launches) / (rounds * per), "syncs": (rt.syncs - syncs) / (rounds * per),
+            "arguments": (rt.arguments_set - arguments) / (rounds * per)}
 
 
 def time_forward(rt: Runtime, model: GaussianModel, cams: list[Camera], background, suite: Suite) -> dict:
     renderer, g = Renderer(rt), DeviceGaussians(rt, model)
-    for cam in cams:  # builds kernels and sizes buffers outside the timing
+    for cam in cams:                       # builds kernels and sizes buffers outside the timing
         res = renderer.render(g, cam, model.sh_degree, background)
 
     def frames():
@@ -180,15 +147,14 @@ def time_forward(rt: Runtime, model: GaussianModel, cams: list[Camera], backgrou
     return {**timed_rounds(rt, suite.rounds, len(cams), frames), "pairs": int(res.isect.n_pairs)}
 
 
-def time_training(
-    rt: Runtime, cfg: TrainConfig, scene: Scene, state: GaussianSet, iteration: int, suite: Suite, iterations: int
-) -> dict:
-    gc.collect()  # the previous trainer's buffers go before the peak restarts
+def time_training(rt: Runtime, cfg: TrainConfig, scene: Scene, state: GaussianSet, iteration: int,
+                  suite: Suite, iterations: int) -> dict:
+    gc.collect()                           # the previous trainer's buffers go before the peak restarts
     before = rt.memory_in_use
     rt.reset_memory_peak()
     trainer = frozen_trainer(cfg, scene, rt, state, iteration)
-    for _ in scene.train:  # builds kernels and sizes buffers (the pair room, the carry rows) for
-        trainer.step()  # every view outside the timing, so that no timed view runs twice
+    for _ in scene.train:                  # builds kernels and sizes buffers (the pair room, the carry rows) for
+        trainer.step()                     # every view outside the timing, so that no timed view runs twice
 
     def steps():
         for _ in range(iterations):
@@ -218,28 +184,13 @@ def builtin_cases(rt: Runtime, suite: Suite, say) -> list[dict]:
         cam = scene.train[0]
         name = f"builtin {cam.width}x{cam.height}"
         say(f"{name}: {state.n:,} Gaussians")
-        for c in scene.train:  # ray cast outside the timing
+        for c in scene.train:              # ray cast outside the timing
             scene.image(c)
-        case = {
-            "name": name,
-            "gaussians": state.n,
-            "width": cam.width,
-            "height": cam.height,
-            "forward": time_forward(rt, model, scene.train[: suite.forward_views], scene.background, suite),
-            "train": {
-                t: time_training(
-                    rt,
-                    training_config(t, "builtin", suite.schedule),
-                    scene,
-                    state,
-                    suite.warm_iterations,
-                    suite,
-                    suite.iterations,
-                )
-                for t in TRAINING
-            },
-            "frames": (model, scene.train[: suite.forward_views], scene.background, suite.iterations),
-        }
+        case = {"name": name, "gaussians": state.n, "width": cam.width, "height": cam.height,
+                "forward": time_forward(rt, model, scene.train[:suite.forward_views], scene.background, suite),
+                "train": {t: time_training(rt, training_config(t, "builtin", suite.schedule), scene, state,
+                                           suite.warm_iterations, suite, suite.iterations) for t in TRAINING},
+                "frames": (model, scene.train[:suite.forward_views], scene.background, suite.iterations)}
         cases.append(case)
     return cases
 
@@ -251,37 +202,19 @@ def frame_case(rt: Runtime, suite: Suite, name: str, model: GaussianModel, cams:
     background = np.zeros(3, np.float32)
     forward = time_forward(rt, model, cams, background, suite)
     renderer, g = Renderer(rt), DeviceGaussians(rt, model)
-    targets = {
-        c.name: np.ascontiguousarray(renderer.render(g, c, model.sh_degree, background).image(rt)[..., ::-1])
-        for c in cams
-    }
-    one = np.zeros((1, 3))  # the trainer starts from one point, replaced at once by the model
-    scene = Scene(
-        root=Path(name),
-        train=cams,
-        test=[],
-        points=one,
-        colors=one + 0.5,
-        background=background,
-        read_image=lambda c: targets[c.name],
-    )
+    targets = {c.name: np.ascontiguousarray(renderer.render(g, c, model.sh_degree, background).image(rt)[..., ::-1])
+               for c in cams}
+    one = np.zeros((1, 3))                 # the trainer starts from one point, replaced at once by the model
+    scene = Scene(root=Path(name), train=cams, test=[], points=one, colors=one + 0.5, background=background,
+                  read_image=lambda c: targets[c.name])
     params = model.groups()
-    state = GaussianSet(
-        params, {k: np.zeros_like(v) for k, v in params.items()}, {k: np.zeros_like(v) for k, v in params.items()}
-    )
+    state = GaussianSet(params, {k: np.zeros_like(v) for k, v in params.items()},
+                        {k: np.zeros_like(v) for k, v in params.items()})
     cam = cams[0]
-    return {
-        "name": name,
-        "gaussians": len(model),
-        "width": cam.width,
-        "height": cam.height,
-        "forward": forward,
-        "train": {
-            t: time_training(rt, training_config(t, name, 30_000), scene, state, GARDEN_AT, suite, iterations)
-            for t in TRAINING
-        },
-        "frames": (model, cams, background, iterations),
-    }
+    return {"name": name, "gaussians": len(model), "width": cam.width, "height": cam.height, "forward": forward,
+            "train": {t: time_training(rt, training_config(t, name, 30_000), scene, state, GARDEN_AT, suite, iterations)
+                      for t in TRAINING},
+            "frames": (model, cams, background, iterations)}
 
 
 def synthetic_case(rt: Runtime, suite: Suite, say) -> dict:
@@ -304,7 +237,8 @@ def garden_case(rt: Runtime, suite: Suite, path: Path, say) -> dict:
     except (OSError, KeyError, ValueError) as e:
         raise InputError(path, f"is not gsplat's test_garden.npz ({e})") from None
     sh = np.concatenate([g.sh, rng.normal(0, 0.15, (len(g), 15, 3))], axis=1)
-    model = GaussianModel(means=g.means, log_scales=g.log_scales, quats=g.quats, opacity_logits=g.opacity_logits, sh=sh)
+    model = GaussianModel(means=g.means, log_scales=g.log_scales, quats=g.quats, opacity_logits=g.opacity_logits,
+                          sh=sh)
     name = f"garden {cams[0].width}x{cams[0].height}"
     say(f"{name}: {len(model):,} Gaussians ...")
     return frame_case(rt, suite, name, model, cams, suite.iterations)
@@ -313,7 +247,6 @@ def garden_case(rt: Runtime, suite: Suite, path: Path, say) -> dict:
 def gsplat_side(rt: Runtime, case: dict, suite: Suite) -> dict:
     """The case's frames through gsplat (apps/gsplat_frames.py), with its first view's image against ours."""
     from .gsplat_frames import time_gsplat
-
     model, cams, background, iterations = case["frames"]
     ours = Renderer(rt).render(DeviceGaussians(rt, model), cams[0], model.sh_degree, background).image(rt)
     return time_gsplat(model, cams, background, ours, suite.rounds, iterations, GSPLAT_ABSGRAD)
@@ -338,44 +271,21 @@ def accuracy(rt: Runtime, suite: Suite) -> list[dict]:
     renderer = Renderer(rt, poison=True)
     res = renderer.render(g, cam, 3, bg)
     tiles_x = res.tiles_x
-    params = dict(
-        means=model.means,
-        log_scales=model.log_scales,
-        quats=model.quats,
-        opacity_logits=model.opacity_logits,
-        sh=model.sh,
-    )
+    params = dict(means=model.means, log_scales=model.log_scales, quats=model.quats,
+                  opacity_logits=model.opacity_logits, sh=model.sh)
     p = project_reference(**params, cam=cam, sh_degree=3, tiles_x=tiles_x, tiles_y=res.tiles_y)
     radius = rt.to_host(res.proj.radius, n, np.int32)
     both = (radius > 0) & (p["radius"] > 0)
     co = rt.to_host(res.proj.conic_opacity, (n, 4))
-    rows = [
-        {"stage": "project", "quantity": q, "rel_l2": rel_l2(got[both], want[both])}
-        for q, got, want in (
-            ("mean2d", rt.to_host(res.proj.mean2d, (n, 2)), p["mean2d"]),
-            ("conic", co[:, :3], p["conic"]),
-            ("opacity", co[:, 3], p["opacity"]),
-            ("colour", rt.to_host(res.proj.rgb, (n, 3)), p["rgb"]),
-            ("depth", rt.to_host(res.proj.depth, n), p["depth"]),
-        )
-    ]
-    rows.append(
-        {
-            "stage": "project",
-            "quantity": "culling (share decided otherwise)",
-            "rel_l2": float(np.mean((radius > 0) != (p["radius"] > 0))),
-        }
-    )
-    _, gop, ranges = intersect_reference(
-        p["mean2d"],
-        p["radius"],
-        p["alpha_extent"],
-        p["tiles_touched"],
-        p["depth"],
-        tiles_x,
-        res.tiles_y,
-        alpha_cut=False,
-    )
+    rows = [{"stage": "project", "quantity": q, "rel_l2": rel_l2(got[both], want[both])}
+            for q, got, want in (("mean2d", rt.to_host(res.proj.mean2d, (n, 2)), p["mean2d"]),
+                                 ("conic", co[:, :3], p["conic"]), ("opacity", co[:, 3], p["opacity"]),
+                                 ("colour", rt.to_host(res.proj.rgb, (n, 3)), p["rgb"]),
+                                 ("depth", rt.to_host(res.proj.depth, n), p["depth"]))]
+    rows.append({"stage": "project", "quantity": "culling (share decided otherwise)",
+                 "rel_l2": float(np.mean((radius > 0) != (p["radius"] > 0)))})
+    _, gop, ranges = intersect_reference(p["mean2d"], p["radius"], p["alpha_extent"], p["tiles_touched"], p["depth"],
+                                         tiles_x, res.tiles_y, alpha_cut=False)
     ref = rasterize_reference(p["mean2d"], p["conic"], p["opacity"], p["rgb"], gop, ranges, w, h, tiles_x, bg)
     image = res.image(rt)
     rows.append({"stage": "isect + sort + rasterize", "quantity": "image", "rel_l2": rel_l2(image, ref["image"])})
@@ -386,16 +296,9 @@ def accuracy(rt: Runtime, suite: Suite) -> list[dict]:
     loss(res.raster.image, rt.to_device(target), w, h, dL_dimage)
     got_loss = loss.read_stats()["loss"]
     x = image.astype(np.float64)
-    rows.append(
-        {"stage": "loss", "quantity": "value", "rel_l2": rel_l2([got_loss], [loss_reference.loss_value(x, target)])}
-    )
-    rows.append(
-        {
-            "stage": "loss",
-            "quantity": "dL/dimage",
-            "rel_l2": rel_l2(rt.to_host(dL_dimage, image.shape), loss_reference.loss_gradient(x, target)),
-        }
-    )
+    rows.append({"stage": "loss", "quantity": "value", "rel_l2": rel_l2([got_loss], [loss_reference.loss_value(x, target)])})
+    rows.append({"stage": "loss", "quantity": "dL/dimage", "rel_l2": rel_l2(rt.to_host(dL_dimage, image.shape),
+                                                                             loss_reference.loss_gradient(x, target))})
 
     undecided = undecided_pixels(p["mean2d"], p["conic"], p["opacity"], p["depth"], gop, ranges, w, h, tiles_x)
     grad_image = rng.normal(size=image.shape).astype(np.float32)
@@ -404,39 +307,19 @@ def accuracy(rt: Runtime, suite: Suite) -> list[dict]:
     widths = group_widths(g.sh_coeffs)
     grads = {k: rt.to_device(np.full(n * k_w, np.nan, np.float32)) for k, k_w in widths.items()}
     ProjectBackward(renderer.context).gradients(g, cam, 3, res, sums, GRADIENTS, grads)
-    r = rasterize_backward_reference(
-        p["mean2d"], p["conic"], p["opacity"], p["rgb"], gop, ranges, w, h, tiles_x, bg, grad_image
-    )
-    want = project_backward_reference(
-        **params,
-        cam=cam,
-        sh_degree=3,
-        v_mean2d=r["mean2d"],
-        v_conic=r["conic"],
-        v_opacity=r["opacity"],
-        v_rgb=r["rgb"],
-        visible=p["radius"] > 0,
-    )
-    rows += [
-        {
-            "stage": "backward (rasterize + project)",
-            "quantity": f"dL/d{k}",
-            "rel_l2": rel_l2(rt.to_host(grads[k], (n, k_w)), want[k].reshape(n, -1)),
-        }
-        for k, k_w in widths.items()
-    ]
+    r = rasterize_backward_reference(p["mean2d"], p["conic"], p["opacity"], p["rgb"], gop, ranges, w, h, tiles_x, bg,
+                                     grad_image)
+    want = project_backward_reference(**params, cam=cam, sh_degree=3, v_mean2d=r["mean2d"], v_conic=r["conic"],
+                                      v_opacity=r["opacity"], v_rgb=r["rgb"], visible=p["radius"] > 0)
+    rows += [{"stage": "backward (rasterize + project)", "quantity": f"dL/d{k}",
+              "rel_l2": rel_l2(rt.to_host(grads[k], (n, k_w)), want[k].reshape(n, -1))} for k, k_w in widths.items()]
     return rows
 
 
 def _git_commit() -> str | None:
     try:
-        out = subprocess.run(
-            ["git", "rev-parse", "--short", "HEAD"],
-            cwd=Path(__file__).parent,
-            capture_output=True,
-            text=True,
-            timeout=10,
-        )
+        out = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=Path(__file__).parent, capture_output=True,
+                             text=True, timeout=10)
     except (OSError, subprocess.SubprocessError):
         return None
     return (out.stdout.strip() or None) if out.returncode == 0 else None
@@ -454,45 +337,28 @@ def _cpu_name() -> str:
 
 def environment(rt: Runtime) -> dict:
     d = rt.device
-    return {
-        "device": describe(d),
-        "device_name": d.name.strip(),
-        "platform": d.platform.name.strip(),
-        "platform_version": d.platform.version.strip(),
-        "device_version": d.version.strip(),
-        "driver_version": d.driver_version.strip(),
-        "capabilities": asdict(Capabilities.of(d)),
-        "global_mem_bytes": int(d.global_mem_size),
-        "host_cpu": _cpu_name(),
-        "host_cores": os.cpu_count(),
-        "dc4gs_cl": __version__,
-        "commit": _git_commit(),
-        "pyopencl": cl.VERSION_TEXT,
-        "numpy": np.__version__,
-        "python": platform.python_version(),
-        "os": platform.platform(),
-    }
+    return {"device": describe(d), "device_name": d.name.strip(), "platform": d.platform.name.strip(),
+            "platform_version": d.platform.version.strip(), "device_version": d.version.strip(),
+            "driver_version": d.driver_version.strip(), "capabilities": asdict(Capabilities.of(d)),
+            "global_mem_bytes": int(d.global_mem_size), "host_cpu": _cpu_name(), "host_cores": os.cpu_count(),
+            "dc4gs_cl": __version__, "commit": _git_commit(), "pyopencl": cl.VERSION_TEXT, "numpy": np.__version__,
+            "python": platform.python_version(), "os": platform.platform()}
 
 
-def run_suite(
-    rt: Runtime, suite: Suite, say=lambda line: None, garden: Path | None = None, gsplat: bool = False
-) -> dict:
+def run_suite(rt: Runtime, suite: Suite, say=lambda line: None, garden: Path | None = None,
+              gsplat: bool = False) -> dict:
     """The suite's cases (with the garden asset's where given), each also through gsplat where asked."""
-    report = {
-        "suite_version": SUITE_VERSION,
-        "suite": "quick" if suite == QUICK else "full",
-        "settings": asdict(suite),
-        "created": datetime.now(timezone.utc).isoformat(timespec="seconds"),
-        "environment": environment(rt),
-    }
+    report = {"suite_version": SUITE_VERSION, "suite": "quick" if suite == QUICK else "full",
+              "settings": asdict(suite), "created": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+              "environment": environment(rt)}
     start = time.perf_counter()
 
-    def done(case: dict) -> dict:  # its frames through gsplat where asked, then let go of them
+    def done(case: dict) -> dict:   # its frames through gsplat where asked, then let go of them
         if gsplat:
             say(f"{case['name']} through gsplat ...")
             try:
                 case["gsplat"] = gsplat_side(rt, case, suite)
-            except Exception as e:  # another project's code on our frames: our measurements stay, without ratios
+            except Exception as e:   # another project's code on our frames: our measurements stay, without ratios
                 case["gsplat_error"] = f"{type(e).__name__}: {e}"
                 say(f"{case['name']}: gsplat failed ({case['gsplat_error']}); the case has no ratios")
         del case["frames"]
@@ -546,72 +412,43 @@ def measurements(report: dict) -> dict[tuple[str, str, str], float]:
 
 def markdown(report: dict) -> str:
     env = report["environment"]
-    lines = [
-        f"# dc4gs-cl bench (suite {report['suite_version']}, {report['suite']})",
-        "",
-        f"- device: {env['device']}; OpenCL {env['device_version']}, driver {env['driver_version']} "
-        f"({env['platform_version']})",
-        f"- host: {env['host_cpu']}, {env['host_cores']} cores; {env['os']}",
-        f"- dc4gs-cl {env['dc4gs_cl']}"
-        + (f" @ {env['commit']}" if env["commit"] else "")
-        + f", pyopencl {env['pyopencl']}, numpy {env['numpy']}, Python {env['python']}",
-        f"- {report['created']}, {report['seconds']} s; medians of {report['settings']['rounds']} rounds "
-        "(device ms from OpenCL profiling events)",
-        "",
-    ]
+    lines = [f"# dc4gs-cl bench (suite {report['suite_version']}, {report['suite']})", "",
+             f"- device: {env['device']}; OpenCL {env['device_version']}, driver {env['driver_version']} "
+             f"({env['platform_version']})",
+             f"- host: {env['host_cpu']}, {env['host_cores']} cores; {env['os']}",
+             f"- dc4gs-cl {env['dc4gs_cl']}" + (f" @ {env['commit']}" if env["commit"] else "")
+             + f", pyopencl {env['pyopencl']}, numpy {env['numpy']}, Python {env['python']}",
+             f"- {report['created']}, {report['seconds']} s; medians of {report['settings']['rounds']} rounds "
+             "(device ms from OpenCL profiling events)", ""]
     for case in report["cases"]:
         runs = case_runs(case)
         stages = list(dict.fromkeys(s for m in runs.values() for s in m["stages_ms"]))
-        lines += [
-            f"## {case['name']}: {case['gaussians']:,} Gaussians, {case['forward']['pairs']:,} pairs",
-            "",
-            "| stage (ms) | " + " | ".join(runs) + " |",
-            "|---|" + "---:|" * len(runs),
-        ]
+        lines += [f"## {case['name']}: {case['gaussians']:,} Gaussians, {case['forward']['pairs']:,} pairs", "",
+                  "| stage (ms) | " + " | ".join(runs) + " |", "|---|" + "---:|" * len(runs)]
         for s in stages:
-            lines.append(
-                f"| {s} | "
-                + " | ".join(f"{m['stages_ms'][s]:.2f}" if s in m["stages_ms"] else "" for m in runs.values())
-                + " |"
-            )
+            lines.append(f"| {s} | " + " | ".join(f"{m['stages_ms'][s]:.2f}" if s in m["stages_ms"] else ""
+                                                   for m in runs.values()) + " |")
         lines.append("| **device total** | " + " | ".join(f"**{m['device_ms']:.2f}**" for m in runs.values()) + " |")
         lines.append("| wall | " + " | ".join(f"{m['wall_ms']:.2f}" for m in runs.values()) + " |")
         for quantity, label in COUNTS.items():
-            lines.append(
-                f"| {label} | "
-                + " | ".join(f"{m[quantity]:.{2 if quantity == 'host_ms' else 1}f}" for m in runs.values())
-                + " |"
-            )
-        lines.append(
-            "| peak bytes / Gaussian | "
-            + " | ".join(f"{m['bytes_per_gaussian']:,.0f}" if "bytes_per_gaussian" in m else "" for m in runs.values())
-            + " |"
-        )
+            lines.append(f"| {label} | " + " | ".join(f"{m[quantity]:.{2 if quantity == 'host_ms' else 1}f}"
+                                                      for m in runs.values()) + " |")
+        lines.append("| peak bytes / Gaussian | " + " | ".join(f"{m['bytes_per_gaussian']:,.0f}"
+                                                             if "bytes_per_gaussian" in m else "" for m in runs.values())
+                     + " |")
         if ratios := gsplat_ratios(case):
             side = case["gsplat"]
-            lines.append(
-                "| gsplat wall | " + " | ".join(f"{ratios[r][0]:.2f}" if r in ratios else "" for r in runs) + " |"
-            )
-            lines.append(
-                "| **ours / gsplat** | "
-                + " | ".join(f"**{ratios[r][1]:.2f}**" if r in ratios else "" for r in runs)
-                + " |"
-            )
-            lines += [
-                "",
-                f"gsplat: the same Gaussians and cameras (its first view against ours: "
-                f"{side['image_psnr_db']:.1f} dB PSNR); beside AbsGS + DC4GS, its AbsGS (absgrad).",
-            ]
+            lines.append("| gsplat wall | " + " | ".join(f"{ratios[r][0]:.2f}" if r in ratios else "" for r in runs) + " |")
+            lines.append("| **ours / gsplat** | " + " | ".join(f"**{ratios[r][1]:.2f}**" if r in ratios else ""
+                                                           for r in runs) + " |")
+            lines += ["", f"gsplat: the same Gaussians and cameras (its first view against ours: "
+                          f"{side['image_psnr_db']:.1f} dB PSNR); beside AbsGS + DC4GS, its AbsGS (absgrad)."]
         if "gsplat_error" in case:
             lines += ["", f"gsplat failed on these frames: {case['gsplat_error']}"]
         lines.append("")
     n, w, h = report["settings"]["accuracy_case"]
-    lines += [
-        f"## Accuracy against the float64 references ({n:,} random Gaussians, {w}x{h})",
-        "",
-        "| stage | quantity | relative L2 error |",
-        "|---|---|---:|",
-    ]
+    lines += [f"## Accuracy against the float64 references ({n:,} random Gaussians, {w}x{h})", "",
+              "| stage | quantity | relative L2 error |", "|---|---|---:|"]
     lines += [f"| {r['stage']} | {r['quantity']} | {r['rel_l2']:.2e} |" for r in report["accuracy"]]
     return "\n".join(lines) + "\n"
 
@@ -619,19 +456,12 @@ def markdown(report: dict) -> str:
 def compare(a: dict, b: dict) -> list[str]:
     """B against A, line by line: each measurement of both and B / A (times: above 1 is slower)."""
     if (a["suite_version"], a["suite"]) != (b["suite_version"], b["suite"]):
-        raise InputError(
-            None,
-            f"the reports ran different suites ({a['suite_version']} {a['suite']} and "
-            f"{b['suite_version']} {b['suite']}): their numbers do not compare line by line",
-        )
+        raise InputError(None, f"the reports ran different suites ({a['suite_version']} {a['suite']} and "
+                               f"{b['suite_version']} {b['suite']}): their numbers do not compare line by line")
     ma, mb = measurements(a), measurements(b)
-    lines = [
-        f"A: {a['environment']['device']} ({a['environment']['driver_version']})",
-        f"B: {b['environment']['device']} ({b['environment']['driver_version']})",
-        "",
-        "| case | run | quantity | A | B | B / A |",
-        "|---|---|---|---:|---:|---:|",
-    ]
+    lines = [f"A: {a['environment']['device']} ({a['environment']['driver_version']})",
+             f"B: {b['environment']['device']} ({b['environment']['driver_version']})", "",
+             "| case | run | quantity | A | B | B / A |", "|---|---|---|---:|---:|---:|"]
     for key in ma:
         if key in mb:
             va, vb = ma[key], mb[key]
@@ -640,7 +470,7 @@ def compare(a: dict, b: dict) -> list[str]:
     return lines
 
 
-REPORT_KEYS = {"suite_version", "suite", "environment", "cases", "accuracy"}  # what compare reads
+REPORT_KEYS = {"suite_version", "suite", "environment", "cases", "accuracy"}   # what compare reads
 
 
 def read_report(path: Path) -> dict:
@@ -669,7 +499,6 @@ def cmd_bench(args) -> int:
         raise InputError(args.garden, "does not exist (--garden takes gsplat's test_garden.npz)")
     if args.gsplat:
         from .gsplat_frames import available
-
         if (why := available()) is not None:
             raise InputError(None, f"--gsplat needs torch and gsplat with a CUDA device: {why}")
     rt = Runtime(args.device, profiling=True)

@@ -1,6 +1,5 @@
 """`dc4gs-cl eval`: a trained run's test views rendered and measured (evaluate.py), the metrics merged into its
 results (RunFolder.write_results)."""
-
 from __future__ import annotations
 
 import argparse
@@ -31,19 +30,12 @@ def cmd_eval(args) -> int:
         raise InputError(run.config_path, "the run has no test views (test_every = 0)")
     lpips, lpips_note = lpips_metric(args.lpips)
     rt = Runtime(args.device)
-    result = evaluate(
-        rt,
-        Renderer(rt, options=RenderOptions.of_model(None, source.antialiased)),
-        DeviceGaussians(rt, model),
-        scene,
-        scene.test,
-        model.sh_degree,
-        None if args.no_renders else run.views_dir("test", iteration),
-        lpips,
-        lpips_note,
-    )
+    result = evaluate(rt, Renderer(rt, options=RenderOptions.of_model(None, source.antialiased)),
+                      DeviceGaussians(rt, model), scene, scene.test, model.sh_degree,
+                      None if args.no_renders else run.views_dir("test", iteration), lpips, lpips_note)
     for line in run.write_results(iteration, result):
         print(line, file=sys.stderr)
-    print(f"iteration {iteration}: {summary(result)} over {result['views']} test views; written to {run.results_path}")
+    print(f"iteration {iteration}: {summary(result)} over {result['views']} test views; written to "
+          f"{run.results_path}")
     print("\n".join(per_view_lines(result)))
     return 0

@@ -10,7 +10,6 @@ before each clock read).
 
 torch and gsplat are imported only here, and only when asked for (`available`).
 """
-
 from __future__ import annotations
 
 import time
@@ -21,8 +20,9 @@ from ..model import GaussianModel
 from ..scene.camera import Camera
 
 # gsplat 1.5.3's simple_trainer defaults (examples/simple_trainer.py), per parameter group
-LEARNING_RATES = {"means": 1.6e-4, "scales": 5e-3, "quats": 1e-3, "opacities": 5e-2, "sh0": 2.5e-3, "shN": 2.5e-3 / 20}
-ITERATION = 3_000  # the step DefaultStrategy is told (inside its window; it never refines: its bounds are far)
+LEARNING_RATES = {"means": 1.6e-4, "scales": 5e-3, "quats": 1e-3, "opacities": 5e-2, "sh0": 2.5e-3,
+                  "shN": 2.5e-3 / 20}
+ITERATION = 3_000   # the step DefaultStrategy is told (inside its window; it never refines: its bounds are far)
 
 
 def available() -> str | None:
@@ -52,22 +52,20 @@ def _ssim(a, b):
     """Inria's SSIM (11 x 11 Gaussian window, sigma 1.5) of two (1, 3, H, W) images, in torch."""
     import torch
     import torch.nn.functional as F
-
     x = torch.arange(11, device=a.device, dtype=torch.float32) - 5
-    g = torch.exp(-(x**2) / 4.5)
+    g = torch.exp(-x ** 2 / 4.5)
     g = g / g.sum()
     window = (g[:, None] @ g[None, :]).expand(3, 1, 11, 11).contiguous()
     blur = lambda t: F.conv2d(t, window, padding=5, groups=3)
     mu1, mu2 = blur(a), blur(b)
-    s11, s22, s12 = blur(a * a) - mu1**2, blur(b * b) - mu2**2, blur(a * b) - mu1 * mu2
-    c1, c2 = 0.01**2, 0.03**2
-    return (((2 * mu1 * mu2 + c1) * (2 * s12 + c2)) / ((mu1**2 + mu2**2 + c1) * (s11 + s22 + c2))).mean()
+    s11, s22, s12 = blur(a * a) - mu1 ** 2, blur(b * b) - mu2 ** 2, blur(a * b) - mu1 * mu2
+    c1, c2 = 0.01 ** 2, 0.03 ** 2
+    return (((2 * mu1 * mu2 + c1) * (2 * s12 + c2)) / ((mu1 ** 2 + mu2 ** 2 + c1) * (s11 + s22 + c2))).mean()
 
 
 def _timed(fn, rounds: int, per: int) -> float:
     """Median wall ms per call of fn over rounds of `per` calls, after one call outside the timing."""
     import torch
-
     fn()
     torch.cuda.synchronize()
     times = []
@@ -81,15 +79,8 @@ def _timed(fn, rounds: int, per: int) -> float:
     return float(np.median(times))
 
 
-def time_gsplat(
-    model: GaussianModel,
-    cams: list[Camera],
-    background: np.ndarray,
-    ours_image: np.ndarray,
-    rounds: int,
-    iterations: int,
-    modes: dict[str, bool],
-) -> dict:
+def time_gsplat(model: GaussianModel, cams: list[Camera], background: np.ndarray, ours_image: np.ndarray,
+                rounds: int, iterations: int, modes: dict[str, bool]) -> dict:
     """gsplat on this frame: {"forward": {"wall_ms"}, "train": {name: {"wall_ms", "peak_bytes_per_gaussian"}} for
     each of modes (name -> absgrad), "image_psnr_db": its first view against ours_image (H, W, 3)}."""
     import torch
@@ -101,35 +92,17 @@ def time_gsplat(
     viewmats, ks = (tensor(m) for m in camera_matrices(cams))
     width, height, views = cams[0].width, cams[0].height, len(cams)
     sh = model.sh
-    params = torch.nn.ParameterDict(
-        {
-            "means": tensor(model.means),
-            "scales": tensor(model.log_scales),
-            "quats": tensor(model.quats),
-            "opacities": tensor(model.opacity_logits),
-            "sh0": tensor(sh[:, :1]),
-            "shN": tensor(sh[:, 1:]),
-        }
-    )
+    params = torch.nn.ParameterDict({"means": tensor(model.means), "scales": tensor(model.log_scales),
+                                     "quats": tensor(model.quats), "opacities": tensor(model.opacity_logits),
+                                     "sh0": tensor(sh[:, :1]), "shN": tensor(sh[:, 1:])})
     bg = tensor(background)[None]
     degree = int(round(np.sqrt(sh.shape[1]))) - 1
 
     def render(i: int, absgrad: bool = False):
-        return rasterization(
-            params["means"],
-            params["quats"],
-            torch.exp(params["scales"]),
-            torch.sigmoid(params["opacities"]),
-            torch.cat([params["sh0"], params["shN"]], 1),
-            viewmats[i : i + 1],
-            ks[i : i + 1],
-            width,
-            height,
-            sh_degree=degree,
-            packed=False,
-            absgrad=absgrad,
-            backgrounds=bg,
-        )
+        return rasterization(params["means"], params["quats"], torch.exp(params["scales"]),
+                             torch.sigmoid(params["opacities"]), torch.cat([params["sh0"], params["shN"]], 1),
+                             viewmats[i:i + 1], ks[i:i + 1], width, height, sh_degree=degree, packed=False,
+                             absgrad=absgrad, backgrounds=bg)
 
     with torch.no_grad():
         first = render(0)[0][0].clamp(0, 1).cpu().numpy()
@@ -148,13 +121,10 @@ def time_gsplat(
 
     out["forward"] = {"wall_ms": _timed(forward, rounds, views)}
     for name, absgrad in modes.items():
-        optimisers = {
-            k: torch.optim.Adam([{"params": params[k], "lr": lr, "name": k}], eps=1e-15)
-            for k, lr in LEARNING_RATES.items()
-        }
-        strategy = DefaultStrategy(
-            refine_start_iter=10**9, refine_stop_iter=10**9, reset_every=10**9, absgrad=absgrad, verbose=False
-        )
+        optimisers = {k: torch.optim.Adam([{"params": params[k], "lr": lr, "name": k}], eps=1e-15)
+                      for k, lr in LEARNING_RATES.items()}
+        strategy = DefaultStrategy(refine_start_iter=10 ** 9, refine_stop_iter=10 ** 9, reset_every=10 ** 9,
+                                   absgrad=absgrad, verbose=False)
         strategy.check_sanity(params, optimisers)
         state = strategy.initialize_state(scene_scale=1.0)
         torch.cuda.reset_peak_memory_stats()
@@ -171,10 +141,8 @@ def time_gsplat(
                 o.step()
                 o.zero_grad(set_to_none=True)
 
-        out["train"][name] = {
-            "wall_ms": _timed(iteration, rounds, iterations),
-            "peak_bytes_per_gaussian": torch.cuda.max_memory_allocated() / len(model),
-        }
+        out["train"][name] = {"wall_ms": _timed(iteration, rounds, iterations),
+                              "peak_bytes_per_gaussian": torch.cuda.max_memory_allocated() / len(model)}
     del params, targets
     torch.cuda.empty_cache()
     return out

@@ -1,6 +1,5 @@
 """What render, view and export read a model from: a training run's folder (the model saved at an iteration, and
 the settings the run trained with) or a model file of any format `export` writes."""
-
 from __future__ import annotations
 
 import os
@@ -16,10 +15,10 @@ from .export import read_model_file, recorded_antialiased
 @dataclass(frozen=True)
 class ModelSource:
     model: GaussianModel
-    run: RunFolder | None = None  # the run folder it was saved in (None: a model file)
-    cfg: TrainConfig | None = None  # that run's settings (None also for a folder without them, which export takes)
-    iteration: int | None = None  # the iteration it was saved at
-    recorded: bool | None = None  # the rasterization mode a model file records (.spz; None: the others)
+    run: RunFolder | None = None      # the run folder it was saved in (None: a model file)
+    cfg: TrainConfig | None = None    # that run's settings (None also for a folder without them, which export takes)
+    iteration: int | None = None      # the iteration it was saved at
+    recorded: bool | None = None      # the rasterization mode a model file records (.spz; None: the others)
 
     @staticmethod
     def of_run(path: str | os.PathLike, iteration: int | None = None, settings_optional: bool = False) -> ModelSource:

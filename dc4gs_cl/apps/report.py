@@ -6,7 +6,6 @@ test PSNR against Gaussians, and the last evaluation's test views beside their g
 one self-contained HTML page (images inlined) or, for an --out ending in .png, the curves alone.
 matplotlib is an optional extra: pip install "dc4gs-cl[report]".
 """
-
 from __future__ import annotations
 
 import base64
@@ -19,8 +18,8 @@ from ..errors import InputError
 from ..files import write_atomic
 from ..run_folder import GROUND_TRUTH, RENDERS, RunFolder
 
-REPORT_VIEWS = 4  # test views shown beside their ground truth
-CURVES = (  # (metrics key, axis label, log scale)
+REPORT_VIEWS = 4   # test views shown beside their ground truth
+CURVES = (          # (metrics key, axis label, log scale)
     ("loss", "training loss", True),
     ("train_psnr", "PSNR of the training view (dB)", False),
     ("test_psnr", "test PSNR (dB)", False),
@@ -33,8 +32,8 @@ CURVES = (  # (metrics key, axis label, log scale)
 class RunMetrics:
     label: str
     run: RunFolder
-    samples: list[dict]  # rows with "loss"
-    evaluations: list[dict]  # rows with "test_psnr"
+    samples: list[dict]       # rows with "loss"
+    evaluations: list[dict]   # rows with "test_psnr"
 
     @staticmethod
     def read(path: Path) -> "RunMetrics":
@@ -43,16 +42,12 @@ class RunMetrics:
             raise InputError(path, "no such run folder")
         rows = run.read_metrics()
         if not rows:
-            raise InputError(
-                run.metrics_path,
-                "no metrics to report (a run made before metrics.jsonl, or one "
-                "that has not reached its 10th iteration)",
-            )
+            raise InputError(run.metrics_path, "no metrics to report (a run made before metrics.jsonl, or one "
+                                               "that has not reached its 10th iteration)")
         label = run.path.resolve().name
         if run.config_path.is_file():
             cfg = run.read_config()
             from ..train.schedule import Schedule
-
             label += f" ({Schedule(cfg).strategy().label})"
         return RunMetrics(label, run, [r for r in rows if "loss" in r], [r for r in rows if "test_psnr" in r])
 
@@ -67,9 +62,8 @@ def _pyplot():
         import matplotlib
     except ImportError:
         raise InputError(None, 'report needs matplotlib: pip install "dc4gs-cl[report]"') from None
-    matplotlib.use("Agg")  # files only, no display
+    matplotlib.use("Agg")   # files only, no display
     import matplotlib.pyplot as plt
-
     return plt
 
 
@@ -85,7 +79,7 @@ def curves_png(runs: list[RunMetrics]) -> bytes:
         if log:
             ax.set_yscale("log")
         ax.grid(alpha=0.3)
-    ax = axes.flat[len(CURVES)]  # the paper's comparison: quality against model size
+    ax = axes.flat[len(CURVES)]   # the paper's comparison: quality against model size
     for run in runs:
         gaussians = dict(zip(*run.series("gaussians")))
         points = [(gaussians.get(r["iteration"]), r["test_psnr"]) for r in run.evaluations]
@@ -114,19 +108,12 @@ def views_html(runs: list[RunMetrics]) -> str:
     if first is None:
         return "<p>No test views were rendered (no test/ours_N/ folder).</p>"
     names = sorted(p.name for p in (first / GROUND_TRUTH).glob("*.png"))[:REPORT_VIEWS]
-    head = (
-        "<tr><th>view</th><th>ground truth</th>"
-        + "".join(
-            f"<th>{html.escape(r.label)}<br>{html.escape(f.name) if f else ''}</th>" for r, f in zip(runs, rendered)
-        )
-        + "</tr>"
-    )
+    head = "<tr><th>view</th><th>ground truth</th>" + "".join(
+        f"<th>{html.escape(r.label)}<br>{html.escape(f.name) if f else ''}</th>" for r, f in zip(runs, rendered)) + "</tr>"
     rows = []
     for name in names:
-        cells = [
-            f"<td>{html.escape(name)}</td>",
-            f"<td>{_img((first / GROUND_TRUTH / name).read_bytes(), 'ground truth')}</td>",
-        ]
+        cells = [f"<td>{html.escape(name)}</td>",
+                 f"<td>{_img((first / GROUND_TRUTH / name).read_bytes(), 'ground truth')}</td>"]
         for run, folder, iteration in zip(runs, rendered, last):
             path = folder / RENDERS / name if folder else None
             if path is None or not path.is_file():
@@ -146,22 +133,17 @@ def _view_psnr(run: RunFolder, iteration: int, name: str) -> str:
 
 
 def summary_html(runs: list[RunMetrics]) -> str:
-    lpips = any("test_lpips" in ev for r in runs for ev in r.evaluations)  # VGG's, where a run computed it
-    head = (
-        "<tr><th>run</th><th>iterations</th><th>Gaussians</th><th>test PSNR</th><th>test SSIM</th>"
-        + ("<th>test LPIPS</th>" if lpips else "")
-        + "<th>training time</th></tr>"
-    )
+    lpips = any("test_lpips" in ev for r in runs for ev in r.evaluations)   # VGG's, where a run computed it
+    head = ("<tr><th>run</th><th>iterations</th><th>Gaussians</th><th>test PSNR</th><th>test SSIM</th>" +
+            ("<th>test LPIPS</th>" if lpips else "") + "<th>training time</th></tr>")
     rows = []
     for r in runs:
         last, ev = r.samples[-1] if r.samples else {}, r.evaluations[-1] if r.evaluations else {}
-        rows.append(
-            f"<tr><td>{html.escape(r.label)}</td><td>{last.get('iteration', '-'):,}</td>"
-            f"<td>{last.get('gaussians', 0):,}</td><td>{ev.get('test_psnr', float('nan')):.2f} dB</td>"
-            f"<td>{ev.get('test_ssim', float('nan')):.4f}</td>"
-            + (f"<td>{ev.get('test_lpips', float('nan')):.4f}</td>" if lpips else "")
-            + f"<td>{last.get('elapsed_s', float('nan')):.0f} s</td></tr>"
-        )
+        rows.append(f"<tr><td>{html.escape(r.label)}</td><td>{last.get('iteration', '-'):,}</td>"
+                    f"<td>{last.get('gaussians', 0):,}</td><td>{ev.get('test_psnr', float('nan')):.2f} dB</td>"
+                    f"<td>{ev.get('test_ssim', float('nan')):.4f}</td>" +
+                    (f"<td>{ev.get('test_lpips', float('nan')):.4f}</td>" if lpips else "") +
+                    f"<td>{last.get('elapsed_s', float('nan')):.0f} s</td></tr>")
     return f"<table>{head}{''.join(rows)}</table>"
 
 
@@ -186,13 +168,9 @@ def write_report(dirs: list[Path], out: Path) -> None:
 
 def add_arguments(p) -> None:
     p.add_argument("runs", type=Path, nargs="+", metavar="DIR", help="training output folders (their metrics.jsonl)")
-    p.add_argument(
-        "--out",
-        type=Path,
-        default=None,
-        help="report.html (one page: curves, summary, test views) or a .png (the curves alone); "
-        "default: DIR/report.html for one run, report.html here for several",
-    )
+    p.add_argument("--out", type=Path, default=None,
+                   help="report.html (one page: curves, summary, test views) or a .png (the curves alone); "
+                        "default: DIR/report.html for one run, report.html here for several")
 
 
 def cmd_report(args) -> int:

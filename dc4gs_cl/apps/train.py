@@ -1,7 +1,6 @@
 """`dc4gs-cl train`: its arguments (the flags config.TRAIN_FLAGS declares, then the command's own), the run's
 settings from them (train_config), and the training run in its folder: one run per folder, resumed from its
 checkpoint, under mpirun one process of several (train/parallel.py)."""
-
 from __future__ import annotations
 
 import argparse
@@ -10,18 +9,8 @@ import time
 from contextlib import nullcontext
 from pathlib import Path
 
-from ..config import (
-    BUILTIN_ITERATIONS,
-    DEFAULT_LINE_EVERY,
-    FLAGS,
-    RECIPE_ITERATIONS,
-    TRAIN_FLAGS,
-    Flag,
-    FlagGroup,
-    TrainConfig,
-    flag_key,
-    setting_value,
-)
+from ..config import (BUILTIN_ITERATIONS, DEFAULT_LINE_EVERY, FLAGS, RECIPE_ITERATIONS, TRAIN_FLAGS, Flag, FlagGroup,
+                      TrainConfig, flag_key, setting_value)
 from ..errors import InputError
 from ..run_folder import CHECKPOINT, CONFIG, CORRUPT_CHECKPOINT, RunFolder
 from ..scene.builtin import BUILTIN_SCENE
@@ -37,21 +26,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
             _add_flag(into, flag, group)
     p.add_argument("--resume", action="store_true", help="continue the run in --out from its checkpoint")
     p.add_argument("--force", action="store_true", help="replace a previous run's files in --out")
-    p.add_argument(
-        "--viewer",
-        action="store_true",
-        help="watch training in the browser (the viewer extra; see `view`): while a browser is connected, "
-        "at most 2 frames a second, each a render training waits for; none costs nothing",
-    )
+    p.add_argument("--viewer", action="store_true",
+                   help="watch training in the browser (the viewer extra; see `view`): while a browser is connected, "
+                        "at most 2 frames a second, each a render training waits for; none costs nothing")
     p.add_argument("--port", type=int, default=DEFAULT_PORT, help=f"with --viewer: the viewer's port ({DEFAULT_PORT})")
     p.add_argument("--no-progress", action="store_true", help="no progress display")
-    p.add_argument(
-        "--log-every",
-        type=int,
-        default=DEFAULT_LINE_EVERY,
-        help="when the output is not a terminal (a log file, a job scheduler), one progress line every N "
-        f"iterations instead of a bar ({DEFAULT_LINE_EVERY})",
-    )
+    p.add_argument("--log-every", type=int, default=DEFAULT_LINE_EVERY,
+                   help="when the output is not a terminal (a log file, a job scheduler), one progress line every N "
+                        f"iterations instead of a bar ({DEFAULT_LINE_EVERY})")
     p.add_argument("--profile", action="store_true", help="print per-stage device time per iteration at the end")
 
 
@@ -64,15 +46,8 @@ def _add_flag(into, flag: Flag, group: FlagGroup) -> None:
         into.add_argument(*names, action="store_true", default=None, help=flag.text)
     else:
         metavar = ("N" if flag.type is int else "X") if group.metavars else None
-        into.add_argument(
-            *names,
-            type=flag.type,
-            choices=flag.choices,
-            nargs=flag.nargs,
-            default=None,
-            metavar=metavar,
-            help=flag.text,
-        )
+        into.add_argument(*names, type=flag.type, choices=flag.choices, nargs=flag.nargs, default=None,
+                          metavar=metavar, help=flag.text)
 
 
 def train_config(args, run: RunFolder | None, processes: int = 1) -> TrainConfig:
@@ -80,7 +55,7 @@ def train_config(args, run: RunFolder | None, processes: int = 1) -> TrainConfig
     arguments must then agree with it). processes: those training together, a view each by default."""
     if args.dc4gs:
         args.dcc = args.dcs = True
-    if args.feature_lr is not None and args.feature_rest_lr is None:  # the Inria code's ratio
+    if args.feature_lr is not None and args.feature_rest_lr is None:   # the Inria code's ratio
         args.feature_rest_lr = args.feature_lr / 20
     # the settings the command line gives, named as in FLAGS (each flag defaults to None: "not given")
     given = {setting: value for flag, setting in FLAGS.items() if (value := getattr(args, flag_key(flag))) is not None}
@@ -95,11 +70,8 @@ def train_config(args, run: RunFolder | None, processes: int = 1) -> TrainConfig
         cfg = run.read_config()
         clash = {k: (saved, v) for k, v in given.items() if (saved := setting_value(cfg, k)) != v}
         if clash:
-            raise InputError(
-                run.config_path,
-                "--resume continues the saved settings; these differ: "
-                + ", ".join(f"{k} {a!r} (saved) vs {b!r}" for k, (a, b) in clash.items()),
-            )
+            raise InputError(run.config_path, "--resume continues the saved settings; these differ: " +
+                             ", ".join(f"{k} {a!r} (saved) vs {b!r}" for k, (a, b) in clash.items()))
         return cfg
     given.setdefault("scene", BUILTIN_SCENE)
     given.setdefault("batch", processes)
@@ -110,7 +82,7 @@ def train_config(args, run: RunFolder | None, processes: int = 1) -> TrainConfig
 def cmd_train(args) -> int:
     from ..train.parallel import process_group
 
-    group = process_group()  # under mpirun: the processes training together (train/parallel.py)
+    group = process_group()   # under mpirun: the processes training together (train/parallel.py)
     if args.out is None:
         if args.resume:
             raise InputError(None, "--resume needs --out (the folder of the run to continue)")
@@ -147,52 +119,35 @@ def _train_locked(args, run: RunFolder, group) -> int:
     # stage times go to metrics.jsonl; no measurable cost on PoCL
     rt = Runtime(device_of_process(group, args.device), profiling=True)
     trainer = Trainer(cfg, scene, rt, run, check_finite=args.check_finite, lpips=lpips_metric(args.lpips), group=group)
-    if not group.writes:  # a parallel run's other processes: train, say nothing
+    if not group.writes:   # a parallel run's other processes: train, say nothing
         return _follow(trainer, args)
     live = None
-    if args.viewer:  # before anything is written: a port in use stops the command
+    if args.viewer:   # before anything is written: a port in use stops the command
         from ..render import Renderer
-
-        live = Viewer(
-            rt,
-            Renderer(rt, options=trainer.renderer.context.options),
-            scene.train,
-            port=args.port,
-            background=scene.background,
-            images=scene.image,
-            points=scene.points,
-        )
-    run.remove_temporaries()  # what an interrupted write of an earlier run left
+        live = Viewer(rt, Renderer(rt, options=trainer.renderer.context.options), scene.train, port=args.port,
+                      background=scene.background, images=scene.image, points=scene.points)
+    run.remove_temporaries()   # what an interrupted write of an earlier run left
     if args.resume:
         checkpoint = trainer.resume()
         for corrupt in checkpoint.passed_over:
-            print(
-                f"{corrupt}; set aside as {CORRUPT_CHECKPOINT}, resuming from {checkpoint.path.name} (iteration "
-                f"{trainer.iteration})",
-                file=sys.stderr,
-            )
+            print(f"{corrupt}; set aside as {CORRUPT_CHECKPOINT}, resuming from {checkpoint.path.name} (iteration "
+                  f"{trainer.iteration})", file=sys.stderr)
     else:
         if args.force:
             run.clear()
         run.write_settings(cfg, scene)
     processes = f", {group.size} processes of a batch of {cfg.batch} views" if group.size > 1 else ""
-    print(
-        f"device: {describe(rt.device)}{processes}\nscene: {cfg.scene} ({len(scene.train)} train / {len(scene.test)} "
-        f"test views, {view_sizes(scene.train + scene.test)}), strategy {trainer.strategy.label}, "
-        f"{cfg.iterations:,} iterations, {trainer.model.n:,} initial Gaussians\noutput: {run}",
-        file=sys.stderr,
-    )
+    print(f"device: {describe(rt.device)}{processes}\nscene: {cfg.scene} ({len(scene.train)} train / {len(scene.test)} "
+          f"test views, {view_sizes(scene.train + scene.test)}), strategy {trainer.strategy.label}, "
+          f"{cfg.iterations:,} iterations, {trainer.model.n:,} initial Gaussians\noutput: {run}", file=sys.stderr)
     start, first = time.perf_counter(), trainer.iteration
     if live is not None:
         print(f"viewer: {live.url}", file=sys.stderr)
     try:
         trainer.run(progress=progress_mode(args.no_progress), line_every=args.log_every, viewer=live)
     except Stopped as e:
-        print(
-            f"{e} at iteration {trainer.iteration}; a checkpoint is in {run}. Continue with: "
-            f"dc4gs-cl train --out {run} --resume",
-            file=sys.stderr,
-        )
+        print(f"{e} at iteration {trainer.iteration}; a checkpoint is in {run}. Continue with: "
+              f"dc4gs-cl train --out {run} --resume", file=sys.stderr)
         return 128 + e.signum
     finally:
         if live is not None:
@@ -200,21 +155,15 @@ def _train_locked(args, run: RunFolder, group) -> int:
     seconds = time.perf_counter() - start
     if args.profile:
         done = trainer.log.profiled_iterations
-        print(
-            "device time per iteration: "
-            + ", ".join(f"{k} {v / done * 1e3:.2f} ms" for k, v in trainer.log.stage_seconds.items())
-        )
+        print("device time per iteration: " + ", ".join(f"{k} {v / done * 1e3:.2f} ms"
+                                                         for k, v in trainer.log.stage_seconds.items()))
     done = trainer.iteration - first
-    print(
-        f"trained {done:,} iterations in {seconds:.0f} s "
-        f"({done / max(seconds, 1e-9):.1f} it/s); {trainer.model.n:,} Gaussians"
-    )
+    print(f"trained {done:,} iterations in {seconds:.0f} s "
+          f"({done / max(seconds, 1e-9):.1f} it/s); {trainer.model.n:,} Gaussians")
     if group.size > 1 and done:
-        print(
-            f"gradients summed over {group.size} processes: {group.reduced_bytes / done / 1e6:.2f} MB and "
-            f"{group.reduce_seconds / done * 1e3:.1f} ms an iteration (device to host, MPI Allreduce, host to device; "
-            f"{group.reduce_seconds / max(seconds, 1e-9):.0%} of the training time)"
-        )
+        print(f"gradients summed over {group.size} processes: {group.reduced_bytes / done / 1e6:.2f} MB and "
+              f"{group.reduce_seconds / done * 1e3:.1f} ms an iteration (device to host, MPI Allreduce, host to device; "
+              f"{group.reduce_seconds / max(seconds, 1e-9):.0%} of the training time)")
     if scene.test:
         result = trainer.evaluate_test(run.views_dir("test", trainer.iteration))
         for line in run.write_results(trainer.iteration, result):
@@ -228,7 +177,6 @@ def _train_locked(args, run: RunFolder, group) -> int:
 def _follow(trainer, args) -> int:
     """A parallel run's process other than 0: resume where process 0 does, train beside it, stop where it stops."""
     from ..train import Stopped
-
     if args.resume:
         trainer.resume()
     try:

@@ -15,7 +15,6 @@ between two iterations, so training never shares the device with the viewer's th
 
 viser is optional (the `viewer` extra): this module imports without it and its entry points raise InputError.
 """
-
 from __future__ import annotations
 
 import argparse
@@ -45,23 +44,23 @@ if TYPE_CHECKING:
     from ..runtime import Runtime
 
 DEFAULT_PORT = 8080
-DEFAULT_HOST = "127.0.0.1"  # this machine only; a connection also needs the printed url's token
-MAX_FRAME_SIDE = 640  # px: a still frame is the canvas scaled down to fit this; a GUI slider changes it
+DEFAULT_HOST = "127.0.0.1"       # this machine only; a connection also needs the printed url's token
+MAX_FRAME_SIDE = 640             # px: a still frame is the canvas scaled down to fit this; a GUI slider changes it
 FRAME_SIDE_SLIDER = (128, 4096, 32)  # px: that slider's range and step
-MOVING_SCALE = 0.5  # frames while the camera moves, relative to a still frame (a quarter the pixels)
-SETTLE_SECONDS = 0.25  # a camera unmoved this long gets a full-size frame
-LIVE_FRAMES_PER_SECOND = 2.0  # while training: each frame is a render the training waits for
-SIGNAL_POLL_SECONDS = 0.2  # serve_forever() wakes this often, so that Ctrl-C stops it
-PAUSE_POLL_SECONDS = 0.1  # while training is paused: how often publish() looks at the checkbox
+MOVING_SCALE = 0.5               # frames while the camera moves, relative to a still frame (a quarter the pixels)
+SETTLE_SECONDS = 0.25            # a camera unmoved this long gets a full-size frame
+LIVE_FRAMES_PER_SECOND = 2.0     # while training: each frame is a render the training waits for
+SIGNAL_POLL_SECONDS = 0.2        # serve_forever() wakes this often, so that Ctrl-C stops it
+PAUSE_POLL_SECONDS = 0.1         # while training is paused: how often publish() looks at the checkbox
 JPEG_QUALITY = 90
-MAX_CANVAS_SIDE = 1 << 14  # px: a client's canvas larger than this is no screen (a client sends what it likes)
-FRUSTUM_SCALE = 0.05  # frustum depth, as a fraction of the cameras' extent
+MAX_CANVAS_SIDE = 1 << 14        # px: a client's canvas larger than this is no screen (a client sends what it likes)
+FRUSTUM_SCALE = 0.05             # frustum depth, as a fraction of the cameras' extent
 FRUSTUM_COLOR = (255, 120, 0)
 FRUSTUM_LINE_PX = 2.0
-THUMBNAIL_WIDTH = 128  # px: training images on the frustums
-HOME_FOV_Y = math.radians(60)  # first view of a model without cameras: vertical field of view,
+THUMBNAIL_WIDTH = 128            # px: training images on the frustums
+HOME_FOV_Y = math.radians(60)    # first view of a model without cameras: vertical field of view,
 HOME_DIRECTION = np.array([1.0, 1.0, 0.6]) / np.linalg.norm([1.0, 1.0, 0.6])  # direction from the model's centre,
-HOME_DISTANCE = 2.5  # and distance in units of its radius (the 90th percentile of the means' distances)
+HOME_DISTANCE = 2.5              # and distance in units of its radius (the 90th percentile of the means' distances)
 Z_UP = np.array([0.0, 0.0, 1.0])
 VIEWER_EXTRA = 'pip install "dc4gs-cl[viewer]"'
 
@@ -80,7 +79,6 @@ def _viser():
 # viser's cameras use our axes (OpenCV: x right, y down, z forward) but store camera-to-world: wxyz is the
 # rotation R_world_camera and position the camera centre. Its field of view is vertical, and the background
 # image is stretched over the whole canvas.
-
 
 def view_camera(wxyz, position, fov_y: float, aspect: float, width: int, height: int, name: str = "viewer") -> Camera:
     """Our camera for a viser pose, rendering a width x height image that fills a canvas of this aspect
@@ -102,20 +100,12 @@ def client_frame(camera, max_side, scale: float) -> Camera | None:
         fov, aspect = float(camera.fov), float(camera.aspect)
         wxyz, position = np.asarray(camera.wxyz, np.float64), np.asarray(camera.position, np.float64)
         side = float(max_side)
-    except Exception:  # viser's own properties raise on some of them too (aspect: a height of 0)
+    except Exception:   # viser's own properties raise on some of them too (aspect: a height of 0)
         return None
-    if not (
-        all(1 <= c <= MAX_CANVAS_SIDE for c in canvas)
-        and 0 < fov < math.pi
-        and 1e-3 <= aspect <= 1e3
-        and wxyz.shape == (4,)
-        and position.shape == (3,)
-        and np.isfinite(wxyz).all()
-        and np.linalg.norm(wxyz) > 0
-        and np.isfinite(position).all()
-        and (np.abs(position) <= MAX_ABS_MEAN).all()
-        and math.isfinite(side)
-    ):
+    if not (all(1 <= c <= MAX_CANVAS_SIDE for c in canvas) and 0 < fov < math.pi and 1e-3 <= aspect <= 1e3
+            and wxyz.shape == (4,) and position.shape == (3,) and np.isfinite(wxyz).all()
+            and np.linalg.norm(wxyz) > 0 and np.isfinite(position).all() and (np.abs(position) <= MAX_ABS_MEAN).all()
+            and math.isfinite(side)):
         return None
     low, high, _ = FRAME_SIDE_SLIDER
     width, height = frame_size(*canvas, int(min(max(side, low), high)), scale)
@@ -144,7 +134,7 @@ def _home_view(cameras: list[Camera], points: np.ndarray | None) -> tuple[np.nda
         radius = float(np.percentile(np.linalg.norm(points - centre, axis=1), 90)) or 1.0
     if not cameras:
         return centre + HOME_DISTANCE * radius * HOME_DIRECTION, centre, Z_UP, HOME_FOV_Y
-    up = -np.mean([c.R[1] for c in cameras], axis=0)  # image y points down
+    up = -np.mean([c.R[1] for c in cameras], axis=0)   # image y points down
     up = up / np.linalg.norm(up) if np.linalg.norm(up) > 1e-6 else Z_UP
     cam = cameras[0]
     forward = cam.R[2]
@@ -154,7 +144,6 @@ def _home_view(cameras: list[Camera], points: np.ndarray | None) -> tuple[np.nda
 
 
 # the server -------------------------------------------------------------------------------------------------
-
 
 def check_address(host: str, port: int) -> None:
     """InputError naming the flag when the viewer cannot listen on host:port. viser itself would quietly take
@@ -167,7 +156,7 @@ def check_address(host: str, port: int) -> None:
         raise InputError(None, f"--host {host}: {e.strerror}") from None
     for family, kind, proto, _, address in addresses:
         with socket.socket(family, kind, proto) as s:
-            s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # as asyncio's server: TIME_WAIT is free
+            s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)   # as asyncio's server: TIME_WAIT is free
             try:
                 s.bind(address)
             except OSError as e:
@@ -190,33 +179,24 @@ class _Model:
     gaussians: "DeviceGaussians"
     sh_degree: int
     iteration: int | None
-    live: bool  # the trainer's parameters: rendered only inside publish(), in the training thread
+    live: bool          # the trainer's parameters: rendered only inside publish(), in the training thread
 
 
 @dataclass
 class _View:
     """One browser tab."""
-
     client: "viser.ClientHandle"
-    moved_at: float = -math.inf  # time.monotonic() of its latest camera message
-    stale: bool = True  # camera or model changed since its last frame
-    sharp: bool = False  # its last frame was full size
+    moved_at: float = -math.inf   # time.monotonic() of its latest camera message
+    stale: bool = True            # camera or model changed since its last frame
+    sharp: bool = False           # its last frame was full size
     camera: Camera | None = None  # the camera of its last full-size frame
 
 
 class Viewer:
-    def __init__(
-        self,
-        rt: "Runtime",
-        renderer: "Renderer",
-        cameras: list[Camera],
-        port: int = DEFAULT_PORT,
-        host: str = DEFAULT_HOST,
-        background=(0.0, 0.0, 0.0),
-        images: Callable[[Camera], np.ndarray] | None = None,
-        points: np.ndarray | None = None,
-        max_side: int = MAX_FRAME_SIDE,
-    ):
+    def __init__(self, rt: "Runtime", renderer: "Renderer", cameras: list[Camera], port: int = DEFAULT_PORT,
+                 host: str = DEFAULT_HOST, background=(0.0, 0.0, 0.0),
+                 images: Callable[[Camera], np.ndarray] | None = None, points: np.ndarray | None = None,
+                 max_side: int = MAX_FRAME_SIDE):
         """Serve on host:port (port 0: any free port; see `url`). cameras: shown as frustums (click one to look
         through it); images: a camera's (H, W, 3) picture, offered on the frustums; points (N, 3): what the
         first view frames (the model's means); max_side: px, the largest side of a still frame (a GUI slider
@@ -225,24 +205,24 @@ class Viewer:
         check_address(host, port)
         self.rt, self.renderer, self.cameras = rt, renderer, list(cameras)
         self.background = np.asarray(background, np.float32)
-        self.lock = threading.Lock()  # the device: held by every render, and by show()
+        self.lock = threading.Lock()   # the device: held by every render, and by show()
         self._model: _Model | None = None
         self._views: dict[int, _View] = {}
         self._wake = threading.Condition()
         self._closing = threading.Event()
         self._next_live_frame = 0.0
-        self._pause = None  # the "Pause training" checkbox, added by the first publish()
+        self._pause = None             # the "Pause training" checkbox, added by the first publish()
         self._last_frame = ""
         self._warned: set[str] = set()
-        self.token = secrets.token_urlsafe(18)  # in the url: a connection without it is refused (_admitted)
+        self.token = secrets.token_urlsafe(18)   # in the url: a connection without it is refused (_admitted)
 
         with _quiet():
             self.server = viser.ViserServer(host=host, port=port, verbose=False)
-        if port and self.server.get_port() != port:  # taken between check_address and viser's bind
+        if port and self.server.get_port() != port:   # taken between check_address and viser's bind
             with _quiet():
                 self.server.stop()
             raise _port_taken(port)
-        self.server.gui.configure_theme(show_share_button=False)  # sharing opens a public tunnel
+        self.server.gui.configure_theme(show_share_button=False)   # sharing opens a public tunnel
         self.host = host
         position, look_at, up, fov_y = _home_view(self.cameras, points)
         self.server.scene.set_up_direction(up)
@@ -250,12 +230,11 @@ class Viewer:
         home.position, home.look_at, home.up, home.fov = position, look_at, up, fov_y
         self._status = self.server.gui.add_markdown("waiting for a model")
         low, high, step = FRAME_SIDE_SLIDER
-        self._max_side = self.server.gui.add_slider(
-            "Frame size (px)", min=low, max=high, step=step, initial_value=max_side
-        )
+        self._max_side = self.server.gui.add_slider("Frame size (px)", min=low, max=high, step=step,
+                                                    initial_value=max_side)
         self._max_side.on_update(self._frame_size_changed)
         self._add_frustums(images)
-        self.server._websock_server.on_client_connect(self._admit)  # before anything is sent: see _admit
+        self.server._websock_server.on_client_connect(self._admit)   # before anything is sent: see _admit
         self.server.on_client_connect(self._connected)
         self.server.on_client_disconnect(self._disconnected)
         self._worker = threading.Thread(target=self._serve, name="viewer", daemon=True)
@@ -285,8 +264,8 @@ class Viewer:
 
     def serve_forever(self) -> None:
         """Block until close() (from another thread) or Ctrl-C, whose KeyboardInterrupt propagates."""
-        while not self._closing.wait(SIGNAL_POLL_SECONDS):  # SIGINT may reach another thread: Python acts on it
-            pass  # only when the main thread wakes
+        while not self._closing.wait(SIGNAL_POLL_SECONDS):   # SIGINT may reach another thread: Python acts on it
+            pass                                              # only when the main thread wakes
 
     # what is shown ----------------------------------------------------------------------------------------
     def show(self, gaussians: "DeviceGaussians", sh_degree: int, iteration: int | None = None) -> None:
@@ -299,9 +278,8 @@ class Viewer:
             self._pause = None
         self._model_changed()
 
-    def publish(
-        self, gaussians: "DeviceGaussians", sh_degree: int, iteration: int, stopping: Callable[[], bool] | None = None
-    ) -> None:
+    def publish(self, gaussians: "DeviceGaussians", sh_degree: int, iteration: int,
+                stopping: Callable[[], bool] | None = None) -> None:
         """The trainer's hook, called after each iteration from the training thread. Nobody watching: returns at
         once. Otherwise renders every tab, at most LIVE_FRAMES_PER_SECOND times a second, here, between two
         iterations; and while "Pause training" is ticked, keeps rendering camera moves here until it is
@@ -317,12 +295,8 @@ class Viewer:
             self._next_live_frame = now + 1.0 / LIVE_FRAMES_PER_SECOND
             self._model_changed()
             self._render_due(in_training=True)
-        while (
-            self._pause.value
-            and self._views
-            and not self._closing.is_set()
-            and not (stopping is not None and stopping())
-        ):
+        while (self._pause.value and self._views and not self._closing.is_set()
+               and not (stopping is not None and stopping())):
             self._render_due(in_training=True)
             with self._wake:
                 self._wake.wait(PAUSE_POLL_SECONDS)
@@ -355,16 +329,8 @@ class Viewer:
         for i, cam in enumerate(self.cameras):
             wxyz, position, fov_y, aspect = viser_pose(cam)
             frustum = self.server.scene.add_camera_frustum(
-                f"/cameras/{i}",
-                fov=fov_y,
-                aspect=aspect,
-                scale=scale,
-                wxyz=wxyz,
-                position=position,
-                color=FRUSTUM_COLOR,
-                thickness=FRUSTUM_LINE_PX,
-                thickness_units="screen",
-            )
+                f"/cameras/{i}", fov=fov_y, aspect=aspect, scale=scale, wxyz=wxyz, position=position,
+                color=FRUSTUM_COLOR, thickness=FRUSTUM_LINE_PX, thickness_units="screen")
             frustum.on_click(lambda event, cam=cam: self._look_through(event.client, cam))
             frustums.append(frustum)
         shown = self.server.gui.add_checkbox("Training cameras", initial_value=True)
@@ -373,15 +339,13 @@ class Viewer:
         def _(_) -> None:
             for frustum in frustums:
                 frustum.visible = shown.value
-
         if images is None:
             return
-        from ..scene.images import resize  # OpenImageIO: only where a scene's images are shown
-
+        from ..scene.images import resize   # OpenImageIO: only where a scene's images are shown
         pictures = self.server.gui.add_checkbox("Training images", initial_value=False)
 
         @pictures.on_update
-        def _(_) -> None:  # read on first use: a large scene's images take a while
+        def _(_) -> None:   # read on first use: a large scene's images take a while
             for cam, frustum in zip(self.cameras, frustums):
                 height = max(1, round(THUMBNAIL_WIDTH * cam.height / cam.width))
                 frustum.image = resize(images(cam), THUMBNAIL_WIDTH, height) if pictures.value else None
@@ -404,7 +368,6 @@ class Viewer:
         async def _(_) -> None:
             view.moved_at, view.stale = time.monotonic(), True
             self._notify()
-
         self._notify()
 
     async def _admit(self, connection: "viser.infra.WebsockClientConnection") -> None:
@@ -417,9 +380,8 @@ class Viewer:
         request = getattr(websocket, "request", None)
         if request is not None:
             origin, host = request.headers.get("Origin"), request.headers.get("Host")
-            if request.path.split("?")[0] == f"/{self.token}" and (
-                origin is None or origin in (f"http://{host}", f"https://{host}")
-            ):
+            if (request.path.split("?")[0] == f"/{self.token}"
+                    and (origin is None or origin in (f"http://{host}", f"https://{host}"))):
                 return
         self._warn_once("refused a connection without this viewer's link (its token) or from another site's page")
         if websocket is not None:
@@ -457,11 +419,8 @@ class Viewer:
         if model is None or model.live:
             return None
         now = time.monotonic()
-        waits = [
-            0.0 if v.stale else v.moved_at + SETTLE_SECONDS - now
-            for v in list(self._views.values())
-            if v.stale or not v.sharp
-        ]
+        waits = [0.0 if v.stale else v.moved_at + SETTLE_SECONDS - now
+                 for v in list(self._views.values()) if v.stale or not v.sharp]
         return max(0.0, min(waits)) if waits else None
 
     def _render_due(self, in_training: bool) -> None:
@@ -478,7 +437,7 @@ class Viewer:
             model = self._model
             if model is None or model.live != in_training:
                 return
-            view.stale = False  # before reading the camera: a message arriving during the render marks it again
+            view.stale = False   # before reading the camera: a message arriving during the render marks it again
             cam = client_frame(view.client.camera, self._max_side.value, scale)
             if cam is None:
                 self._warn_once("a client's camera or frame size is not a finite number in range: no frame for it")
@@ -486,11 +445,9 @@ class Viewer:
             start = time.perf_counter()
             try:
                 image = self.renderer.render(model.gaussians, cam, model.sh_degree, self.background).image(self.rt)
-            except Exception as e:  # the viewer's failure stays the viewer's: training (the caller) goes on
-                self._warn_once(
-                    f"frame {cam.width}x{cam.height} not rendered ({type(e).__name__}: "
-                    f"{' '.join(str(e).split())[:200]})"
-                )
+            except Exception as e:   # the viewer's failure stays the viewer's: training (the caller) goes on
+                self._warn_once(f"frame {cam.width}x{cam.height} not rendered ({type(e).__name__}: "
+                                f"{' '.join(str(e).split())[:200]})")
                 return
             seconds = time.perf_counter() - start
         view.client.scene.set_background_image(image, format="jpeg", jpeg_quality=JPEG_QUALITY)
@@ -508,41 +465,26 @@ class Viewer:
 
 # the command ------------------------------------------------------------------------------------------------
 
-
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """The `view` command's arguments (cli.py adds --antialiased and --device)."""
-    p.add_argument(
-        "source",
-        type=Path,
-        help="a training output folder (its model and training cameras) or a model "
-        "file: a 3DGS PLY or any format `export` writes (.splat, .spz, "
-        ".compressed.ply)",
-    )
-    p.add_argument(
-        "--scene",
-        default=None,
-        help="the scene whose training cameras to show (default: a run folder's own; none for a PLY)",
-    )
-    p.add_argument(
-        "--iteration", type=int, default=None, help="with a run folder: which saved iteration (default: the last)"
-    )
+    p.add_argument("source", type=Path, help="a training output folder (its model and training cameras) or a model "
+                                             "file: a 3DGS PLY or any format `export` writes (.splat, .spz, "
+                                             ".compressed.ply)")
+    p.add_argument("--scene", default=None,
+                   help="the scene whose training cameras to show (default: a run folder's own; none for a PLY)")
+    p.add_argument("--iteration", type=int, default=None,
+                   help="with a run folder: which saved iteration (default: the last)")
     p.add_argument("--port", type=int, default=DEFAULT_PORT, help=f"port to serve on ({DEFAULT_PORT})")
-    p.add_argument(
-        "--host",
-        default=DEFAULT_HOST,
-        help=f"address to listen on ({DEFAULT_HOST}: this machine only; 0.0.0.0: every network, and "
-        "anyone there can see the model)",
-    )
-    p.add_argument(
-        "--white-background",
-        action="store_true",
-        help="render onto white (Blender scenes; a run folder says for itself)",
-    )
+    p.add_argument("--host", default=DEFAULT_HOST,
+                   help=f"address to listen on ({DEFAULT_HOST}: this machine only; 0.0.0.0: every network, and "
+                        "anyone there can see the model)")
+    p.add_argument("--white-background", action="store_true",
+                   help="render onto white (Blender scenes; a run folder says for itself)")
 
 
 def cmd_view(args) -> int:
     _viser()
-    check_address(args.host, args.port)  # before loading: a large model takes a while
+    check_address(args.host, args.port)   # before loading: a large model takes a while
     from ..render import DeviceGaussians, Renderer, RenderOptions
     from ..runtime import Runtime, describe
     from ..scene.loader import load_scene
@@ -562,21 +504,11 @@ def cmd_view(args) -> int:
     model = source.model
     rt = Runtime(args.device)
     renderer = Renderer(rt, options=RenderOptions.of_model(args.antialiased, source.antialiased))
-    with Viewer(
-        rt,
-        renderer,
-        scene.train if scene else [],
-        port=args.port,
-        host=args.host,
-        background=background,
-        images=scene.image if scene else None,
-        points=model.means,
-    ) as viewer:
+    with Viewer(rt, renderer, scene.train if scene else [], port=args.port, host=args.host,
+                background=background, images=scene.image if scene else None, points=model.means) as viewer:
         viewer.show(DeviceGaussians(rt, model), model.sh_degree, source.iteration)
-        print(
-            f"device: {describe(rt.device)}; {len(model):,} Gaussians (SH degree {model.sh_degree})"
-            f"{f', {len(scene.train)} training cameras' if scene else ''}\nviewer: {viewer.url} (Ctrl-C to stop)",
-            file=sys.stderr,
-        )
+        print(f"device: {describe(rt.device)}; {len(model):,} Gaussians (SH degree {model.sh_degree})"
+              f"{f', {len(scene.train)} training cameras' if scene else ''}\nviewer: {viewer.url} (Ctrl-C to stop)",
+              file=sys.stderr)
         viewer.serve_forever()
     return 0

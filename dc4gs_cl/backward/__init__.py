@@ -4,7 +4,6 @@ the projection's backward to the parameters (Adam's step fused in when training)
 They share the renderer's StageContext; backward depends on render and statistics, never on training: it takes
 what to gather (statistics.SumsLayout) and where to fold (WindowFold) as data, Adam's step as a records.ADAM_STEP
 value and the moments as device arrays."""
-
 from .densify_stats import DensifyStats, WindowFold
 from .project_backward import ProjectBackward
 from .rasterize_backward import RasterizeBackward

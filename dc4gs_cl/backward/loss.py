@@ -1,6 +1,5 @@
 """Training loss on the device (kernels/loss.cl): L = 0.8 L1 + 0.2 (1 - SSIM), its gradient dL/dimage,
 and running statistics (loss, L1, SSIM, MSE) that stay on the device until `read_stats()`."""
-
 from __future__ import annotations
 
 import math
@@ -12,28 +11,23 @@ from ..constants import LAMBDA_DSSIM
 from ..render.stage import Stage, StageContext, halvings
 from ..render.workspace import PAIR_SCRATCH
 
-SSIM_C1 = 0.01**2
-SSIM_C2 = 0.03**2
-SSIM_WINDOW = 11  # Gaussian window side (pixels, odd)
+SSIM_C1 = 0.01 ** 2
+SSIM_C2 = 0.03 ** 2
+SSIM_WINDOW = 11        # Gaussian window side (pixels, odd)
 SSIM_SIGMA = 1.5
 
-MASK_WG = 64  # work-group of mask_pixels (one item per pixel)
-STAT_KEYS = ("loss", "l1", "dssim", "mse")  # layout of the device stats buffer (sums over calls)
+MASK_WG = 64            # work-group of mask_pixels (one item per pixel)
+STAT_KEYS = ("loss", "l1", "dssim", "mse")   # layout of the device stats buffer (sums over calls)
 
 
 def loss_defines(lambda_dssim: float) -> dict:
     """The SSIM window (its radius, and its normalised 1D Gaussian weights as a C initializer list) and
     constants as -D values; L = (1 - lambda_dssim) L1 + lambda_dssim (1 - SSIM)."""
     r = SSIM_WINDOW // 2
-    g = [math.exp(-((k - r) ** 2) / (2 * SSIM_SIGMA**2)) for k in range(SSIM_WINDOW)]
+    g = [math.exp(-(k - r) ** 2 / (2 * SSIM_SIGMA ** 2)) for k in range(SSIM_WINDOW)]
     weights = ",".join(f"{v / sum(g)!r}f" for v in g)
-    return {
-        "SSIM_RADIUS": r,
-        "SSIM_WEIGHTS": weights,
-        "SSIM_C1": SSIM_C1,
-        "SSIM_C2": SSIM_C2,
-        "LAMBDA_DSSIM": float(lambda_dssim),
-    }
+    return {"SSIM_RADIUS": r, "SSIM_WEIGHTS": weights, "SSIM_C1": SSIM_C1, "SSIM_C2": SSIM_C2,
+            "LAMBDA_DSSIM": float(lambda_dssim)}
 
 
 class Loss(Stage):
@@ -44,12 +38,10 @@ class Loss(Stage):
     512 floats and as fast as 4096; at 160x120 all equal; wg > 1 was 2.5x (seg 64, wg 4) to 11x (seg 1,
     wg 256) slower, PoCL not vectorising across work-items here. GPUs: one float per item, 256 per group.
     """
-
     FILE, KERNELS = "loss.cl", ("loss_ssim", "loss_grad", "loss_reduce", "mask_pixels")
 
-    def __init__(
-        self, ctx: StageContext, seg: int | None = None, wg: int | None = None, lambda_dssim: float = LAMBDA_DSSIM
-    ):
+    def __init__(self, ctx: StageContext, seg: int | None = None, wg: int | None = None,
+                 lambda_dssim: float = LAMBDA_DSSIM):
         """lambda_dssim: the SSIM term's weight (in the stats' loss and the gradient). seg, wg: the work shape
         (default: the device kind's), narrowed to the device's limits: wg to its
         work-group size, then seg (then wg) halved until loss_ssim's local arrays fit (the CPU shape's 46,680
@@ -67,20 +59,12 @@ class Loss(Stage):
         self.rt.fill(self.stats, np.float32(0), self.stats.size)
         self.calls = 0
 
-    def defines(self) -> dict:  # SEG and WG: the shape, a variant (fitting_kernels)
+    def defines(self) -> dict:   # SEG and WG: the shape, a variant (fitting_kernels)
         return loss_defines(self.lambda_dssim)
 
-    def __call__(
-        self,
-        image: cl.Buffer,
-        target: cl.Buffer,
-        width: int,
-        height: int,
-        grad_out: cl.Buffer | None,
-        stage: str = "loss",
-        keep: cl.Buffer | None = None,
-        kept: int = 0,
-    ) -> None:
+    def __call__(self, image: cl.Buffer, target: cl.Buffer, width: int, height: int,
+                 grad_out: cl.Buffer | None, stage: str = "loss", keep: cl.Buffer | None = None,
+                 kept: int = 0) -> None:
         """Write dL/dimage to grad_out ([H*W*3] float32) and add this image's loss, L1, SSIM and MSE to the
         running stats. grad_out=None computes only the stats (evaluation). keep: the view's mask (H x W
         uint8 or bool, 0 = masked out) with `kept` pixels kept: both images count as zero under it, the loss
@@ -93,37 +77,21 @@ class Loss(Stage):
         groups_x = -(-n3w // (self.seg * self.wg))
         # temporaries, dead once the loss is queued (PAIR_SCRATCH: the frame's pairs are gathered by now)
         masked = ("masked_image", "masked_target") if keep is not None else ()
-        scratch = self.ws.scratch(
-            PAIR_SCRATCH, {**{name: 4 * m for name in (*masked, "d0", "d1", "d2")}, "partial": 4 * 3 * groups_x * h}
-        )
-        if keep is not None:  # both images zeroed under the mask, into scratch: neither input is changed
-            image, target = (
-                self.mask(stage, src, keep, scratch[name], width * h)
-                for name, src in (("masked_image", image), ("masked_target", target))
-            )
-        scale = 3 * max(kept, 1) if keep is not None else m  # the floats the mean is over
+        scratch = self.ws.scratch(PAIR_SCRATCH, {**{name: 4 * m for name in (*masked, "d0", "d1", "d2")},
+                                                 "partial": 4 * 3 * groups_x * h})
+        if keep is not None:   # both images zeroed under the mask, into scratch: neither input is changed
+            image, target = (self.mask(stage, src, keep, scratch[name], width * h)
+                             for name, src in (("masked_image", image), ("masked_target", target)))
+        scale = 3 * max(kept, 1) if keep is not None else m   # the floats the mean is over
         shape, local = (groups_x * self.wg, h), (self.wg, 1)
         d = [scratch[f"d{q}"] for q in range(3)]
         partial = scratch["partial"]
         args = (np.int32(n3w), np.int32(h))
         stats = (self.ctx.frame, np.int32(groups_x * h), np.float32(1 / scale), partial, self.stats)
-        rt.launch(
-            stage, self.k_ssim, shape, local, *args, np.float32(-self.lambda_dssim / scale), image, target, *d, partial
-        )
-        if grad_out is not None:  # its first work-group adds the stats too
-            rt.launch(
-                stage,
-                self.k_grad,
-                shape,
-                local,
-                *args,
-                np.float32((1 - self.lambda_dssim) / scale),
-                image,
-                target,
-                *d,
-                grad_out,
-                *stats,
-            )
+        rt.launch(stage, self.k_ssim, shape, local, *args, np.float32(-self.lambda_dssim / scale), image, target, *d, partial)
+        if grad_out is not None:   # its first work-group adds the stats too
+            rt.launch(stage, self.k_grad, shape, local, *args, np.float32((1 - self.lambda_dssim) / scale), image, target,
+                      *d, grad_out, *stats)
         else:
             rt.launch(stage, self.k_reduce, self.wg, self.wg, *stats)
         self.calls += 1

@@ -1,7 +1,6 @@
 """Rasterizer backward stage (kernels/rasterize_backward.cl): per-Gaussian sums of this view's gradients
 and of the densification statistics the layout asks for (statistics.SumsLayout), folded into the window
 where one is given (WindowFold: by sum_pairs, or by the window's own kernel)."""
-
 from __future__ import annotations
 
 import math
@@ -25,12 +24,12 @@ from .densify_stats import DensifyStats, WindowFold
 from .sum_pairs import Carry, SumPairs
 
 # Workspace buffers (render/workspace.py)
-SUMS = "backward.sums"  # [N*width] the view's per-Gaussian sums (returned)
-PAIR_SUMS = "pair_sums"  # [pairs of a run * layout.width] one slot per (tile, Gaussian) pair, in
-# PAIR_SCRATCH: the frame's pair temporaries and the loss' are dead by then
+SUMS = "backward.sums"              # [N*width] the view's per-Gaussian sums (returned)
+PAIR_SUMS = "pair_sums"             # [pairs of a run * layout.width] one slot per (tile, Gaussian) pair, in
+                                    # PAIR_SCRATCH: the frame's pair temporaries and the loss' are dead by then
 
-SUBGROUP = 32  # lanes that reduce a pair's sums in the GPU shape (NVIDIA's warp)
-TWIN = {"PIXELS_PER_ITEM": SUBGROUP, "COL_BLOCK": TILE_SIZE, "SUBGROUP": 0}  # its portable twin (see the kernel)
+SUBGROUP = 32             # lanes that reduce a pair's sums in the GPU shape (NVIDIA's warp)
+TWIN = {"PIXELS_PER_ITEM": SUBGROUP, "COL_BLOCK": TILE_SIZE, "SUBGROUP": 0}   # its portable twin (see the kernel)
 # The cooperative shapes' partial sums: PART_CHUNK pairs' worth at a time, in at most PART_BYTES of local memory
 # and at most PART_CHUNK_MAX pairs (a barrier per chunk). In the GPU shape at its batch of 256 a work-group holds
 # 25.6 KB for 3DGS' sums with statistics and 37.1 KB with DC4GS'. Registers, not local memory, bound the work-groups
@@ -63,12 +62,12 @@ class RasterizeBackward(Stage):
     def _fit(self, variant: dict) -> dict[str, cl.Kernel]:
         try:
             kernels = self.batch_fitted_kernels({**variant, **self.shape(variant)}, "rasterize_backward")
-            if self.subgroups == "khr":  # the device's subgroups (or the size it grants) must hold whole 32s
+            if self.subgroups == "khr":   # the device's subgroups (or the size it grants) must hold whole 32s
                 try:
                     size = kernels["rasterize_backward"].get_sub_group_info(
-                        self.rt.device, cl.kernel_sub_group_info.MAX_SUB_GROUP_SIZE_FOR_NDRANGE, [TILE_SIZE * TILE_SIZE]
-                    )
-                except cl.Error as e:  # an OpenCL 2.0 device may not answer (the query is 2.1's)
+                        self.rt.device, cl.kernel_sub_group_info.MAX_SUB_GROUP_SIZE_FOR_NDRANGE,
+                        [TILE_SIZE * TILE_SIZE])
+                except cl.Error as e:   # an OpenCL 2.0 device may not answer (the query is 2.1's)
                     raise DeviceError(f"its subgroup size is not known ({e})") from None
                 if size % SUBGROUP:
                     raise DeviceError(f"subgroups of {size} work-items, not a multiple of {SUBGROUP}")
@@ -77,12 +76,10 @@ class RasterizeBackward(Stage):
             if self.subgroups is None:
                 raise
             first_error = next((line for line in str(e).splitlines() if "error" in line), str(e).splitlines()[0])
-            warnings.warn(
-                f"the rasterizer backward's {self.subgroups} subgroup path did not build on this device; "
-                f"using its portable twin (the same sums, slower): {first_error.strip()}"
-            )
+            warnings.warn(f"the rasterizer backward's {self.subgroups} subgroup path did not build on this device; "
+                          f"using its portable twin (the same sums, slower): {first_error.strip()}")
             self.subgroups = None
-            self._fitted.clear()  # every variant takes the twin's shape from now on
+            self._fitted.clear()   # every variant takes the twin's shape from now on
             return self.batch_fitted_kernels({**variant, **self.shape(variant)}, "rasterize_backward")
 
     def shape(self, variant: dict) -> dict:
@@ -93,13 +90,10 @@ class RasterizeBackward(Stage):
         shape = {"SUBGROUP": 0}
         if tuning.pixels_per_item == 1:
             sources = {f"SUBGROUP_{name.upper()}": value for name, value in SUBGROUP_SOURCES.items()}
-            shape = (
-                {"SUBGROUP": SUBGROUP, "SUBGROUP_SOURCE": SUBGROUP_SOURCES[self.subgroups], **sources}
-                if self.subgroups
-                else TWIN
-            )
+            shape = ({"SUBGROUP": SUBGROUP, "SUBGROUP_SOURCE": SUBGROUP_SOURCES[self.subgroups], **sources}
+                     if self.subgroups else TWIN)
         items = self.items(shape)
-        owners = items // (shape["SUBGROUP"] or 1)  # partial rows per pair
+        owners = items // (shape["SUBGROUP"] or 1)   # partial rows per pair
         fitting = PART_BYTES // (4 * owners * variant["SUM_WIDTH"])
         return {**shape, "PART_CHUNK": tuning.batch if items == 1 else max(1, min(PART_CHUNK_MAX, fitting))}
 
@@ -116,29 +110,17 @@ class RasterizeBackward(Stage):
     def defines(self) -> dict:
         # pair_sums: one slot per (tile, Gaussian) pair, summed per Gaussian in a fixed order (deterministic);
         # otherwise float atomics into the per-Gaussian sums (--low-memory).
-        return {
-            **raster_defines(self.ctx),
-            "PAIR_SUMS": int(self.ctx.tuning.pair_sums),
-            "SPLIT_SUMS_PER_BLOCK": int(self.ctx.tuning.split_sums_per_block),
-            "DEAL_TILES": 1,
-        }
+        return {**raster_defines(self.ctx), "PAIR_SUMS": int(self.ctx.tuning.pair_sums),
+                "SPLIT_SUMS_PER_BLOCK": int(self.ctx.tuning.split_sums_per_block), "DEAL_TILES": 1}
 
-    def __call__(
-        self,
-        res: RenderResult,
-        dL_dimage: cl.Buffer,
-        background,
-        layout: SumsLayout,
-        geometry: cl.Buffer | None = None,
-        keep: cl.Buffer | None = None,
-    ) -> cl.Buffer:
+    def __call__(self, res: RenderResult, dL_dimage: cl.Buffer, background, layout: SumsLayout,
+                 geometry: cl.Buffer | None = None, keep: cl.Buffer | None = None) -> cl.Buffer:
         """Per-Gaussian sums (N x layout.width floats); split sums need the view's split geometry. keep: the
         view's mask (H x W uint8, 0 = masked out), whose masked pixels add nothing."""
         return self.folding(res, dL_dimage, background, layout, geometry, keep)[0]
 
-    def plan(
-        self, res: RenderResult, layout: SumsLayout, window: WindowFold | None = None, carry_rows: int | None = None
-    ) -> RunPlan:
+    def plan(self, res: RenderResult, layout: SumsLayout, window: WindowFold | None = None,
+             carry_rows: int | None = None) -> RunPlan:
         """How the view's pairs will be walked (pair_runs) and, walked in runs with the window folded by sum_pairs,
         its carry: with carry_rows rows, a view with more Gaussians spanning runs void on the device (the trainer
         queues this before anything that changes lasting state, and runs the view again with more); None: as many
@@ -148,24 +130,15 @@ class RasterizeBackward(Stage):
         fused = window is not None and tuning.pair_sums and runs <= tuning.max_folded_runs
         rows = 0
         if runs > 1 and n:
-            self.sum_pairs.run_spans(
-                res, layout, window if fused else None, per_run, runs, carry_rows if fused else None
-            )
+            self.sum_pairs.run_spans(res, layout, window if fused else None, per_run, runs,
+                                     carry_rows if fused else None)
             if fused:
                 rows = self.ctx.frame_counts()["SPANNING"] if carry_rows is None else carry_rows
         return RunPlan(runs, per_run, fused, self.sum_pairs.carry(layout, n, rows) if fused else None)
 
-    def folding(
-        self,
-        res: RenderResult,
-        dL_dimage: cl.Buffer,
-        background,
-        layout: SumsLayout,
-        geometry: cl.Buffer | None = None,
-        keep: cl.Buffer | None = None,
-        window: WindowFold | None = None,
-        plan: RunPlan | None = None,
-    ) -> tuple[cl.Buffer, SumsLayout]:
+    def folding(self, res: RenderResult, dL_dimage: cl.Buffer, background, layout: SumsLayout,
+                geometry: cl.Buffer | None = None, keep: cl.Buffer | None = None,
+                window: WindowFold | None = None, plan: RunPlan | None = None) -> tuple[cl.Buffer, SumsLayout]:
         """As a call, and with a window (layout with statistics), the view's statistics folded into it: by
         sum_pairs as it adds up each Gaussian's slots (the sums returned then hold the gradients alone, and the
         per-Gaussian statistics never reach memory: 124 of 160 bytes per Gaussian with DC4GS; in a few runs,
@@ -186,43 +159,22 @@ class RasterizeBackward(Stage):
             rt.fill(sums, np.float32(0), 4 * layout.width * n)
         fold = window if plan.fused else None
         # a run's tiles are consecutive: dealt in stripes, as CPU runtimes deal each core consecutive groups
-        variant = {
-            **layout.defines(),
-            "PIXEL_MASK": int(keep is not None),
-            "DEAL_TILES": tuning.deal_tiles if plan.runs > 1 else 1,
-        }
+        variant = {**layout.defines(), "PIXEL_MASK": int(keep is not None),
+                   "DEAL_TILES": tuning.deal_tiles if plan.runs > 1 else 1}
         k = self.fitted_kernels(variant)
         items = self.items(self.shape(variant))
         split_geometry = geometry if geometry is not None else sums
         for run in range(plan.runs):
             p0, p1 = run * plan.pairs_per_run, min(bound, (run + 1) * plan.pairs_per_run)
-            rt.launch(
-                "rasterize_backward",
-                k["rasterize_backward"],
-                tiles * items,
-                items,
-                np.int32(res.width),
-                np.int32(res.height),
-                np.int32(res.tiles_x),
-                np.uint32(p0),
-                np.uint32(p1),
-                background_value(background),
-                res.isect.ranges,
-                res.isect.gaussian_of_pair,
-                res.proj.mean2d,
-                res.proj.conic_opacity,
-                res.proj.rgb,
-                res.proj.alpha_extent,
-                res.raster.final_T,
-                res.raster.last_pair,
-                dL_dimage,
-                split_geometry,
-                *([keep] if keep is not None else []),
-                target,
-            )
+            rt.launch("rasterize_backward", k["rasterize_backward"], tiles * items, items,
+                      np.int32(res.width), np.int32(res.height), np.int32(res.tiles_x), np.uint32(p0), np.uint32(p1),
+                      background_value(background), res.isect.ranges, res.isect.gaussian_of_pair, res.proj.mean2d,
+                      res.proj.conic_opacity, res.proj.rgb, res.proj.alpha_extent, res.raster.final_T,
+                      res.raster.last_pair, dL_dimage, split_geometry, *([keep] if keep is not None else []), target)
             if tuning.pair_sums:
                 self.sum_pairs(res, layout, target, p0, p1, run, plan.runs, split_geometry, sums, fold, plan.carry)
-        self.check(lambda: {"sums": visible_rows(rt, sums, rt.to_host(res.proj.radius, n, np.int32), out_layout.width)})
+        self.check(lambda: {"sums": visible_rows(rt, sums, rt.to_host(res.proj.radius, n, np.int32),
+                                                 out_layout.width)})
         if window is not None and not plan.fused:
             self.densify_stats(res, sums, geometry, window)
         return sums, out_layout
@@ -231,7 +183,6 @@ class RasterizeBackward(Stage):
 class RunPlan(NamedTuple):
     """How a view's backward walks its pairs: in `runs` runs of pairs_per_run consecutive pairs (pair_runs),
     its statistics folded by sum_pairs (fused) with this carry (runs > 1), or not."""
-
     runs: int
     pairs_per_run: int
     fused: bool

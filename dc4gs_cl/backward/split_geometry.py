@@ -1,6 +1,5 @@
 """Split geometry stage (kernels/split_geometry.cl): where each Gaussian's DC4GS split candidates fall in
 this view, for the rasterizer backward's split sums (the DC-guided split, DCS)."""
-
 from __future__ import annotations
 
 import numpy as np
@@ -16,22 +15,15 @@ from ..statistics import NO_WINDOW, geometry_record
 from .densify_stats import WindowFold
 
 # Workspace buffers (render/workspace.py)
-SPLIT_GEOMETRY = "backward.split_geometry"  # [N*GEO_WIDTH] the view's split geometry (returned)
-NO_WINDOW_ROWS = "backward.no_window"  # [N] zeros: the skip flags when no window is given
+SPLIT_GEOMETRY = "backward.split_geometry"   # [N*GEO_WIDTH] the view's split geometry (returned)
+NO_WINDOW_ROWS = "backward.no_window"        # [N] zeros: the skip flags when no window is given
 
 
 class SplitGeometry(Stage):
     FILE, KERNELS = "split_geometry.cl", ("split_geometry",)
 
-    def __call__(
-        self,
-        g: DeviceGaussians,
-        cam: Camera,
-        res: RenderResult,
-        candidates: int,
-        min_scale: float = 0.0,
-        window: WindowFold | None = None,
-    ) -> cl.Buffer:
+    def __call__(self, g: DeviceGaussians, cam: Camera, res: RenderResult, candidates: int, min_scale: float = 0.0,
+                 window: WindowFold | None = None) -> cl.Buffer:
         """Per visible Gaussian whose largest scale exceeds min_scale (only those can be split) and that the
         window still tracks (its skip_split column; None: every one), where its split candidates fall in this
         view: geometry_record(candidates) rows."""
@@ -45,21 +37,9 @@ class SplitGeometry(Stage):
         if n:
             variant = {"SPLIT_CANDIDATES": candidates, **record.defines(), **window_record.defines()}
             b = g.buffers
-            self.rt.launch_items(
-                "split_geometry",
-                self.kernels(variant)["split_geometry"],
-                n,
-                PER_GAUSSIAN_WG,
-                np.int32(n),
-                camera_value(cam),
-                np.float32(min_scale),
-                b["means"],
-                b["log_scales"],
-                b["quats"],
-                res.proj.radius,
-                buffer,
-                geometry,
-            )
+            self.rt.launch_items("split_geometry", self.kernels(variant)["split_geometry"], n, PER_GAUSSIAN_WG,
+                                 np.int32(n), camera_value(cam), np.float32(min_scale), b["means"], b["log_scales"],
+                                 b["quats"], res.proj.radius, buffer, geometry)
             self.check(lambda: self.lines(geometry, n, record))
         return geometry
 

@@ -1,7 +1,6 @@
 """AbsGS: split on the homodirectional gradient (the sum of |g_x|, |g_y| over pixels, so opposite
 gradients do not cancel) with its own threshold, clone on the 3DGS one; a smaller percent_dense and an
 opacity clamp at 0.8 every 500 iterations."""
-
 from __future__ import annotations
 
 from ..config import DensifyConfig

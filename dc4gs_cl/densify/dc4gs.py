@@ -5,15 +5,14 @@ config.DC4GSConfig.
 The statistics are gathered on the device (kernels/rasterize_backward.cl, kernels/densify_stats.cl, what
 statistics.StatisticsSpec asks for); a strategy reads the window at a densification step.
 """
-
 from __future__ import annotations
 
 import numpy as np
 
 from ..statistics import DC_WEIGHTED, DCC_ABS, VIEWS, Criterion
 
-CONSTANT_COSTS = 1e-7  # relative spread below which the costs carry no preference: split in the middle
-NEGLIGIBLE_COSTS = 1e-12  # ... and costs this small are float noise of vanishing gradients
+CONSTANT_COSTS = 1e-7               # relative spread below which the costs carry no preference: split in the middle
+NEGLIGIBLE_COSTS = 1e-12            # ... and costs this small are float noise of vanishing gradients
 
 
 def dcc_criterion(base: Criterion, reading: str) -> Criterion:
@@ -48,13 +47,13 @@ def polynomial_minimum(coeffs: np.ndarray, lo: float, hi: float, grid: int = 204
         return np.zeros(0)
     poly = np.polynomial.polynomial
     xs = np.linspace(lo, hi, grid)
-    best = poly.polyval(xs, coeffs.T).argmin(axis=1)  # polyval gives (M, grid)
+    best = poly.polyval(xs, coeffs.T).argmin(axis=1)               # polyval gives (M, grid)
     deriv = np.stack([poly.polyder(c) for c in coeffs])
 
-    def slope(at):  # p'(at[m]) of each polynomial m
+    def slope(at):                                                 # p'(at[m]) of each polynomial m
         return np.einsum("mk,mk->m", deriv, at[:, None] ** np.arange(deriv.shape[1]))
 
-    def critical_point(a, b):  # a minimum inside [a, b], else nan
+    def critical_point(a, b):                                      # a minimum inside [a, b], else nan
         bracketed = (slope(a) < 0) & (slope(b) > 0)
         for _ in range(60):
             mid = 0.5 * (a + b)
@@ -63,9 +62,8 @@ def polynomial_minimum(coeffs: np.ndarray, lo: float, hi: float, grid: int = 204
         return np.where(bracketed, 0.5 * (a + b), np.nan)
 
     at = xs[best]
-    candidates = np.stack(
-        [at, critical_point(xs[np.maximum(best - 1, 0)], at), critical_point(at, xs[np.minimum(best + 1, grid - 1)])], 1
-    )
+    candidates = np.stack([at, critical_point(xs[np.maximum(best - 1, 0)], at),
+                           critical_point(at, xs[np.minimum(best + 1, grid - 1)])], 1)
     values = np.einsum("mk,mjk->mj", coeffs, candidates[:, :, None] ** np.arange(coeffs.shape[1]))
     return candidates[np.arange(len(at)), np.where(np.isnan(values), np.inf, values).argmin(axis=1)]
 
@@ -78,7 +76,7 @@ def split_positions(costs: np.ndarray, pick: str) -> np.ndarray:
     x = candidate_positions(n)
     if pick == "poly":
         out = polynomial_minimum(interpolating_polynomials(costs), *search_interval(n))
-    else:  # argmin and dense: the best candidate (dense differs only in how many there are)
+    else:   # argmin and dense: the best candidate (dense differs only in how many there are)
         out = x[np.argmin(costs, axis=1)]
     spread = costs.max(axis=1) - costs.min(axis=1)
     largest = np.abs(costs).max(axis=1)

@@ -16,7 +16,6 @@ are lowest) rather than two coinciding halves; one drawn more often shares by eq
 Where this departs from gsplat: the Adam moments of a relocated Gaussian (the dead one's slot) restart at zero as
 those of the live one it copies do (gsplat zeroes the live one's only); the draws come from the run's generator.
 """
-
 from __future__ import annotations
 
 import math
@@ -30,16 +29,14 @@ from ..render.gaussians import DeviceGaussians
 from .ops import split_children
 from .strategy import Actions, DensifyReport, Strategy
 
-GROWTH_RATE = 0.05  # each refinement step grows the model by 5% (up to the cap)
-MAX_SHARES = 51  # the binomial formula's largest N (gsplat's n_max): a Gaussian drawn more often keeps this
-INIT_OPACITY = 0.5  # the initial Gaussians' opacity and scale factor (gsplat's MCMC config: init_opa, init_scale)
+GROWTH_RATE = 0.05       # each refinement step grows the model by 5% (up to the cap)
+MAX_SHARES = 51          # the binomial formula's largest N (gsplat's n_max): a Gaussian drawn more often keeps this
+INIT_OPACITY = 0.5       # the initial Gaussians' opacity and scale factor (gsplat's MCMC config: init_opa, init_scale)
 INIT_SCALE_FACTOR = 0.1
-OPACITY_EPS = float(np.finfo(np.float32).eps)  # new opacities stay below 1 - this
+OPACITY_EPS = float(np.finfo(np.float32).eps)   # new opacities stay below 1 - this
 
 
-def relocated_opacity_scale(
-    opacity: np.ndarray, scale: np.ndarray, shares: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
+def relocated_opacity_scale(opacity: np.ndarray, scale: np.ndarray, shares: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The paper's equation (9): N Gaussians taking the place of one of opacity o and scale s (N = shares, at most
     MAX_SHARES) each get opacity 1 - (1 - o)^(1/N) and scale o / D s, with
     D = sum_{i=1..N} sum_{k=0..i-1} C(i-1, k) (-1)^k o_new^(k+1) / sqrt(k+1), so that together they render as it
@@ -62,9 +59,8 @@ class MCMC(Strategy):
     initial = {"opacity": INIT_OPACITY, "scale_factor": INIT_SCALE_FACTOR}
     scaled_interval = True
 
-    def __init__(
-        self, config: DensifyConfig | None = None, dc4gs: DC4GSConfig | None = None, settings: MCMCConfig | None = None
-    ):
+    def __init__(self, config: DensifyConfig | None = None, dc4gs: DC4GSConfig | None = None,
+                 settings: MCMCConfig | None = None):
         super().__init__(config, dc4gs)
         self.settings = settings or MCMCConfig()
 
@@ -76,18 +72,11 @@ class MCMC(Strategy):
     def default_config() -> DensifyConfig:
         # refine from 500 to 25,000 of 30,000 every 100; dead below opacity 0.005; no opacity resets; with DCS,
         # every Gaussian may be placed, so every one gathers split costs (percent_dense 0: no size rule)
-        return DensifyConfig(
-            densify_from=500,
-            densify_until=25_000,
-            densify_every=100,
-            prune_opacity=0.005,
-            opacity_reset_every=0,
-            percent_dense=0.0,
-            max_gaussians=MCMC_DEFAULT_CAP,
-        )
+        return DensifyConfig(densify_from=500, densify_until=25_000, densify_every=100, prune_opacity=0.005,
+                             opacity_reset_every=0, percent_dense=0.0, max_gaussians=MCMC_DEFAULT_CAP)
 
     def collecting(self, it: int) -> bool:
-        return self.dc4gs is not None and it <= self.last_densify_step  # DCS' split costs; else nothing
+        return self.dc4gs is not None and it <= self.last_densify_step   # DCS' split costs; else nothing
 
     def actions(self, it: int) -> Actions:
         return Actions(densify=self.densify_now(it), step_with_densify=True)
@@ -104,9 +93,8 @@ class MCMC(Strategy):
         """The position noise of iteration it, after Adam's step (lrs: its learning rates)."""
         self.noise(params, it, seed, lrs["means"] * self.settings.noise_lr)
 
-    def densify(
-        self, gs: GaussianSet, window: dict[str, np.ndarray], it: int, rng: np.random.Generator
-    ) -> DensifyReport:
+    def densify(self, gs: GaussianSet, window: dict[str, np.ndarray], it: int,
+                rng: np.random.Generator) -> DensifyReport:
         """Relocate the dead, then grow by GROWTH_RATE up to the cap."""
         if self.before_densify is not None:
             self.before_densify(gs, window, it)
@@ -118,23 +106,17 @@ class MCMC(Strategy):
         dead = np.flatnonzero(opacity <= c.prune_opacity)
         alive = np.flatnonzero(opacity > c.prune_opacity)
         if len(dead) and len(alive):
-            report.pruned = self._share(
-                gs, rng.choice(alive, len(dead), p=_weights(opacity[alive])), dead, window, placeable
-            )
+            report.pruned = self._share(gs, rng.choice(alive, len(dead), p=_weights(opacity[alive])), dead, window,
+                                        placeable)
         cap = c.max_gaussians if c.max_gaussians is not None else gs.n
         grow = max(0, min(cap, int((1 + GROWTH_RATE) * gs.n)) - gs.n)
         if grow:
-            report.cloned = self._share(gs, rng.choice(gs.n, grow, p=_weights(gs.opacities())), None, window, placeable)
+            report.cloned = self._share(gs, rng.choice(gs.n, grow, p=_weights(gs.opacities())), None, window,
+                                        placeable)
         return report
 
-    def _share(
-        self,
-        gs: GaussianSet,
-        sampled: np.ndarray,
-        into: np.ndarray | None,
-        window: dict[str, np.ndarray],
-        placeable: np.ndarray | None,
-    ) -> int:
+    def _share(self, gs: GaussianSet, sampled: np.ndarray, into: np.ndarray | None, window: dict[str, np.ndarray],
+               placeable: np.ndarray | None) -> int:
         """Each sampled Gaussian shares its opacity and scale with its copies, written over `into` (relocation)
         or appended (growth); the sampled and their copies restart Adam's moments. With DCS (placeable: a mask
         over the Gaussians before this step, see densify) a placeable Gaussian drawn once becomes, with its copy,
@@ -146,9 +128,8 @@ class MCMC(Strategy):
         if placeable is not None:
             once = np.flatnonzero((counts[sampled] == 1) & placeable[sampled])
             parents = sampled[once]
-            children = split_children(
-                {k: v[parents] for k, v in gs.params.items()}, self.dcs_cuts(window, parents), self.dc4gs.other_scale
-            )
+            children = split_children({k: v[parents] for k, v in gs.params.items()}, self.dcs_cuts(window, parents),
+                                      self.dc4gs.other_scale)
         gs.params["opacity_logits"][sampled] = logit(opacity)[:, None].astype(np.float32)
         gs.params["log_scales"][sampled] = np.log(scale).astype(np.float32)
         for moments in (gs.m, gs.v):
@@ -176,3 +157,4 @@ def _weights(opacity: np.ndarray) -> np.ndarray:
     """Draw probabilities proportional to opacity (gsplat's torch.multinomial on them)."""
     p = np.asarray(opacity, np.float64)
     return p / p.sum()
+

@@ -3,7 +3,6 @@
 Host copies are enough here: densification runs every few hundred iterations, and the trainer uploads
 the result in one go. New Gaussians start with zero Adam moments (as the 3DGS code does).
 """
-
 from __future__ import annotations
 
 import math
@@ -14,8 +13,8 @@ from ..geometry import principal_axis, quat_to_rotmat
 from ..model import GaussianSet, logit, sigmoid
 
 SPLIT_CHILDREN = 2
-SPLIT_SCALE_DIVISOR = 1.6  # = 0.8 * SPLIT_CHILDREN in the 3DGS code
-SPLIT_GROWTH = SPLIT_CHILDREN - 1  # Gaussians a split adds (its children replace it); a clone adds one
+SPLIT_SCALE_DIVISOR = 1.6   # = 0.8 * SPLIT_CHILDREN in the 3DGS code
+SPLIT_GROWTH = SPLIT_CHILDREN - 1   # Gaussians a split adds (its children replace it); a clone adds one
 
 
 def cap_growth(budget: int, candidates: list[tuple[np.ndarray, np.ndarray, int]]) -> list[np.ndarray]:
@@ -24,10 +23,8 @@ def cap_growth(budget: int, candidates: list[tuple[np.ndarray, np.ndarray, int]]
     Gaussian that ranks them (criterion over its threshold, so clones and splits compare without units) and
     how many Gaussians each adds. The highest scores win, ties to the lower index then the earlier operation;
     the masks returned keep the winners."""
-    rows = [
-        (-score[mask], np.flatnonzero(mask), np.full(int(mask.sum()), op), np.full(int(mask.sum()), growth))
-        for op, (mask, score, growth) in enumerate(candidates)
-    ]
+    rows = [(-score[mask], np.flatnonzero(mask), np.full(int(mask.sum()), op), np.full(int(mask.sum()), growth))
+            for op, (mask, score, growth) in enumerate(candidates)]
     neg_score, index, op, growth = (np.concatenate(col) for col in zip(*rows))
     order = np.lexsort((op, index, neg_score))
     taken = order[np.cumsum(growth[order]) <= max(budget, 0)]
@@ -75,9 +72,8 @@ def split_at(gs: GaussianSet, idx: np.ndarray, x: np.ndarray, other_scale: float
     return len(idx)
 
 
-def split_children(
-    params: dict[str, np.ndarray], x: np.ndarray, other_scale: float = 1.0
-) -> list[dict[str, np.ndarray]]:
+def split_children(params: dict[str, np.ndarray], x: np.ndarray,
+                   other_scale: float = 1.0) -> list[dict[str, np.ndarray]]:
     """split_at's two children of the Gaussians params (float64)."""
     p = {k: v.astype(np.float64) for k, v in params.items()}
     axis, sigma, direction = principal_axis(p["log_scales"], p["quats"])
@@ -88,15 +84,8 @@ def split_children(
     for offset, fraction in ((-3 * sigma * (1 - x), x), (3 * sigma * x, 1 - x)):
         log_scales = others.copy()
         log_scales[np.arange(len(x)), axis] = np.log(sigma * fraction)
-        children.append(
-            {
-                "means": p["means"] + offset[:, None] * direction,
-                "log_scales": log_scales,
-                "opacity_logits": logit(opacity * fraction)[:, None],
-                "quats": p["quats"],
-                "sh": p["sh"],
-            }
-        )
+        children.append({"means": p["means"] + offset[:, None] * direction, "log_scales": log_scales,
+                         "opacity_logits": logit(opacity * fraction)[:, None], "quats": p["quats"], "sh": p["sh"]})
     return children
 
 

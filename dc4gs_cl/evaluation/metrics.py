@@ -1,7 +1,6 @@
 """Image quality metrics for evaluation: PSNR (host), SSIM (device, the training loss's kernels) and LPIPS
 (host, lpips.py) where its weights are installed. Images are (H, W, 3) float arrays; every metric clamps them to
 [0, 1] first."""
-
 from __future__ import annotations
 
 import numpy as np

@@ -4,7 +4,6 @@ The host owns the logic: step counts per group, learning rates, which groups ste
 element-wise update inside the projection's backward (kernels/adam.h, fused into project_backward.cl), so
 the parameters' gradients are never stored and the parameters never leave the device on the hot path.
 """
-
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -55,7 +54,7 @@ class Adam:
             self.steps[name] += 1
             t = self.steps[name]
             stepping |= 1 << g
-            c1[g], c2[g] = 1 - cfg.beta1**t, 1 - cfg.beta2**t
+            c1[g], c2[g] = 1 - cfg.beta1 ** t, 1 - cfg.beta2 ** t
             if name == "sh":
                 lr[g], lr[SH_REST_RATE] = lrs[name]
             else:

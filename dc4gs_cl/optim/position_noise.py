@@ -2,7 +2,6 @@
 by its covariance times standard normals, gated to the nearly transparent ones; the normals come from a counter-
 based generator keyed by the run's seed and counted by the iteration, so a run resumed or a view run again draws
 the same. Its float64 reference is reference/mcmc.py."""
-
 from __future__ import annotations
 
 import numpy as np
@@ -28,17 +27,7 @@ class PositionNoise(Stage):
         if g.n == 0:
             return
         lo, hi = seed_words(seed)
-        self.rt.launch_items(
-            "position_noise",
-            self.kernels()["position_noise"],
-            g.n,
-            PER_GAUSSIAN_WG,
-            self.ctx.frame,
-            np.uint32(g.n),
-            np.uint32(iteration),
-            np.uint32(lo),
-            np.uint32(hi),
-            np.float32(scaler),
-            *g.ordered()[:4],
-        )
+        self.rt.launch_items("position_noise", self.kernels()["position_noise"], g.n, PER_GAUSSIAN_WG, self.ctx.frame,
+                             np.uint32(g.n), np.uint32(iteration), np.uint32(lo), np.uint32(hi), np.float32(scaler),
+                             *g.ordered()[:4])
         self.check(lambda: {"means": g.download_group("means")})

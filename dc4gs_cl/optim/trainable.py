@@ -1,6 +1,5 @@
 """The Gaussians being trained: their parameters and Adam's moments on the device, kept aligned, and in and
 out of the host as a GaussianSet (densification, checkpoints)."""
-
 from __future__ import annotations
 
 import math

@@ -5,7 +5,6 @@ Sort, scan and Adam need none: their tests compare with NumPy's sort, cumsum and
 They share no code with the kernels and are written for clarity, not speed; tests compare the device
 against them on fresh random inputs.
 """
-
 from .isect import intersect_reference
 from .project import project_reference
 from .rasterize import rasterize_reference, render_reference

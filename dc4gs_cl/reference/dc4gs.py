@@ -1,6 +1,5 @@
 """Float64 references for DC4GS: directional consistency, the split candidates' geometry, and the split
 costs exactly as the paper's algorithms 2 and 3 state them (one dot product per candidate and pixel)."""
-
 from __future__ import annotations
 
 import numpy as np
@@ -35,9 +34,7 @@ def split_geometry_reference(means, log_scales, quats, cam: Camera, visible, n_c
     cand_px, cand_z = project_pixels(cand, cam)
     end_px, end_z = project_pixels(end, cam)
     length = np.linalg.norm(end_px - cand_px[:, 0], axis=1)
-    valid = (
-        np.asarray(visible) & (cand_z.min(1) > K.NEAR_PLANE) & (end_z > K.NEAR_PLANE) & (length > K.MIN_SPLIT_LINE_PX)
-    )
+    valid = np.asarray(visible) & (cand_z.min(1) > K.NEAR_PLANE) & (end_z > K.NEAR_PLANE) & (length > K.MIN_SPLIT_LINE_PX)
     return cand_px, end_px, valid
 
 

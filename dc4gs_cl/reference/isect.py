@@ -1,5 +1,4 @@
 """Float64 reference of kernels/isect.cl + the two sorts: each tile's Gaussians, front to back."""
-
 from __future__ import annotations
 
 import numpy as np
@@ -7,17 +6,15 @@ import numpy as np
 from .project import pair_rect_reference, tile_rect_reference
 
 
-def intersect_reference(
-    mean2d, radius, alpha_extent, tiles_touched, depth, tiles_x: int, tiles_y: int, alpha_cut: bool = True
-):
+def intersect_reference(mean2d, radius, alpha_extent, tiles_touched, depth, tiles_x: int, tiles_y: int,
+                        alpha_cut: bool = True):
     """-> (tile_of_pair [P], gaussian_of_pair [P], ranges [tiles, 2]); pairs ordered by (tile, depth,
     Gaussian index), the order the two stable sorts produce. alpha_cut=False pairs every visible
     Gaussian with all tiles of its 3-sigma box (the Inria rule), to show that the cut changes no pixel."""
     if alpha_cut:
         vis = np.flatnonzero(np.asarray(tiles_touched) > 0)
-        rect = pair_rect_reference(
-            np.asarray(mean2d)[vis], np.asarray(radius)[vis], np.asarray(alpha_extent)[vis], tiles_x, tiles_y
-        )
+        rect = pair_rect_reference(np.asarray(mean2d)[vis], np.asarray(radius)[vis], np.asarray(alpha_extent)[vis],
+                                   tiles_x, tiles_y)
     else:
         vis = np.flatnonzero(np.asarray(radius) > 0)
         r = np.asarray(radius, np.float64)[vis, None]

@@ -3,7 +3,6 @@
 Images are (H, W, 3) arrays. SSIM follows the Inria code: per channel, 11 x 11 Gaussian window (sigma 1.5),
 zero padding (outside pixels count as 0 in every blurred moment), mean over pixels and channels.
 """
-
 from __future__ import annotations
 
 import numpy as np

@@ -1,5 +1,4 @@
 """Float64 reference of kernels/position_noise.cl and its random numbers (kernels/philox.h), computed in NumPy."""
-
 from __future__ import annotations
 
 import numpy as np
@@ -18,7 +17,7 @@ def philox4x32_10(counter: np.ndarray, key: tuple[int, int]) -> np.ndarray:
     k0, k1 = np.uint64(key[0]), np.uint64(key[1])
     m0, m1 = np.uint64(PHILOX_M[0]), np.uint64(PHILOX_M[1])
     for _ in range(10):
-        p0, p1 = m0 * c[0], m1 * c[2]  # < 2^64: exact in uint64
+        p0, p1 = m0 * c[0], m1 * c[2]   # < 2^64: exact in uint64
         hi0, lo0 = p0 >> np.uint64(32), p0 & np.uint64(MASK32)
         hi1, lo1 = p1 >> np.uint64(32), p1 & np.uint64(MASK32)
         c = [hi1 ^ c[1] ^ k0, lo1, hi0 ^ c[3] ^ k1, lo0]
@@ -29,7 +28,7 @@ def philox4x32_10(counter: np.ndarray, key: tuple[int, int]) -> np.ndarray:
 def philox_normals(counter: np.ndarray, key: tuple[int, int]) -> np.ndarray:
     """(N, 4) standard normals: Box-Muller on each draw's word pairs, uniforms in (0, 1] from their top 24 bits."""
     w = philox4x32_10(counter, key)
-    u = ((w >> 8).astype(np.float64) + 1.0) / 2.0**24
+    u = ((w >> 8).astype(np.float64) + 1.0) / 2.0 ** 24
     r0, r1 = np.sqrt(-2 * np.log(u[:, 0])), np.sqrt(-2 * np.log(u[:, 2]))
     t0, t1 = 2 * np.pi * u[:, 1], 2 * np.pi * u[:, 3]
     return np.stack([r0 * np.cos(t0), r0 * np.sin(t0), r1 * np.cos(t1), r1 * np.sin(t1)], axis=1)
@@ -39,9 +38,8 @@ def noise_counters(n: int, iteration: int) -> np.ndarray:
     return np.stack([np.arange(n), np.full(n, iteration), np.zeros(n), np.zeros(n)], axis=1).astype(np.uint32)
 
 
-def position_noise_reference(
-    means, log_scales, quats, opacity_logits, iteration: int, seed: tuple[int, int], scaler: float, k: float, x0: float
-) -> np.ndarray:
+def position_noise_reference(means, log_scales, quats, opacity_logits, iteration: int, seed: tuple[int, int],
+                         scaler: float, k: float, x0: float) -> np.ndarray:
     """The means after position_noise.cl's step: means + Sigma z f scaler (the kernel's docstring; a step beyond
     float32's range not taken, the means clamped to +-MAX_ABS_MEAN)."""
     means = np.asarray(means, np.float64)

@@ -1,5 +1,4 @@
 """Float64 reference of kernels/project.cl."""
-
 from __future__ import annotations
 
 import numpy as np
@@ -17,25 +16,14 @@ def sh_basis(degree: int, d: np.ndarray) -> np.ndarray:
         cols += [-K.SH_C1 * y, K.SH_C1 * z, -K.SH_C1 * x]
     if degree > 1:
         c2 = K.SH_C2
-        cols += [
-            c2[0] * x * y,
-            c2[1] * y * z,
-            c2[2] * (2 * z * z - x * x - y * y),
-            c2[3] * x * z,
-            c2[4] * (x * x - y * y),
-        ]
+        cols += [c2[0] * x * y, c2[1] * y * z, c2[2] * (2 * z * z - x * x - y * y), c2[3] * x * z,
+                 c2[4] * (x * x - y * y)]
     if degree > 2:
         c3 = K.SH_C3
         xx, yy, zz = x * x, y * y, z * z
-        cols += [
-            c3[0] * y * (3 * xx - yy),
-            c3[1] * x * y * z,
-            c3[2] * y * (4 * zz - xx - yy),
-            c3[3] * z * (2 * zz - 3 * xx - 3 * yy),
-            c3[4] * x * (4 * zz - xx - yy),
-            c3[5] * z * (xx - yy),
-            c3[6] * x * (xx - 3 * yy),
-        ]
+        cols += [c3[0] * y * (3 * xx - yy), c3[1] * x * y * z, c3[2] * y * (4 * zz - xx - yy),
+                 c3[3] * z * (2 * zz - 3 * xx - 3 * yy), c3[4] * x * (4 * zz - xx - yy), c3[5] * z * (xx - yy),
+                 c3[6] * x * (xx - 3 * yy)]
     return np.stack(cols, 1)
 
 
@@ -66,18 +54,8 @@ def antialias_compensation(a, b, c):
     return np.sqrt(np.maximum(s, 0.0)), s
 
 
-def project_reference(
-    means,
-    log_scales,
-    quats,
-    opacity_logits,
-    sh,
-    cam: Camera,
-    sh_degree: int,
-    tiles_x: int,
-    tiles_y: int,
-    antialiased: bool = False,
-) -> dict[str, np.ndarray]:
+def project_reference(means, log_scales, quats, opacity_logits, sh, cam: Camera, sh_degree: int,
+                      tiles_x: int, tiles_y: int, antialiased: bool = False) -> dict[str, np.ndarray]:
     """Per-Gaussian projection in float64; entries other than radius and tiles_touched are meaningful
     only where radius > 0. alpha_extent: half-sizes (px) of the box outside which alpha < ALPHA_MIN.
     antialiased: opacities times antialias_compensation."""
@@ -108,29 +86,21 @@ def project_reference(
     mean2d = np.stack([cam.fx * x / zs + cam.cx, cam.fy * y / zs + cam.cy], 1)
     visible = ok & (radius > 0) & (rect_area(tile_rect_reference(mean2d, radius[:, None], tiles_x, tiles_y)) > 0)
     opacity = 1.0 / (1.0 + np.exp(-np.asarray(opacity_logits, np.float64)))
-    if antialiased:  # culled Gaussians' (a, b, c) replaced by a unit covariance: their values are never read
+    if antialiased:   # culled Gaussians' (a, b, c) replaced by a unit covariance: their values are never read
         comp, _ = antialias_compensation(np.where(ok, a, 1.0), np.where(ok, b, 0.0), np.where(ok, c, 1.0))
         opacity = opacity * np.where(ok, comp, 1.0)
     q = np.where(opacity >= K.ALPHA_MIN, 2 * np.log(np.maximum(opacity, K.ALPHA_MIN) / K.ALPHA_MIN), 0.0)
     alpha_extent = np.sqrt(q[:, None] * np.stack([a, c], 1).clip(0)) + K.ALPHA_EXTENT_MARGIN
-    tiles = np.where(
-        visible & (opacity >= K.ALPHA_MIN),
-        rect_area(pair_rect_reference(mean2d, radius, alpha_extent, tiles_x, tiles_y)),
-        0,
-    )
+    tiles = np.where(visible & (opacity >= K.ALPHA_MIN),
+                     rect_area(pair_rect_reference(mean2d, radius, alpha_extent, tiles_x, tiles_y)), 0)
 
     d = means - cam.center
     d /= np.linalg.norm(d, axis=1, keepdims=True)
     k = K.sh_coeffs(sh_degree)
     rgb = np.einsum("nk,nkc->nc", sh_basis(sh_degree, d), np.asarray(sh, np.float64)[:, :k]) + 0.5
     return {
-        "mean2d": mean2d,
-        "conic": conic,
-        "opacity": opacity,
-        "rgb": np.clip(rgb, 0.0, K.COLOR_MAX),
-        "depth": z,
-        "radius": np.where(visible, radius, 0).astype(np.int64),
-        "alpha_extent": alpha_extent,
+        "mean2d": mean2d, "conic": conic, "opacity": opacity, "rgb": np.clip(rgb, 0.0, K.COLOR_MAX), "depth": z,
+        "radius": np.where(visible, radius, 0).astype(np.int64), "alpha_extent": alpha_extent,
         "tiles_touched": tiles.astype(np.int64),
     }
 
@@ -145,44 +115,25 @@ def sh_basis_gradient(degree: int, d: np.ndarray) -> np.ndarray:
         rows += [(zero, -c1 + zero, zero), (zero, zero, c1 + zero), (-c1 + zero, zero, zero)]
     if degree > 1:
         c2 = K.SH_C2
-        rows += [
-            (c2[0] * y, c2[0] * x, zero),
-            (zero, c2[1] * z, c2[1] * y),
-            (-2 * c2[2] * x, -2 * c2[2] * y, 4 * c2[2] * z),
-            (c2[3] * z, zero, c2[3] * x),
-            (2 * c2[4] * x, -2 * c2[4] * y, zero),
-        ]
+        rows += [(c2[0] * y, c2[0] * x, zero), (zero, c2[1] * z, c2[1] * y),
+                 (-2 * c2[2] * x, -2 * c2[2] * y, 4 * c2[2] * z), (c2[3] * z, zero, c2[3] * x),
+                 (2 * c2[4] * x, -2 * c2[4] * y, zero)]
     if degree > 2:
         c3 = K.SH_C3
         xx, yy, zz = x * x, y * y, z * z
-        rows += [
-            (6 * c3[0] * x * y, c3[0] * (3 * xx - 3 * yy), zero),
-            (c3[1] * y * z, c3[1] * x * z, c3[1] * x * y),
-            (-2 * c3[2] * x * y, c3[2] * (4 * zz - xx - 3 * yy), 8 * c3[2] * y * z),
-            (-6 * c3[3] * x * z, -6 * c3[3] * y * z, c3[3] * (6 * zz - 3 * xx - 3 * yy)),
-            (c3[4] * (4 * zz - 3 * xx - yy), -2 * c3[4] * x * y, 8 * c3[4] * x * z),
-            (2 * c3[5] * x * z, -2 * c3[5] * y * z, c3[5] * (xx - yy)),
-            (c3[6] * (3 * xx - 3 * yy), -6 * c3[6] * x * y, zero),
-        ]
+        rows += [(6 * c3[0] * x * y, c3[0] * (3 * xx - 3 * yy), zero),
+                 (c3[1] * y * z, c3[1] * x * z, c3[1] * x * y),
+                 (-2 * c3[2] * x * y, c3[2] * (4 * zz - xx - 3 * yy), 8 * c3[2] * y * z),
+                 (-6 * c3[3] * x * z, -6 * c3[3] * y * z, c3[3] * (6 * zz - 3 * xx - 3 * yy)),
+                 (c3[4] * (4 * zz - 3 * xx - yy), -2 * c3[4] * x * y, 8 * c3[4] * x * z),
+                 (2 * c3[5] * x * z, -2 * c3[5] * y * z, c3[5] * (xx - yy)),
+                 (c3[6] * (3 * xx - 3 * yy), -6 * c3[6] * x * y, zero)]
     return np.stack([np.stack(r, -1) for r in rows], 1)
 
 
-def project_backward_reference(
-    means,
-    log_scales,
-    quats,
-    opacity_logits,
-    sh,
-    cam: Camera,
-    sh_degree: int,
-    v_mean2d,
-    v_conic,
-    v_opacity,
-    v_rgb,
-    visible,
-    antialiased: bool = False,
-    regularizers: tuple[float, float] | None = None,
-) -> dict[str, np.ndarray]:
+def project_backward_reference(means, log_scales, quats, opacity_logits, sh, cam: Camera, sh_degree: int,
+                               v_mean2d, v_conic, v_opacity, v_rgb, visible, antialiased: bool = False,
+                               regularizers: tuple[float, float] | None = None) -> dict[str, np.ndarray]:
     """Gradients of the parameters from the gradients of the projection's outputs (mean2d px, conic (a, b, c)
     as stored, opacity after the sigmoid (antialiased: times its compensation), rgb), in float64; zero where not
     visible but for the regularisers' (reg_opacity, reg_scale): d/d(logit, log scale) of reg_opacity sum(opacity)
@@ -222,7 +173,7 @@ def project_backward_reference(
     dc = (-vA * b * b + vB * a * b - vC * a * a) / det2
     o = 1 / (1 + np.exp(-np.asarray(opacity_logits, np.float64)))
     v_opacity = np.asarray(v_opacity, np.float64)
-    if antialiased:  # the opacity o x comp(a, b, c): the compensation's gradient to the covariance
+    if antialiased:   # the opacity o x comp(a, b, c): the compensation's gradient to the covariance
         comp, square = antialias_compensation(a, b, c)
         det = a * c - b * b
         # d comp / d square, exact (the kernel adds gsplat's guard, + ANTIALIAS_GRAD_EPS, a relative 1e-6 / comp)
@@ -237,18 +188,14 @@ def project_backward_reference(
 
     # camera-space position: through J (unless clamped) and the projected mean
     vm = np.asarray(v_mean2d, np.float64)
-    dtx_dx, dtx_dz = np.where(free_x, 1 / z, 0), np.where(free_x, -x / z**2, 0)
-    dty_dy, dty_dz = np.where(free_y, 1 / z, 0), np.where(free_y, -y / z**2, 0)
+    dtx_dx, dtx_dz = np.where(free_x, 1 / z, 0), np.where(free_x, -x / z ** 2, 0)
+    dty_dy, dty_dz = np.where(free_y, 1 / z, 0), np.where(free_y, -y / z ** 2, 0)
     dpc = np.zeros((n, 3))
     dpc[:, 0] = dJ[:, 0, 2] * (-cam.fx / z) * dtx_dx + vm[:, 0] * cam.fx / z
     dpc[:, 1] = dJ[:, 1, 2] * (-cam.fy / z) * dty_dy + vm[:, 1] * cam.fy / z
-    dpc[:, 2] = (
-        dJ[:, 0, 0] * (-cam.fx / z**2)
-        + dJ[:, 0, 2] * (cam.fx * tx / z**2 - cam.fx / z * dtx_dz)
-        + dJ[:, 1, 1] * (-cam.fy / z**2)
-        + dJ[:, 1, 2] * (cam.fy * ty / z**2 - cam.fy / z * dty_dz)
-        - (vm[:, 0] * cam.fx * x + vm[:, 1] * cam.fy * y) / z**2
-    )
+    dpc[:, 2] = (dJ[:, 0, 0] * (-cam.fx / z ** 2) + dJ[:, 0, 2] * (cam.fx * tx / z ** 2 - cam.fx / z * dtx_dz)
+                 + dJ[:, 1, 1] * (-cam.fy / z ** 2) + dJ[:, 1, 2] * (cam.fy * ty / z ** 2 - cam.fy / z * dty_dz)
+                 - (vm[:, 0] * cam.fx * x + vm[:, 1] * cam.fy * y) / z ** 2)
     d_means = dpc @ R
 
     # Sigma = M M^T, M = Rq diag(s)
@@ -256,44 +203,16 @@ def project_backward_reference(
     d_log_scales = np.einsum("nij,nij->nj", dM, Rq) * s
     dR = dM * s[:, None, :]
     w, qx, qy, qz = qn.T
-    dq = 2 * np.stack(
-        [
-            -qz * dR[:, 0, 1]
-            + qy * dR[:, 0, 2]
-            + qz * dR[:, 1, 0]
-            - qx * dR[:, 1, 2]
-            - qy * dR[:, 2, 0]
-            + qx * dR[:, 2, 1],
-            qy * dR[:, 0, 1]
-            + qz * dR[:, 0, 2]
-            + qy * dR[:, 1, 0]
-            - 2 * qx * dR[:, 1, 1]
-            - w * dR[:, 1, 2]
-            + qz * dR[:, 2, 0]
-            + w * dR[:, 2, 1]
-            - 2 * qx * dR[:, 2, 2],
-            -2 * qy * dR[:, 0, 0]
-            + qx * dR[:, 0, 1]
-            + w * dR[:, 0, 2]
-            + qx * dR[:, 1, 0]
-            + qz * dR[:, 1, 2]
-            - w * dR[:, 2, 0]
-            + qz * dR[:, 2, 1]
-            - 2 * qy * dR[:, 2, 2],
-            -2 * qz * dR[:, 0, 0]
-            - w * dR[:, 0, 1]
-            + qx * dR[:, 0, 2]
-            + w * dR[:, 1, 0]
-            - 2 * qz * dR[:, 1, 1]
-            + qy * dR[:, 1, 2]
-            + qx * dR[:, 2, 0]
-            + qy * dR[:, 2, 1],
-        ],
-        1,
-    )
-    d_quats = np.where(
-        rotates[:, None], (dq - qn * np.sum(qn * dq, 1, keepdims=True)) / np.where(rotates, qnorm, 1)[:, None], 0.0
-    )
+    dq = 2 * np.stack([
+        -qz * dR[:, 0, 1] + qy * dR[:, 0, 2] + qz * dR[:, 1, 0] - qx * dR[:, 1, 2] - qy * dR[:, 2, 0] + qx * dR[:, 2, 1],
+        qy * dR[:, 0, 1] + qz * dR[:, 0, 2] + qy * dR[:, 1, 0] - 2 * qx * dR[:, 1, 1] - w * dR[:, 1, 2]
+        + qz * dR[:, 2, 0] + w * dR[:, 2, 1] - 2 * qx * dR[:, 2, 2],
+        -2 * qy * dR[:, 0, 0] + qx * dR[:, 0, 1] + w * dR[:, 0, 2] + qx * dR[:, 1, 0] + qz * dR[:, 1, 2]
+        - w * dR[:, 2, 0] + qz * dR[:, 2, 1] - 2 * qy * dR[:, 2, 2],
+        -2 * qz * dR[:, 0, 0] - w * dR[:, 0, 1] + qx * dR[:, 0, 2] + w * dR[:, 1, 0] - 2 * qz * dR[:, 1, 1]
+        + qy * dR[:, 1, 2] + qx * dR[:, 2, 0] + qy * dR[:, 2, 1]], 1)
+    d_quats = np.where(rotates[:, None],
+                       (dq - qn * np.sum(qn * dq, 1, keepdims=True)) / np.where(rotates, qnorm, 1)[:, None], 0.0)
 
     # SH colour along the view direction; no gradient where the colour clamps at 0
     v = means - cam.center
@@ -308,13 +227,8 @@ def project_backward_reference(
     d_dir = np.einsum("nkc,nc,nki->ni", sh[:, :k], vr, sh_basis_gradient(sh_degree, d))
     d_means += (d_dir - d * np.sum(d * d_dir, 1, keepdims=True)) / vnorm[:, None]
 
-    out = {
-        "means": d_means,
-        "log_scales": d_log_scales,
-        "quats": d_quats,
-        "opacity_logits": v_opacity * o * (1 - o),
-        "sh": d_sh,
-    }
+    out = {"means": d_means, "log_scales": d_log_scales, "quats": d_quats,
+           "opacity_logits": v_opacity * o * (1 - o), "sh": d_sh}
     out = {key: np.where(np.reshape(visible, (-1,) + (1,) * (val.ndim - 1)), val, 0.0) for key, val in out.items()}
     if regularizers is not None:
         out["opacity_logits"] = out["opacity_logits"] + regularizers[0] * o * (1 - o)

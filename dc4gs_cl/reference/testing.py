@@ -1,5 +1,4 @@
 """Inputs for tests and benchmarks: random Gaussians and cameras, and the gsplat test asset."""
-
 from __future__ import annotations
 
 from dataclasses import replace
@@ -12,9 +11,8 @@ from ..model import GaussianModel, logit, rgb_to_sh_dc
 from ..scene.camera import Camera
 
 
-def random_model(
-    rng: np.random.Generator, n: int, sh_degree: int = 3, spread: float = 1.0, scale_range=(0.005, 0.08)
-) -> GaussianModel:
+def random_model(rng: np.random.Generator, n: int, sh_degree: int = 3, spread: float = 1.0,
+                 scale_range=(0.005, 0.08)) -> GaussianModel:
     """n Gaussians uniform in [-spread, spread]^3 with random shapes, opacities and SH colours."""
     k = sh_coeffs(sh_degree)
     return GaussianModel(
@@ -22,8 +20,7 @@ def random_model(
         log_scales=np.log(rng.uniform(*scale_range, (n, 3))),
         quats=rng.normal(size=(n, 4)),
         opacity_logits=rng.normal(0, 1.5, n),
-        sh=rng.normal(0, 0.4, (n, k, 3)),
-    )
+        sh=rng.normal(0, 0.4, (n, k, 3)))
 
 
 def random_camera(rng: np.random.Generator, width: int, height: int, distance: float = 2.5) -> Camera:
@@ -31,9 +28,7 @@ def random_camera(rng: np.random.Generator, width: int, height: int, distance: f
     d = rng.normal(size=3)
     eye = distance * d / np.linalg.norm(d)
     cam = Camera.look_at("random", eye, rng.uniform(-0.2, 0.2, 3), width, height, fov_x=rng.uniform(0.6, 1.2))
-    return replace(
-        cam, fy=cam.fx * rng.uniform(0.9, 1.1), cx=cam.cx + rng.uniform(-5, 5), cy=cam.cy + rng.uniform(-5, 5)
-    )
+    return replace(cam, fy=cam.fx * rng.uniform(0.9, 1.1), cx=cam.cx + rng.uniform(-5, 5), cy=cam.cy + rng.uniform(-5, 5))
 
 
 def gsplat_test_garden(path: str | Path, rng: np.random.Generator) -> tuple[GaussianModel, list[Camera]]:
@@ -46,26 +41,11 @@ def gsplat_test_garden(path: str | Path, rng: np.random.Generator) -> tuple[Gaus
     means, colors = means[keep], data["colors"][keep] / 255.0
     n = len(means)
     quats = rng.normal(size=(n, 4))
-    model = GaussianModel(
-        means=means,
-        log_scales=np.log(rng.uniform(1e-4, 0.02, (n, 3))),
-        quats=quats / np.linalg.norm(quats, axis=1, keepdims=True),
-        opacity_logits=logit(rng.uniform(0.01, 0.99, n)),
-        sh=rgb_to_sh_dc(colors)[:, None, :],
-    )
+    model = GaussianModel(means=means, log_scales=np.log(rng.uniform(1e-4, 0.02, (n, 3))),
+                          quats=quats / np.linalg.norm(quats, axis=1, keepdims=True),
+                          opacity_logits=logit(rng.uniform(0.01, 0.99, n)), sh=rgb_to_sh_dc(colors)[:, None, :])
     width, height = int(data["width"]), int(data["height"])
-    cams = [
-        Camera(
-            f"garden_{i}",
-            width,
-            height,
-            float(K[0, 0]),
-            float(K[1, 1]),
-            float(K[0, 2]),
-            float(K[1, 2]),
-            V[:3, :3].astype(np.float64),
-            V[:3, 3].astype(np.float64),
-        )
-        for i, (V, K) in enumerate(zip(data["viewmats"], data["Ks"]))
-    ]
+    cams = [Camera(f"garden_{i}", width, height, float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2]),
+                   V[:3, :3].astype(np.float64), V[:3, 3].astype(np.float64))
+            for i, (V, K) in enumerate(zip(data["viewmats"], data["Ks"]))]
     return model, cams

@@ -3,7 +3,6 @@ host per kernel file (stage.py).
 
 Render imports nothing of the backward or of training; both build on it.
 """
-
 from .gaussians import DeviceGaussians
 from .options import RenderOptions
 from .renderer import Renderer, RenderResult

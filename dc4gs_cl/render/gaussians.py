@@ -1,7 +1,6 @@
 """The Gaussians' parameters on the device (runtime.DeviceArrays: one flat float32 buffer per named group, with
 spare capacity). The groups and lane order are the host model's (model.PARAM_GROUPS, model.group_widths); Adam's
 moments and the gradients use the same layout."""
-
 from __future__ import annotations
 
 import pyopencl as cl

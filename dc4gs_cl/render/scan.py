@@ -1,5 +1,4 @@
 """Exclusive prefix sum of uint32 on the device (kernels/scan.cl), a reusable primitive."""
-
 from __future__ import annotations
 
 import numpy as np
@@ -12,7 +11,6 @@ from .stage import Stage, StageContext
 class ExclusiveScan(Stage):
     """out[i] = sum(in[:i]); the grand total goes to total[total_at]. flags=True scans (in != 0); gather=True
     scans in[order[i]] (order given at each call)."""
-
     FILE, KERNELS = "scan.cl", ("scan_reduce", "scan_apply")
 
     def __init__(self, ctx: StageContext, flags: bool = False, gather: bool = False):
@@ -26,18 +24,9 @@ class ExclusiveScan(Stage):
     def defines(self) -> dict:
         return {"SCAN_WG": self.wg, "SCAN_FLAGS": int(self.flags), "SCAN_GATHER": int(self.gather)}
 
-    def __call__(
-        self,
-        src: cl.Buffer,
-        dst: cl.Buffer,
-        n: int,
-        total: cl.Buffer,
-        total_at: int = 0,
-        stage: str = "scan",
-        count: cl.Buffer | None = None,
-        count_at: int = 0,
-        order: cl.Buffer | None = None,
-    ) -> None:
+    def __call__(self, src: cl.Buffer, dst: cl.Buffer, n: int, total: cl.Buffer, total_at: int = 0,
+                 stage: str = "scan", count: cl.Buffer | None = None, count_at: int = 0,
+                 order: cl.Buffer | None = None) -> None:
         """Scan n elements, or, with `count`, as many as count[count_at] says on the device (n, the bound,
         sizes the launch), so that the host reads nothing back first. order: [n] uint, with gather=True."""
         if (order is None) == self.gather:
@@ -53,9 +42,8 @@ class ExclusiveScan(Stage):
         counted = device_count(n, count, count_at, self.block_sums)
         gathered = [order] if self.gather else []
         rt.launch(stage, self.k_reduce, g, self.wg, *counted, src, self.block_sums, *gathered)
-        rt.launch(
-            stage, self.k_apply, g, self.wg, *counted, src, dst, self.block_sums, total, np.uint32(total_at), *gathered
-        )
+        rt.launch(stage, self.k_apply, g, self.wg, *counted, src, dst, self.block_sums, total, np.uint32(total_at),
+                  *gathered)
 
 
 def device_count(bound: int, count: cl.Buffer | None, count_at: int, placeholder: cl.Buffer) -> tuple:

@@ -5,7 +5,6 @@ local memory per work-group).
 Only the key bits [bit_lo, bit_hi) are sorted: callers pass the range in which keys can differ, so
 no pass is spent on bits that are always equal (the top tile bits, a depth key's sign bit).
 """
-
 from __future__ import annotations
 
 import numpy as np
@@ -14,7 +13,7 @@ import pyopencl as cl
 from .scan import device_count
 from .stage import Stage, StageContext, halvings
 
-KEYS_PER_ITEM = 4  # the ranked shape (sort_wg > 1): keys per work-item in a tile (Brush's 4 keys x 256 items)
+KEYS_PER_ITEM = 4   # the ranked shape (sort_wg > 1): keys per work-item in a tile (Brush's 4 keys x 256 items)
 
 
 def digit_plan(bit_lo: int, bit_hi: int, radix_bits: int) -> list[tuple[int, int]]:
@@ -50,10 +49,8 @@ class RadixSort(Stage):
         rt = self.rt
         for w in halvings(wg):
             k = self.kernels({"SORT_WG": w, **({"KEYS_PER_ITEM": KEYS_PER_ITEM} if w > 1 else {})})
-            if w == 1 or (
-                all(rt.kernel_limits(k[name]).work_group >= w for name in self.KERNELS)
-                and rt.kernel_limits(k["radix_scatter"]).local_bytes <= rt.caps.local_mem_size
-            ):
+            if w == 1 or (all(rt.kernel_limits(k[name]).work_group >= w for name in self.KERNELS)
+                          and rt.kernel_limits(k["radix_scatter"]).local_bytes <= rt.caps.local_mem_size):
                 return w, k
         raise AssertionError("unreachable: halvings end at 1")
 
@@ -62,18 +59,9 @@ class RadixSort(Stage):
         most one per tile of wg * KEYS_PER_ITEM keys (the kernels cut the keys there are into these runs)."""
         return min(self.tuning.sort_blocks, -(-n // (self.wg * KEYS_PER_ITEM if self.wg > 1 else 1)))
 
-    def __call__(
-        self,
-        keys: cl.Buffer,
-        vals: cl.Buffer,
-        n: int,
-        bit_lo: int = 0,
-        bit_hi: int = 32,
-        stage: str = "sort",
-        count: cl.Buffer | None = None,
-        count_at: int = 0,
-        scratch: tuple[cl.Buffer, cl.Buffer] | None = None,
-    ) -> tuple[cl.Buffer, cl.Buffer]:
+    def __call__(self, keys: cl.Buffer, vals: cl.Buffer, n: int, bit_lo: int = 0, bit_hi: int = 32,
+                 stage: str = "sort", count: cl.Buffer | None = None, count_at: int = 0,
+                 scratch: tuple[cl.Buffer, cl.Buffer] | None = None) -> tuple[cl.Buffer, cl.Buffer]:
         """Sort n (key, value) pairs by key bits [bit_lo, bit_hi), or, with `count`, the first count[count_at]
         (the count the device wrote; n, the bound, sizes the launches and buffers), so that the host reads nothing
         back first. scratch: buffers of n keys and n values that the passes alternate with (default: workspace
@@ -93,8 +81,7 @@ class RadixSort(Stage):
             args = (*counted, np.uint32(shift), np.uint32((1 << bits) - 1))
             rt.launch(stage, self.k_hist, blocks * wg, wg if wg > 1 else None, *args, src[0], hist)
             rt.launch(stage, self.k_spine, wg, wg, np.uint32(spine), hist)
-            rt.launch(
-                stage, self.k_scatter, blocks * wg, wg if wg > 1 else None, *args, src[0], src[1], hist, dst[0], dst[1]
-            )
+            rt.launch(stage, self.k_scatter, blocks * wg, wg if wg > 1 else None, *args, src[0], src[1], hist,
+                      dst[0], dst[1])
             src, dst = dst, src
         return src

@@ -7,7 +7,6 @@ nothing is looked up or rebuilt on the hot path. The forward stages (render/) an
 (backward/) of one trainer share a StageContext: the runtime, the work shapes, the algorithm switches,
 the workspace of scratch buffers, the --check-finite switch and the last frame's counts.
 """
-
 from __future__ import annotations
 
 import numpy as np
@@ -21,18 +20,12 @@ from .options import RenderOptions
 from .tuning import Tuning
 from .workspace import Workspace
 
-PER_GAUSSIAN_WG = 64  # work-group size of the kernels with one work-item per Gaussian
+PER_GAUSSIAN_WG = 64   # work-group size of the kernels with one work-item per Gaussian
 
 
 class StageContext:
-    def __init__(
-        self,
-        rt: Runtime,
-        tuning: Tuning | None = None,
-        options: RenderOptions | None = None,
-        poison: bool = False,
-        check_finite: bool = False,
-    ):
+    def __init__(self, rt: Runtime, tuning: Tuning | None = None, options: RenderOptions | None = None,
+                 poison: bool = False, check_finite: bool = False):
         """poison: fill every new scratch buffer with NaN (tests: a value a kernel failed to write shows up).
         check_finite: every stage checks its outputs (finite.FiniteCheck)."""
         self.rt = rt
@@ -65,8 +58,8 @@ class FrameCounts:
 
 
 class Stage:
-    FILE: str  # kernels/<FILE>
-    KERNELS: tuple[str, ...]  # the kernels of that file this stage launches
+    FILE: str                      # kernels/<FILE>
+    KERNELS: tuple[str, ...]       # the kernels of that file this stage launches
 
     def __init__(self, ctx: StageContext):
         self.ctx, self.rt, self.ws = ctx, ctx.rt, ctx.ws
@@ -100,10 +93,8 @@ class Stage:
             needed = self.rt.kernel_limits(built[kernel]).local_bytes
             if needed <= limit:
                 return variant, built
-        raise DeviceError(
-            f"kernels/{self.FILE}: {kernel} needs {needed:,} bytes of local memory even in its "
-            f"smallest shape; the device has {limit:,}"
-        )
+        raise DeviceError(f"kernels/{self.FILE}: {kernel} needs {needed:,} bytes of local memory even in its "
+                          f"smallest shape; the device has {limit:,}")
 
     def batch_fitted_kernels(self, variant: dict, kernel: str) -> dict[str, cl.Kernel]:
         """The rasterizers' kernels for a variant with the largest BATCH (Gaussians held in local memory at a time:
@@ -112,8 +103,7 @@ class Stage:
         if key not in self._batch_fitted:
             self._batch_fitted[key] = self.fitting_kernels(
                 [{**variant, "BATCH": b, **self.with_batch(variant, b)} for b in halvings(self.ctx.tuning.batch)],
-                kernel,
-            )[1]
+                kernel)[1]
         return self._batch_fitted[key]
 
     def with_batch(self, variant: dict, batch: int) -> dict:

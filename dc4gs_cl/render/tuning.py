@@ -1,6 +1,5 @@
 """Work shapes per device kind: chosen by measurement on PoCL (CPU) and by the CUDA rasterizers' shapes
 for GPUs. Every kernel variant exists in both shapes, so the tests run both on PoCL."""
-
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
@@ -10,18 +9,18 @@ from ..runtime import Capabilities
 
 # CPU implementations whose compiler wants the split sums added per column block (Tuning.split_sums_per_block).
 SPLIT_SUMS_PER_BLOCK = ("intel(r) opencl",)
-DEAL_TILES_CPU = 16  # stripes of tiles dealt to consecutive work-groups on CPUs (Tuning.deal_tiles)
+DEAL_TILES_CPU = 16   # stripes of tiles dealt to consecutive work-groups on CPUs (Tuning.deal_tiles)
 
 
 @dataclass(frozen=True)
 class Tuning:
-    pixels_per_item: int  # rasterizer: pixels one work-item owns (1 .. 256)
-    batch: int  # rasterizer: Gaussians loaded into local memory at a time
-    radix_bits: int  # sort: widest digit per pass
-    sort_blocks: int  # sort: contiguous runs of keys (at most), one work-item each, or one work-group each
-    scan_wg: int  # scan: work-group size
-    scan_groups: int  # scan: work-groups (upper bound)
-    isect_wg: int  # compaction: work-group size
+    pixels_per_item: int    # rasterizer: pixels one work-item owns (1 .. 256)
+    batch: int              # rasterizer: Gaussians loaded into local memory at a time
+    radix_bits: int         # sort: widest digit per pass
+    sort_blocks: int        # sort: contiguous runs of keys (at most), one work-item each, or one work-group each
+    scan_wg: int            # scan: work-group size
+    scan_groups: int        # scan: work-groups (upper bound)
+    isect_wg: int           # compaction: work-group size
     # rasterizer backward of a frame walked in runs: consecutive work-groups take tiles about tiles / deal_tiles
     # apart (rasterize_backward.cl tile_of_group), so that a CPU runtime's chunks of consecutive groups each hold
     # some of a run's consecutive tiles: PoCL dealt a run's few hundred tiles to one core (a million random
@@ -66,30 +65,13 @@ class Tuning:
             # sort and scan keep each core streaming through memory.
             cores = max(1, caps.compute_units)
             per_block = any(name in caps.platform.lower() for name in SPLIT_SUMS_PER_BLOCK)
-            return Tuning(
-                pixels_per_item=256,
-                batch=32,
-                radix_bits=8,
-                sort_blocks=4 * cores,
-                scan_wg=1,
-                scan_groups=4 * cores,
-                isect_wg=64,
-                deal_tiles=DEAL_TILES_CPU,
-                split_sums_per_block=per_block,
-            ).within(caps)
+            return Tuning(pixels_per_item=256, batch=32, radix_bits=8, sort_blocks=4 * cores,
+                          scan_wg=1, scan_groups=4 * cores, isect_wg=64, deal_tiles=DEAL_TILES_CPU,
+                          split_sums_per_block=per_block).within(caps)
         # GPUs, and drivers that cut a work-item's loops short (Capabilities.loop_limit): one pixel, and short
         # runs of keys and of scan elements, per work-item.
-        return Tuning(
-            pixels_per_item=1,
-            batch=256,
-            radix_bits=8,
-            sort_blocks=512,
-            sort_wg=256,
-            scan_wg=256,
-            scan_groups=256,
-            isect_wg=256,
-            subgroups=caps.subgroups,
-        ).within(caps)
+        return Tuning(pixels_per_item=1, batch=256, radix_bits=8, sort_blocks=512, sort_wg=256,
+                      scan_wg=256, scan_groups=256, isect_wg=256, subgroups=caps.subgroups).within(caps)
 
     def within(self, caps: Capabilities) -> "Tuning":
         """This shape narrowed to the device's work-group limit: a tile's items (TILE_SIZE^2 / pixels_per_item),
@@ -98,14 +80,10 @@ class Tuning:
         limit = max(1, caps.max_work_group_size)
         ppi = self.pixels_per_item
         while TILE_SIZE * TILE_SIZE // ppi > limit:
-            ppi *= 2  # 1, 2, 4, 8, then whole rows (16, 32, ...): the values raster.h takes
-        return replace(
-            self,
-            pixels_per_item=ppi,
-            sort_wg=_power_of_two_within(self.sort_wg, limit),
-            scan_wg=_power_of_two_within(self.scan_wg, limit),
-            isect_wg=_power_of_two_within(self.isect_wg, limit),
-        )
+            ppi *= 2          # 1, 2, 4, 8, then whole rows (16, 32, ...): the values raster.h takes
+        return replace(self, pixels_per_item=ppi, sort_wg=_power_of_two_within(self.sort_wg, limit),
+                       scan_wg=_power_of_two_within(self.scan_wg, limit),
+                       isect_wg=_power_of_two_within(self.isect_wg, limit))
 
 
 def _power_of_two_within(size: int, limit: int) -> int:

@@ -1,6 +1,5 @@
 """Named scratch buffers on the device, reused from frame to frame and grown (runtime.grown_size) when a
 frame needs more."""
-
 from __future__ import annotations
 
 import numpy as np
@@ -8,7 +7,7 @@ import pyopencl as cl
 
 from ..runtime import Runtime, grown_size
 
-POISON = np.uint32(0x7FC00001)  # a NaN as float32, a huge count as uint32
+POISON = np.uint32(0x7FC00001)   # a NaN as float32, a huge count as uint32
 MIN_BYTES = 64
 # The pool of a frame's temporaries that are never alive together (Workspace.scratch): the intersection's
 # emission arrays and tile sort, then the loss' images, then the backward's per-pair slots.

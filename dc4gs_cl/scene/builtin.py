@@ -14,7 +14,6 @@ Points: an SfM-like cloud: hits of random rays from the training cameras, jitter
 extent, coloured by the shaded surface (+ noise), plus 3 % outliers.
 Shares no code with the rasterizer, so it can check it. Images are ray cast on first use and kept.
 """
-
 from __future__ import annotations
 
 from pathlib import Path
@@ -30,16 +29,16 @@ FOV_X = np.radians(55.0)
 TARGET = np.array([0.0, 0.0, 0.5])
 CAMERA_DISTANCE = 5.5
 ELEVATIONS = np.radians([12.0, 27.0, 42.0])
-SUPERSAMPLE = 3  # rays per pixel along each axis
+SUPERSAMPLE = 3                          # rays per pixel along each axis
 LIGHT = np.array([0.45, -0.35, 0.82]) / np.linalg.norm([0.45, -0.35, 0.82])
 AMBIENT = 0.35
 SHININESS = 30.0
-COLOR_RANGE = (0.05, 0.95)  # no pure black or white: nothing clips like a saturated photo
-POINT_RAYS = 6000  # rays cast for the point cloud (sky misses are dropped)
-POINT_NOISE = 0.003  # position noise, a fraction of the scene extent
+COLOR_RANGE = (0.05, 0.95)               # no pure black or white: nothing clips like a saturated photo
+POINT_RAYS = 6000                        # rays cast for the point cloud (sky misses are dropped)
+POINT_NOISE = 0.003                      # position noise, a fraction of the scene extent
 POINT_COLOR_NOISE = 0.02
 OUTLIER_FRACTION = 0.03
-EPS = 1e-4  # hits closer than this are the ray's own origin
+EPS = 1e-4                               # hits closer than this are the ray's own origin
 
 
 def _rotation(yaw: float, tilt: float = 0.0) -> np.ndarray:
@@ -67,7 +66,6 @@ def _parity(*coords: np.ndarray) -> np.ndarray:
 # of a call come from one camera. Each solid: intersect(o, d) -> distance along the unit rays (inf on a miss), and
 # surface(p) -> (normal, albedo) at hit points. Rays start outside every solid, so only the entry hit matters.
 
-
 class Ground:
     def __init__(self, half: float, tile: float, colors):
         self.half, self.tile, self.colors, self.specular = half, tile, colors, 0.0
@@ -85,14 +83,8 @@ class Ground:
 
 class Box:
     # face pattern in the face's (a, b) coordinates, one per face (-x, +x, -y, +y, -z, +z)
-    PATTERNS = (
-        lambda a, b: _parity(a),
-        lambda a, b: _parity(a, b),
-        lambda a, b: _parity(a + b),
-        lambda a, b: _parity(b),
-        lambda a, b: _parity(a - b),
-        lambda a, b: _parity(a, b),
-    )
+    PATTERNS = (lambda a, b: _parity(a), lambda a, b: _parity(a, b), lambda a, b: _parity(a + b),
+                lambda a, b: _parity(b), lambda a, b: _parity(a - b), lambda a, b: _parity(a, b))
 
     def __init__(self, center, half, yaw, tilt, colors, cell: float):
         self.c, self.h = np.float32(center)[:, None], np.float32(half)[:, None]
@@ -100,7 +92,7 @@ class Box:
         self.colors, self.cell, self.specular = colors, cell, 0.0
 
     def intersect(self, o, d):
-        ol, dl = self.R.T @ (o - self.c), self.R.T @ d  # slab test in the box's frame
+        ol, dl = self.R.T @ (o - self.c), self.R.T @ d       # slab test in the box's frame
         with np.errstate(divide="ignore", invalid="ignore"):
             t1, t2 = (-self.h - ol) / dl, (self.h - ol) / dl
         tmin, tmax = np.minimum(t1, t2).max(axis=0), np.maximum(t1, t2).min(axis=0)
@@ -119,7 +111,7 @@ class Box:
         for f, pattern in enumerate(self.PATTERNS):
             sel = face == f
             mask[sel] = pattern(a[sel], b[sel])
-        tone = np.float32(0.85) + np.float32(0.075) * (face % 3)  # faces differ in tone too
+        tone = np.float32(0.85) + np.float32(0.075) * (face % 3)   # faces differ in tone too
         return self.R @ n, _two_tone(mask, *self.colors) * tone
 
 
@@ -131,7 +123,7 @@ class Sphere:
     def intersect(self, o, d):
         oc = o - self.c
         b = _dot(oc, d)
-        disc = b * b - _dot(oc, oc) + self.r**2
+        disc = b * b - _dot(oc, oc) + self.r ** 2
         t = -b - np.sqrt(np.maximum(disc, 0))
         return np.where((disc >= 0) & (t > EPS), t, np.inf)
 
@@ -152,13 +144,13 @@ class Cylinder:
     def intersect(self, o, d):
         ox, oy = o[0] - self.c[0], o[1] - self.c[1]
         a, b = d[0] ** 2 + d[1] ** 2, ox * d[0] + oy * d[1]
-        disc = b * b - a * (ox * ox + oy * oy - self.r**2)
+        disc = b * b - a * (ox * ox + oy * oy - self.r ** 2)
         with np.errstate(divide="ignore", invalid="ignore"):
             side = (-b - np.sqrt(np.maximum(disc, 0))) / a
             cap = (self.height - o[2]) / d[2]
         z = o[2] + side * d[2]
         side = np.where((disc >= 0) & (side > EPS) & (z >= 0) & (z <= self.height), side, np.inf)
-        in_cap = (ox + cap * d[0]) ** 2 + (oy + cap * d[1]) ** 2 <= self.r**2
+        in_cap = (ox + cap * d[0]) ** 2 + (oy + cap * d[1]) ** 2 <= self.r ** 2
         return np.minimum(side, np.where((cap > EPS) & in_cap, cap, np.inf))
 
     def surface(self, p):
@@ -181,7 +173,7 @@ SOLIDS = (
 )
 
 
-SKY = np.float32([0.55, 0.65, 0.80])  # also the scene's background colour
+SKY = np.float32([0.55, 0.65, 0.80])     # also the scene's background colour
 
 
 def cast_rays(o: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -197,7 +189,7 @@ def cast_rays(o: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
             continue
         n, albedo = solid.surface(o + t[sel] * d[:, sel])
         color[:, sel] = albedo * (AMBIENT + (1 - AMBIENT) * np.clip(_dot(n, light), 0, None))
-        if solid.specular:  # Blinn-Phong: the view-dependent part
+        if solid.specular:   # Blinn-Phong: the view-dependent part
             h = light - d[:, sel]
             h /= np.sqrt(_dot(h, h))
             color[:, sel] += solid.specular * np.clip(_dot(n, h), 0, None) ** SHININESS
@@ -226,8 +218,7 @@ def _cameras(n_views: int, size: tuple[int, int]) -> list[Camera]:
     for i in range(n_views):
         azimuth, elevation = 2 * np.pi * i / n_views, ELEVATIONS[i % len(ELEVATIONS)]
         eye = TARGET + CAMERA_DISTANCE * np.array(
-            [np.cos(elevation) * np.cos(azimuth), np.cos(elevation) * np.sin(azimuth), np.sin(elevation)]
-        )
+            [np.cos(elevation) * np.cos(azimuth), np.cos(elevation) * np.sin(azimuth), np.sin(elevation)])
         cams.append(Camera.look_at(f"view_{i:03d}", eye, TARGET, size[0], size[1], FOV_X))
     return cams
 
@@ -268,24 +259,13 @@ class _Renderer:
         return self.memory[key]
 
 
-def builtin_scene(
-    resolution: int | None = None,
-    test_every: int = 8,
-    n_views: int = 32,
-    base_size: tuple[int, int] = (192, 144),
-    test_split: str = "llff",
-) -> Scene:
+def builtin_scene(resolution: int | None = None, test_every: int = 8, n_views: int = 32,
+                  base_size: tuple[int, int] = (192, 144), test_split: str = "llff") -> Scene:
     """The built-in scene at base_size (resolution None or 1) or 1/resolution of it (the CLI's -r)."""
     train, test = split_train_test(_cameras(n_views, base_size), test_every, test_split)
-    scene = Scene(
-        root=Path(BUILTIN_SCENE),
-        train=[c.at_resolution(resolution) for c in train],
-        test=[c.at_resolution(resolution) for c in test],
-        points=None,
-        colors=None,
-        background=SKY.copy(),
-        read_image=_Renderer(),
-    )
+    scene = Scene(root=Path(BUILTIN_SCENE), train=[c.at_resolution(resolution) for c in train],
+                  test=[c.at_resolution(resolution) for c in test], points=None, colors=None,
+                  background=SKY.copy(), read_image=_Renderer())
     # points from the base-size cameras, so that -r changes nothing but the images
     scene.points, scene.colors = _points(train or test, scene.extent, np.random.default_rng(SEED))
     return scene

@@ -5,7 +5,6 @@ y down, z forward (OpenCV / COLMAP); pinhole intrinsics in pixels with the image
 (0, 0), so the centre of pixel (i, j) is (i + 0.5, j + 0.5). Every camera here is PINHOLE: distorted
 models were undistorted before a Camera is made.
 """
-
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
@@ -19,18 +18,18 @@ from ..errors import InputError
 
 @dataclass(frozen=True)
 class Camera:
-    name: str  # image name as the source lists it; sorting by name gives the split
-    width: int  # size the trainer renders at (after -r downscaling)
+    name: str                      # image name as the source lists it; sorting by name gives the split
+    width: int                     # size the trainer renders at (after -r downscaling)
     height: int
-    fx: float  # focal lengths and principal point, pixels, at width x height
+    fx: float                      # focal lengths and principal point, pixels, at width x height
     fy: float
     cx: float
     cy: float
-    R: np.ndarray  # (3, 3) float64 world-to-camera rotation
-    t: np.ndarray  # (3,) float64 world-to-camera translation
+    R: np.ndarray                  # (3, 3) float64 world-to-camera rotation
+    t: np.ndarray                  # (3,) float64 world-to-camera translation
     image_path: Path | None = None  # file the pixels come from (None: a generated scene)
     source_size: tuple[int, int] | None = None  # (width, height) the file must have
-    mask_path: Path | None = None  # its mask (scene/masks.py), of the source size; None: every pixel counts
+    mask_path: Path | None = None   # its mask (scene/masks.py), of the source size; None: every pixel counts
 
     def at_resolution(self, resolution: int | None, max_width: int | None = None) -> "Camera":
         """This camera after the CLI's -r: 1/resolution of its size, or (None) its size but at most
@@ -70,10 +69,10 @@ class Camera:
         z = target - eye
         z /= np.linalg.norm(z)
         x = np.cross(z, up)
-        if np.linalg.norm(x) < 1e-9:  # looking along `up`: any perpendicular will do
+        if np.linalg.norm(x) < 1e-9:   # looking along `up`: any perpendicular will do
             x = np.cross(z, [1.0, 0.0, 0.0] if abs(z[0]) < 0.9 else [0.0, 1.0, 0.0])
         x /= np.linalg.norm(x)
-        y = np.cross(z, x)  # image y points down
+        y = np.cross(z, x)             # image y points down
         R = np.stack([x, y, z])
         f = 0.5 * width / np.tan(0.5 * fov_x)
         return Camera(name, width, height, f, f, 0.5 * width, 0.5 * height, R, -R @ eye)
@@ -81,23 +80,22 @@ class Camera:
     def resized(self, width: int, height: int) -> "Camera":
         """The same camera rendering at another size (intrinsics scale with the size)."""
         sx, sy = width / self.width, height / self.height
-        return replace(
-            self, width=width, height=height, fx=self.fx * sx, fy=self.fy * sy, cx=self.cx * sx, cy=self.cy * sy
-        )
+        return replace(self, width=width, height=height, fx=self.fx * sx, fy=self.fy * sy,
+                       cx=self.cx * sx, cy=self.cy * sy)
 
 
 @dataclass
 class Scene:
-    root: Path  # the folder the scene was read from
+    root: Path                     # the folder the scene was read from
     train: list[Camera]
     test: list[Camera]
-    points: np.ndarray | None  # (P, 3) float64 SfM points, or None (random initialisation)
-    colors: np.ndarray | None  # (P, 3) float32 in [0, 1]
-    background: np.ndarray  # (3,) float32 in [0, 1]; RGBA images are composited onto it
+    points: np.ndarray | None      # (P, 3) float64 SfM points, or None (random initialisation)
+    colors: np.ndarray | None      # (P, 3) float32 in [0, 1]
+    background: np.ndarray         # (3,) float32 in [0, 1]; RGBA images are composited onto it
     read_image: Callable[[Camera], np.ndarray] = field(repr=False)  # -> (H, W, 3) float32 in [0, 1]
     read_mask: Callable[[Camera], np.ndarray | None] = field(repr=False, default=lambda cam: None)
     # -> (H, W) bool, True where a pixel counts (scene/masks.py), or None: all count
-    extent: float = 0.0  # filled by __post_init__ from the training cameras
+    extent: float = 0.0            # filled by __post_init__ from the training cameras
 
     def __post_init__(self):
         if not self.extent:
@@ -139,11 +137,8 @@ def unique_file_stems(where: Path, cameras: list[Camera]) -> None:
         other = seen.get(cam.file_stem)
         seen[cam.file_stem] = cam.name
         if other is not None:
-            problem = (
-                f"image {cam.name!r} is listed twice"
-                if other == cam.name
-                else f"views {other!r} and {cam.name!r} would write one output file ({cam.file_stem!r}.png)"
-            )
+            problem = (f"image {cam.name!r} is listed twice" if other == cam.name else
+                       f"views {other!r} and {cam.name!r} would write one output file ({cam.file_stem!r}.png)")
             raise InputError(where, f"{problem}: every view needs a name of its own")
 
 
@@ -163,9 +158,7 @@ def scene_extent(cameras: list[Camera]) -> float:
 TEST_SPLITS = ("llff", "interpolated")
 
 
-def split_train_test(
-    cameras: list[Camera], test_every: int = 8, test_split: str = "llff"
-) -> tuple[list[Camera], list[Camera]]:
+def split_train_test(cameras: list[Camera], test_every: int = 8, test_split: str = "llff") -> tuple[list[Camera], list[Camera]]:
     """Hold out test cameras from the cameras sorted by name (the order along the camera path in captured scenes).
 
     llff: index % test_every == 0 (the field's "llffhold 8" rule). It holds out the path's first view, which

@@ -1,5 +1,4 @@
 """COLMAP scenes: sparse/0/{cameras,images,points3D}.{bin,txt} (or sparse/) and images/, read with pycolmap."""
-
 from __future__ import annotations
 
 import os
@@ -51,9 +50,7 @@ class _Reader:
 
     def skip(self, count: int, size: int) -> None:
         if count > (len(self.data) - self.at) // size:
-            self.fail(
-                f"{count:,} entries of {size} bytes do not fit in the rest of the file (truncated, or a damaged count)"
-            )
+            self.fail(f"{count:,} entries of {size} bytes do not fit in the rest of the file (truncated, or a damaged count)")
         self.at += count * size
 
     def count(self, record_size: int) -> int:
@@ -66,7 +63,7 @@ class _Reader:
         end = self.data.find(b"\0", self.at)
         if end < 0:
             self.fail("an image name runs past the end of the file")
-        raw, self.at = self.data[self.at : end], end + 1
+        raw, self.at = self.data[self.at:end], end + 1
         try:
             return raw.decode("utf-8")
         except UnicodeDecodeError:
@@ -84,9 +81,8 @@ def check_binary_model(d: Path) -> None:
         camera_id, model_id, width, height = r.take("<iiQQ")
         if model_id not in params_of:
             try:
-                params_of[model_id] = len(
-                    pycolmap.Camera.create_from_model_id(0, pycolmap.CameraModelId(model_id), 1.0, 1, 1).params
-                )
+                params_of[model_id] = len(pycolmap.Camera.create_from_model_id(0, pycolmap.CameraModelId(model_id),
+                                                                                1.0, 1, 1).params)
             except (ValueError, TypeError):
                 r.fail(f"camera {camera_id} has an unknown camera model id {model_id}")
         r.skip(params_of[model_id], 8)
@@ -128,10 +124,8 @@ def check_text_counts(d: Path, rec: pycolmap.Reconstruction) -> None:
             ends_in_newline = f.tell() == 0 or (f.seek(-1, os.SEEK_END) >= 0 and f.read(1) == b"\n")
         if m := re.search(rf"# Number of {label}: (\d+)", header):
             if int(m.group(1)) != found[stem]:
-                raise InputError(
-                    path,
-                    f"the header promises {int(m.group(1)):,} {label}, the file holds {found[stem]:,} (truncated?)",
-                )
+                raise InputError(path, f"the header promises {int(m.group(1)):,} {label}, the file holds "
+                                       f"{found[stem]:,} (truncated?)")
             if not ends_in_newline:
                 raise InputError(path, "ends within a line (truncated?): COLMAP ends its files with a newline")
 
@@ -144,7 +138,7 @@ def read_colmap(root: Path) -> tuple[list[Camera], dict[str, pycolmap.Camera], n
         check_binary_model(d)
     try:
         rec = pycolmap.Reconstruction(str(d))
-    except Exception as e:  # pycolmap raises ValueError, IndexError, RuntimeError, ... for a damaged model
+    except Exception as e:   # pycolmap raises ValueError, IndexError, RuntimeError, ... for a damaged model
         raise InputError(d, f"cannot read COLMAP model ({e.__class__.__name__}: {' '.join(str(e).split())})") from None
     check_text_counts(d, rec)
     if rec.num_points3D() == 0:
@@ -158,15 +152,14 @@ def read_colmap(root: Path) -> tuple[list[Camera], dict[str, pycolmap.Camera], n
         cam = rec.cameras[img.camera_id]
         try:
             name = img.name
-        except UnicodeDecodeError:  # pycolmap hands names out as UTF-8
+        except UnicodeDecodeError:   # pycolmap hands names out as UTF-8
             raise InputError(_model_file(d, "images"), f"image {img.image_id}: its name is not UTF-8") from None
         path = root / "images" / name
         if not path.is_file():
             raise InputError(path, f"image listed in the COLMAP model {d} not found")
         pose = img.cam_from_world()
-        camera, dist = make_camera(
-            name, path, cam, pose.rotation.matrix(), pose.translation, cameras_file, pose_where=_model_file(d, "images")
-        )
+        camera, dist = make_camera(name, path, cam, pose.rotation.matrix(), pose.translation, cameras_file,
+                                   pose_where=_model_file(d, "images"))
         check_size(path, image_size(path), (cam.width, cam.height), cameras_file)
         cameras.append(camera)
         if dist is not None:

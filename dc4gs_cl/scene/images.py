@@ -1,5 +1,4 @@
 """Image files through OpenImageIO: read as float RGB in [0, 1], resize, write PNG atomically."""
-
 from __future__ import annotations
 
 import contextlib
@@ -16,10 +15,10 @@ from ..files import write_atomic
 # The resize filter for -r downscaling. The Inria code resizes with PIL's bicubic (antialiased on
 # downscaling); OIIO's "cubic" scales its support with the factor in the same way.
 RESIZE_FILTER = "cubic"
-MAX_IMAGE_SIDE = 1 << 16  # pixels: a larger side in an image or a camera is a damaged file, not a photo
-MAX_IMAGE_PIXELS = 1 << 28  # 268 Mpixel (16k x 16k): more is a damaged header, refused before decoding
-DECODE_COPIES = 2  # float32 copies of an image alive while it is read (decoded, then converted / resized)
-DECODE_MEMORY_SHARE = 0.5  # an image whose decoding needs more than this share of the memory available is refused
+MAX_IMAGE_SIDE = 1 << 16      # pixels: a larger side in an image or a camera is a damaged file, not a photo
+MAX_IMAGE_PIXELS = 1 << 28    # 268 Mpixel (16k x 16k): more is a damaged header, refused before decoding
+DECODE_COPIES = 2             # float32 copies of an image alive while it is read (decoded, then converted / resized)
+DECODE_MEMORY_SHARE = 0.5     # an image whose decoding needs more than this share of the memory available is refused
 
 
 def read_image(path: str | os.PathLike) -> np.ndarray:
@@ -50,25 +49,15 @@ def read_image(path: str | os.PathLike) -> np.ndarray:
 def _check_header(path: Path, spec) -> None:
     """Sizes no photo has come from a damaged header, and one whose decoding the memory available cannot hold (a
     file of 818 KB can decode to 2^28 pixels): refuse them before decoding allocates for them."""
-    if not (
-        1 <= spec.width <= MAX_IMAGE_SIDE
-        and 1 <= spec.height <= MAX_IMAGE_SIDE
-        and spec.width * spec.height <= MAX_IMAGE_PIXELS
-        and 1 <= spec.nchannels <= 4
-    ):
-        raise InputError(
-            path,
-            f"image header says {spec.width}x{spec.height} pixels of {spec.nchannels} channels "
-            f"(at most {MAX_IMAGE_SIDE} a side, {MAX_IMAGE_PIXELS:,} pixels, 4 channels)",
-        )
+    if not (1 <= spec.width <= MAX_IMAGE_SIDE and 1 <= spec.height <= MAX_IMAGE_SIDE
+            and spec.width * spec.height <= MAX_IMAGE_PIXELS and 1 <= spec.nchannels <= 4):
+        raise InputError(path, f"image header says {spec.width}x{spec.height} pixels of {spec.nchannels} channels "
+                               f"(at most {MAX_IMAGE_SIDE} a side, {MAX_IMAGE_PIXELS:,} pixels, 4 channels)")
     need, available = DECODE_COPIES * 4 * spec.width * spec.height * max(spec.nchannels, 3), memory_available()
     if available is not None and need > DECODE_MEMORY_SHARE * available:
-        raise InputError(
-            path,
-            f"image of {spec.width}x{spec.height} pixels: reading it needs {need / 2**30:.1f} GiB, "
-            f"more than {DECODE_MEMORY_SHARE:.0%} of the {available / 2**30:.1f} GiB of memory "
-            "available",
-        )
+        raise InputError(path, f"image of {spec.width}x{spec.height} pixels: reading it needs {need / 2**30:.1f} GiB, "
+                               f"more than {DECODE_MEMORY_SHARE:.0%} of the {available / 2**30:.1f} GiB of memory "
+                               "available")
 
 
 def memory_available() -> int | None:
@@ -173,12 +162,11 @@ def write_png(path: str | os.PathLike, rgb: np.ndarray) -> None:
     def write(tmp: Path) -> None:
         out = oiio.ImageOutput.create(str(tmp))
         spec = oiio.ImageSpec(data.shape[1], data.shape[0], data.shape[2], oiio.UINT8)
-        spec.attribute("png:compressionLevel", 1)  # 3.5x faster than the default for 17% more bytes
+        spec.attribute("png:compressionLevel", 1)   # 3.5x faster than the default for 17% more bytes
         if out is None or not out.open(str(tmp), spec):
             raise OSError(f"PNG writer: {oiio.geterror().strip()}")
         ok = out.write_image(data)
         out.close()
         if not ok:
             raise OSError(f"PNG writer: {oiio.geterror().strip()}")
-
     write_atomic(path, write)

@@ -1,7 +1,6 @@
 """Scenes from disk: COLMAP or NeRF folders, or the built-in scene's name -> Scene with PINHOLE cameras at the
 training resolution. Images are read lazily through Scene.read_image (undistorted on first use when the camera model
 has distortion) and kept in memory once decoded."""
-
 from __future__ import annotations
 
 import os
@@ -24,15 +23,9 @@ from .undistort import check_size, undistorted_pixels
 DEFAULT_MAX_WIDTH = 1600  # the Inria default: wider images train at this width unless -r is given
 
 
-def load_scene(
-    path: str | os.PathLike,
-    resolution: int | None = None,
-    cache_dir: str | os.PathLike | None = None,
-    test_every: int = 8,
-    white_background: bool = False,
-    alpha_mask: bool = False,
-    test_split: str = "llff",
-) -> Scene:
+def load_scene(path: str | os.PathLike, resolution: int | None = None, cache_dir: str | os.PathLike | None = None,
+               test_every: int = 8, white_background: bool = False, alpha_mask: bool = False,
+               test_split: str = "llff") -> Scene:
     """Load a COLMAP scene (sparse/0/ + images/) or a NeRF scene (transforms.json or
     transforms_train.json [+ transforms_test.json]; `path` may also be one of these files).
 
@@ -62,39 +55,26 @@ def load_scene(
         listing = files[0] if len(files) == 1 else root
     else:
         raise InputError(path, "not a COLMAP or NeRF scene: expected sparse/0/ or transforms*.json")
-    unique_file_stems(listing, train + test)  # named: the file listing the views (the folder, for several)
+    unique_file_stems(listing, train + test)   # named: the file listing the views (the folder, for several)
     train = [c.at_resolution(resolution, DEFAULT_MAX_WIDTH) for c in with_masks(root, train)]
     test = [c.at_resolution(resolution, DEFAULT_MAX_WIDTH) for c in with_masks(root, test)]
     background = np.full(3, 1.0 if white_background else 0.0, dtype=np.float32)
     reader = _ImageReader(distorted, background, cache_dir, alpha_mask)
-    return Scene(
-        root=root,
-        train=train,
-        test=test,
-        points=points,
-        colors=colors,
-        background=background,
-        read_image=reader,
-        read_mask=reader.mask,
-    )
+    return Scene(root=root, train=train, test=test, points=points, colors=colors, background=background,
+                 read_image=reader, read_mask=reader.mask)
 
 
 class _ImageReader:
     """Scene.read_image: (H, W, 3) float32 in [0, 1] at the camera's size, decoded once per camera."""
 
-    def __init__(
-        self,
-        distorted: dict[str, pycolmap.Camera],
-        background: np.ndarray,
-        cache_dir: str | os.PathLike | None,
-        alpha_mask: bool = False,
-    ):
+    def __init__(self, distorted: dict[str, pycolmap.Camera], background: np.ndarray,
+                 cache_dir: str | os.PathLike | None, alpha_mask: bool = False):
         self.distorted = distorted
         self.background = background
         self.cache_dir = None if cache_dir is None else Path(cache_dir)
         self.alpha_mask = alpha_mask
         self.memory: dict[tuple[str, int, int], np.ndarray] = {}
-        self.alpha_keep: dict[tuple[str, int, int], np.ndarray] = {}  # --alpha-mask: from the images' alpha
+        self.alpha_keep: dict[tuple[str, int, int], np.ndarray] = {}   # --alpha-mask: from the images' alpha
         self.masks: dict[tuple[str, int, int], np.ndarray | None] = {}
 
     def _cache(self) -> Path:
@@ -127,7 +107,7 @@ class _ImageReader:
         if key not in self.masks:
             keep = None
             if self.alpha_mask:
-                self(cam)  # decoding the image sets its alpha mask, if it has alpha
+                self(cam)   # decoding the image sets its alpha mask, if it has alpha
                 keep = self.alpha_keep.get(key)
             if cam.mask_path is not None:
                 pixels = resize(self._source(cam, cam.mask_path, cam.name + "#mask"), cam.width, cam.height)

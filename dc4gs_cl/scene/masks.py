@@ -9,7 +9,6 @@ Where a view's mask comes from (the COLMAP and nerfstudio conventions):
 A mask file is any image of its view's source size; its first channel below MASK_THRESHOLD (black) masks
 the pixel out. It is undistorted and scaled with its image, then thresholded again.
 """
-
 from __future__ import annotations
 
 from dataclasses import replace
@@ -39,10 +38,8 @@ def with_masks(root: Path, cameras: list[Camera]) -> list[Camera]:
         if cam.mask_path is None:
             found = next((p for p in mask_candidates(masks, cam.name) if p.is_file()), None)
             if found is None:
-                raise InputError(
-                    mask_candidates(masks, cam.name)[0],
-                    f"no mask for image {cam.name!r} (with a {MASKS_DIR}/ folder, every view needs one)",
-                )
+                raise InputError(mask_candidates(masks, cam.name)[0],
+                                 f"no mask for image {cam.name!r} (with a {MASKS_DIR}/ folder, every view needs one)")
             cam = replace(cam, mask_path=found)
         out.append(cam)
     return out

@@ -4,7 +4,6 @@ transform_matrix is camera-to-world in OpenGL axes (x right, y up, z back); intr
 camera_angle_x (Blender) or fl_x, fl_y, cx, cy, w, h and OpenCV distortion (instant-ngp), given at the
 top level or per frame (per frame wins).
 """
-
 from __future__ import annotations
 
 import json
@@ -41,9 +40,7 @@ def transforms_files(path: Path) -> list[Path]:
     return [first, test] if first.name == "transforms_train.json" and test.is_file() else [first]
 
 
-def read_nerf(
-    files: list[Path], test_every: int, test_split: str = "llff"
-) -> tuple[list[Camera], list[Camera], dict[str, pycolmap.Camera]]:
+def read_nerf(files: list[Path], test_every: int, test_split: str = "llff") -> tuple[list[Camera], list[Camera], dict[str, pycolmap.Camera]]:
     """Train and test cameras (full size, PINHOLE) and the distorted cameras by name. Blender files carry
     their own split (transforms_val.json is ignored); transforms.json is split by split_train_test."""
     distorted: dict[str, pycolmap.Camera] = {}
@@ -76,7 +73,7 @@ def _read_transforms(path: Path, distorted: dict[str, pycolmap.Camera]) -> list[
             check_size(image, header, size, path)
             R, t = _world_to_camera(_numbers(frame["transform_matrix"], "transform_matrix"), path, i)
             camera, dist = make_camera(name, image, _colmap_camera(info, size, path), R, t, path)
-            if "mask_path" in frame:  # nerfstudio's per-frame mask (scene/masks.py)
+            if "mask_path" in frame:   # nerfstudio's per-frame mask (scene/masks.py)
                 if not isinstance(frame["mask_path"], str):
                     raise TypeError(f"mask_path must be a string, not {json.dumps(frame['mask_path'])[:40]}")
                 mask = path.parent / frame["mask_path"]
@@ -101,10 +98,8 @@ def _number(info: dict, key: str) -> float:
 
 def _numbers(value, key: str) -> np.ndarray:
     """A nested list of JSON numbers as float64 (bools, strings and nulls refused, as NaN and Inf)."""
-
     def ok(v):
         return all(ok(x) for x in v) if isinstance(v, list) else isinstance(v, (int, float)) and not isinstance(v, bool)
-
     array = np.asarray(value, dtype=np.float64) if isinstance(value, list) and ok(value) else None
     if array is None or not np.isfinite(array).all():
         raise ValueError(f"{key} must be a matrix of finite numbers")

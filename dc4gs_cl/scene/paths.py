@@ -9,7 +9,6 @@
 
 Every frame has the first training camera's image size and the principal point at its centre.
 """
-
 from __future__ import annotations
 
 import numpy as np
@@ -49,18 +48,15 @@ def _interpolated(cams: list[Camera], frames: int) -> list[Camera]:
         u = s - i
         p = [centres[max(i - 1, 0)], centres[i], centres[i + 1], centres[min(i + 2, len(cams) - 1)]]
         fx, fy = (1 - u) * focals[i] + u * focals[i + 1]
-        out.append(
-            _camera(
-                f"{f:05d}", first, quat_to_rotmat(slerp(quats[i], quats[i + 1], u)[None])[0], catmull_rom(*p, u), fx, fy
-            )
-        )
+        out.append(_camera(f"{f:05d}", first, quat_to_rotmat(slerp(quats[i], quats[i + 1], u)[None])[0],
+                           catmull_rom(*p, u), fx, fy))
     return out
 
 
 def _orbit(cams: list[Camera], frames: int) -> list[Camera]:
     first = cams[0]
     target = look_at_point(cams)
-    up = np.mean([-c.R[1] for c in cams], axis=0)  # image y points down: a camera's up is -R[1]
+    up = np.mean([-c.R[1] for c in cams], axis=0)   # image y points down: a camera's up is -R[1]
     up /= np.linalg.norm(up)
     offsets = np.array([c.center for c in cams]) - target
     height = float(np.mean(offsets @ up))
@@ -81,7 +77,7 @@ def look_at_point(cams: list[Camera]) -> np.ndarray:
     pushed along them by their mean distance from it."""
     A, b = np.zeros((3, 3)), np.zeros(3)
     for c in cams:
-        P = np.eye(3) - np.outer(c.R[2], c.R[2])  # projects off the axis (R[2]: the viewing direction)
+        P = np.eye(3) - np.outer(c.R[2], c.R[2])   # projects off the axis (R[2]: the viewing direction)
         A += P
         b += P @ c.center
     if np.linalg.cond(A) < 1e8:
@@ -98,6 +94,5 @@ def _perpendicular(v: np.ndarray) -> np.ndarray:
 
 def catmull_rom(p0, p1, p2, p3, u: float) -> np.ndarray:
     """The uniform Catmull-Rom spline from p1 (u = 0) to p2 (u = 1)."""
-    return 0.5 * (
-        (2 * p1) + (p2 - p0) * u + (2 * p0 - 5 * p1 + 4 * p2 - p3) * u**2 + (3 * p1 - p0 - 3 * p2 + p3) * u**3
-    )
+    return 0.5 * ((2 * p1) + (p2 - p0) * u + (2 * p0 - 5 * p1 + 4 * p2 - p3) * u ** 2
+                  + (3 * p1 - p0 - 3 * p2 + p3) * u ** 3)

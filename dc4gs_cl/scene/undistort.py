@@ -3,7 +3,6 @@
 Intrinsics of the undistorted camera come from pycolmap at load time (cheap); pixels are undistorted
 lazily, the first time an image is read, and cached as lossless PNG outside the input folder.
 """
-
 from __future__ import annotations
 
 import hashlib
@@ -21,15 +20,9 @@ from .images import MAX_IMAGE_SIDE, read_image, write_png
 PINHOLE_MODELS = ("PINHOLE", "SIMPLE_PINHOLE")
 
 
-def make_camera(
-    name: str,
-    image_path: Path,
-    cam: pycolmap.Camera,
-    R: np.ndarray,
-    t: np.ndarray,
-    where: str | os.PathLike,
-    pose_where: str | os.PathLike | None = None,
-) -> tuple[Camera, pycolmap.Camera | None]:
+def make_camera(name: str, image_path: Path, cam: pycolmap.Camera, R: np.ndarray, t: np.ndarray,
+                where: str | os.PathLike, pose_where: str | os.PathLike | None = None
+                ) -> tuple[Camera, pycolmap.Camera | None]:
     """A full-size PINHOLE Camera for an image taken with `cam`, and `cam` itself when its pixels
     need undistorting (else None). `where` is the file named when the camera is unusable or cannot be
     undistorted, `pose_where` (default `where`) the file named for a bad pose."""
@@ -42,25 +35,14 @@ def make_camera(
             raise InputError(where, f"camera model {cam.model.name} cannot be undistorted ({e})") from None
         cam, distorted = pinhole, cam
         if not (np.isfinite(cam.params).all() and cam.focal_length_x > 0 and cam.focal_length_y > 0):
-            raise InputError(
-                where,
-                f"image {name!r}: the camera's distortion cannot be undone (undistorted "
-                f"intrinsics {np.round(cam.params, 4).tolist()})",
-            )
+            raise InputError(where, f"image {name!r}: the camera's distortion cannot be undone (undistorted "
+                                    f"intrinsics {np.round(cam.params, 4).tolist()})")
     size = (int(cam.width), int(cam.height))
-    return Camera(
-        name=name,
-        width=size[0],
-        height=size[1],
-        fx=float(cam.focal_length_x),
-        fy=float(cam.focal_length_y),
-        cx=float(cam.principal_point_x),
-        cy=float(cam.principal_point_y),
-        R=np.asarray(R, dtype=np.float64),
-        t=np.asarray(t, dtype=np.float64),
-        image_path=Path(image_path),
-        source_size=size,
-    ), distorted
+    return Camera(name=name, width=size[0], height=size[1],
+                  fx=float(cam.focal_length_x), fy=float(cam.focal_length_y),
+                  cx=float(cam.principal_point_x), cy=float(cam.principal_point_y),
+                  R=np.asarray(R, dtype=np.float64), t=np.asarray(t, dtype=np.float64),
+                  image_path=Path(image_path), source_size=size), distorted
 
 
 def check_camera(where, pose_where, name: str, cam: pycolmap.Camera, R: np.ndarray, t: np.ndarray) -> None:
@@ -69,13 +51,10 @@ def check_camera(where, pose_where, name: str, cam: pycolmap.Camera, R: np.ndarr
     pycolmap's undistortion walks an absurd image border)."""
     if not (1 <= cam.width <= MAX_IMAGE_SIDE and 1 <= cam.height <= MAX_IMAGE_SIDE):
         raise InputError(where, f"image {name!r}: camera size {cam.width}x{cam.height} out of range")
-    focal = np.asarray(cam.params)[list(cam.focal_length_idxs())]  # none for EQUIRECTANGULAR (refused below)
+    focal = np.asarray(cam.params)[list(cam.focal_length_idxs())]   # none for EQUIRECTANGULAR (refused below)
     if not (np.isfinite(cam.params).all() and (focal > 0).all()):
-        raise InputError(
-            where,
-            f"image {name!r}: intrinsics must be finite with focal lengths > 0 "
-            f"(got {np.round(cam.params, 4).tolist()})",
-        )
+        raise InputError(where, f"image {name!r}: intrinsics must be finite with focal lengths > 0 "
+                                f"(got {np.round(cam.params, 4).tolist()})")
     R, t = np.asarray(R, dtype=np.float64), np.asarray(t, dtype=np.float64)
     if not (np.isfinite(R).all() and np.isfinite(t).all()):
         raise InputError(pose_where, f"image {name!r}: the pose holds NaN or infinite values")
@@ -83,12 +62,8 @@ def check_camera(where, pose_where, name: str, cam: pycolmap.Camera, R: np.ndarr
         raise InputError(pose_where, f"image {name!r}: the pose's rotation is not a rotation")
 
 
-def check_size(
-    path: str | os.PathLike,
-    actual: tuple[int, int],
-    expected: tuple[int, int],
-    camera_where: str | os.PathLike | None = None,
-) -> None:
+def check_size(path: str | os.PathLike, actual: tuple[int, int], expected: tuple[int, int],
+               camera_where: str | os.PathLike | None = None) -> None:
     """The image at `path` must have its camera's size; `camera_where` is the file the camera came from,
     named beside the image since either may be the one at fault."""
     if tuple(actual) != tuple(expected):
@@ -100,10 +75,8 @@ def cache_file(path: Path, name: str, cam: pycolmap.Camera, cache_dir: Path) -> 
     """Cache file for an undistorted image: a changed source file (size, mtime) or camera gives a new key;
     the absolute path keeps scenes sharing one cache folder apart."""
     st = path.stat()
-    key = (
-        f"{path.resolve()}|{name}|{st.st_size}|{st.st_mtime_ns}|"
-        f"{cam.model.name}|{cam.width}x{cam.height}|{cam.params.tolist()}"
-    )
+    key = (f"{path.resolve()}|{name}|{st.st_size}|{st.st_mtime_ns}|"
+           f"{cam.model.name}|{cam.width}x{cam.height}|{cam.params.tolist()}")
     stem = re.sub(r"[^A-Za-z0-9._-]+", "_", Path(name).stem)
     return cache_dir / f"{stem}-{hashlib.sha256(key.encode()).hexdigest()[:16]}.png"
 
@@ -120,9 +93,7 @@ def undistorted_pixels(path: Path, name: str, cam: pycolmap.Camera, cache_dir: P
     c = data.shape[2]
     groups = ([data[..., :3]] if c >= 3 else []) + [data[..., i] for i in range(3 if c >= 3 else 0, c)]
     options = pycolmap.UndistortCameraOptions()
-    out = [
-        pycolmap.undistort_image(options, pycolmap.Bitmap.from_array(np.ascontiguousarray(g)), cam)[0].to_array()
-        for g in groups
-    ]
+    out = [pycolmap.undistort_image(options, pycolmap.Bitmap.from_array(np.ascontiguousarray(g)), cam)[0].to_array()
+           for g in groups]
     write_png(cached, np.concatenate([o.reshape(o.shape[0], o.shape[1], -1) for o in out], axis=2) / 255.0)
     return read_image(cached)  # the first read gives exactly what every later (cached) read will give

@@ -12,7 +12,6 @@ train_psnr is the last training view's; it_per_s is over the samples' interval; 
 only (evaluations excluded) and continues across --resume; stage_ms (device time per iteration over the
 interval, by stage) is there when the run profiles (train --profile).
 """
-
 from __future__ import annotations
 
 import math
@@ -23,7 +22,7 @@ from typing import Callable
 from ..config import DEFAULT_LINE_EVERY
 from ..run_folder import RunFolder
 
-SAMPLE_EVERY = 10  # iterations between samples (the loss is read back this often anyway)
+SAMPLE_EVERY = 10           # iterations between samples (the loss is read back this often anyway)
 PROGRESS_MODES = ("bar", "lines", "none")
 
 
@@ -36,18 +35,10 @@ def progress_mode(no_progress: bool) -> str:
 
 
 class TrainingLog:
-    def __init__(
-        self,
-        run_folder: RunFolder | None,
-        total: int,
-        iteration: int,
-        mode: str = "bar",
-        line_every: int = DEFAULT_LINE_EVERY,
-        stage_times: Callable[[], dict[str, float]] | None = None,
-    ):
-        """iteration: where training starts (a resumed run: its checkpoint's), the metrics file is cut back to it
-        (run_folder None: no metrics file, a parallel run's other processes). stage_times: the runtime's per-stage
-        device seconds since its last call (profiling runs only)."""
+    def __init__(self, run_folder: RunFolder | None, total: int, iteration: int, mode: str = "bar",
+                 line_every: int = DEFAULT_LINE_EVERY, stage_times: Callable[[], dict[str, float]] | None = None):
+        """iteration: where training starts (a resumed run: its checkpoint's), the metrics file is cut back to
+        it (run_folder None: no metrics file, a parallel run's other processes). stage_times: the runtime's per-stage device seconds since its last call (profiling runs only)."""
         if mode not in PROGRESS_MODES:
             raise ValueError(f"progress mode {mode!r} is not one of {PROGRESS_MODES}")
         self.run_folder, self.total, self.mode, self.line_every = run_folder, total, mode, line_every
@@ -56,12 +47,11 @@ class TrainingLog:
         self.elapsed = next((r["elapsed_s"] for r in reversed(earlier) if "elapsed_s" in r), 0.0)
         self.last_iteration, self.last_time = iteration, time.perf_counter()
         self.paused_at: float | None = None
-        self.stage_seconds: dict[str, float] = {}  # this session's device time by stage (train --profile)
+        self.stage_seconds: dict[str, float] = {}   # this session's device time by stage (train --profile)
         self.profiled_iterations = 0
         self.bar = None
         if mode == "bar":
             from tqdm import tqdm
-
             self.bar = tqdm(total=total, initial=iteration, dynamic_ncols=True, unit="it", file=self.stream)
 
     def step(self) -> None:
@@ -75,14 +65,8 @@ class TrainingLog:
         self.elapsed += seconds
         done = iteration - self.last_iteration
         psnr = 10 * math.log10(1 / max(mse, 1e-12))
-        row = {
-            "iteration": iteration,
-            "loss": round(loss, 6),
-            "train_psnr": round(psnr, 4),
-            "gaussians": gaussians,
-            "it_per_s": round(done / seconds, 3) if seconds > 0 else math.nan,
-            "elapsed_s": round(self.elapsed, 3),
-        }
+        row = {"iteration": iteration, "loss": round(loss, 6), "train_psnr": round(psnr, 4), "gaussians": gaussians,
+               "it_per_s": round(done / seconds, 3) if seconds > 0 else math.nan, "elapsed_s": round(self.elapsed, 3)}
         if self.stage_times is not None and done > 0:
             times = self.stage_times()
             row["stage_ms"] = {k: round(v / done * 1e3, 4) for k, v in times.items()}
@@ -93,17 +77,13 @@ class TrainingLog:
             self.run_folder.append_metrics(row)
         self.last_iteration, self.last_time = iteration, now
         if self.bar is not None:
-            self.bar.set_postfix(
-                loss=f"{loss:.4f}", psnr=f"{row['train_psnr']:.2f}", gaussians=f"{gaussians:,}", refresh=False
-            )
+            self.bar.set_postfix(loss=f"{loss:.4f}", psnr=f"{row['train_psnr']:.2f}", gaussians=f"{gaussians:,}",
+                                 refresh=False)
         elif self.mode == "lines" and (iteration % self.line_every == 0 or iteration == self.total):
             left = (self.total - iteration) / row["it_per_s"] if row["it_per_s"] > 0 else math.nan
-            print(
-                f"iteration {iteration:,}/{self.total:,}  loss {loss:.4f}  train PSNR {row['train_psnr']:.2f} dB  "
-                f"{gaussians:,} Gaussians  {row['it_per_s']:.1f} it/s  {self.elapsed:.0f} s, about {left:.0f} s left",
-                file=self.stream,
-                flush=True,
-            )
+            print(f"iteration {iteration:,}/{self.total:,}  loss {loss:.4f}  train PSNR {row['train_psnr']:.2f} dB  "
+                  f"{gaussians:,} Gaussians  {row['it_per_s']:.1f} it/s  {self.elapsed:.0f} s, about {left:.0f} s left",
+                  file=self.stream, flush=True)
         return row
 
     def pause(self) -> None:
@@ -117,19 +97,15 @@ class TrainingLog:
 
     def evaluation(self, iteration: int, result: dict) -> dict:
         """Record a test-view evaluation (evaluate.evaluate's result) at `iteration`."""
-        row = {
-            "iteration": iteration,
-            "test_psnr": round(result["mean"]["PSNR"], 4),
-            "test_ssim": round(result["mean"]["SSIM"], 5),
-            "test_views": result["views"],
-        }
-        if result.get("lpips_key") in result["mean"]:  # test_lpips (VGG) or test_lpips_alex
+        row = {"iteration": iteration, "test_psnr": round(result["mean"]["PSNR"], 4),
+               "test_ssim": round(result["mean"]["SSIM"], 5),
+               "test_views": result["views"]}
+        if result.get("lpips_key") in result["mean"]:   # test_lpips (VGG) or test_lpips_alex
             row[f"test_{result['lpips_key'].lower()}"] = round(result["mean"][result["lpips_key"]], 5)
         if self.run_folder is not None:
             self.run_folder.append_metrics(row)
         if self.mode != "none":
-            from ..evaluation.evaluate import summary  # unrounded, as the final line of `train` prints it
-
+            from ..evaluation.evaluate import summary   # unrounded, as the final line of `train` prints it
             line = f"iteration {iteration:,}: test views {summary(result)}, {result['views']} views"
             if self.bar is not None:
                 self.bar.write(line, file=self.stream)

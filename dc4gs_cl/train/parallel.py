@@ -8,7 +8,6 @@ decisions with the same generator. Process 0 alone writes the run folder; the ot
 Without MPI (no launcher's environment, or a single process) the group is SingleProcess: every operation is the
 identity, and mpi4py is never imported.
 """
-
 from __future__ import annotations
 
 import hashlib
@@ -28,9 +27,8 @@ MPI_HINT = "pip install 'dc4gs-cl[mpi]' (mpi4py and Open MPI's wheel)"
 
 class SingleProcess:
     """One process: its share is every view, and there is nothing to add."""
-
     rank, size, local_rank = 0, 1, 0
-    reduced_bytes, reduce_seconds = 0, 0.0  # what the gradients' sums cost: bytes each process sent, wall seconds
+    reduced_bytes, reduce_seconds = 0, 0.0   # what the gradients' sums cost: bytes each process sent, wall seconds
 
     @property
     def writes(self) -> bool:
@@ -40,7 +38,7 @@ class SingleProcess:
     def share(self, views: list) -> list:
         """This process's views of a batch: a contiguous run of len(views) / size."""
         per = len(views) // self.size
-        return views[self.rank * per : (self.rank + 1) * per]
+        return views[self.rank * per:(self.rank + 1) * per]
 
     def sum_gradients(self, sums: DeviceArrays) -> None:
         """Every process's gradient sums added, on the device."""
@@ -70,11 +68,11 @@ class MPIGroup(SingleProcess):
     def sum_gradients(self, sums: DeviceArrays) -> None:
         start = time.perf_counter()
         host = sums.download()
-        flat = np.concatenate([a.ravel() for a in host.values()])  # one message, not one per group
+        flat = np.concatenate([a.ravel() for a in host.values()])   # one message, not one per group
         self.comm.Allreduce(self.mpi.IN_PLACE, flat, op=self.mpi.SUM)
         at = 0
         for name, a in host.items():
-            sums.upload_group(name, flat[at : at + a.size].reshape(a.shape))
+            sums.upload_group(name, flat[at:at + a.size].reshape(a.shape))
             at += a.size
         self.reduced_bytes += flat.nbytes
         self.reduce_seconds += time.perf_counter() - start
@@ -101,11 +99,9 @@ class MPIGroup(SingleProcess):
         digests = self.comm.allgather(digest.hexdigest())
         differ = [rank for rank, d in enumerate(digests) if d != digests[0]]
         if differ:
-            raise DeviceError(
-                f"{what}: the model of process {differ[0]} differs from process 0's (they must stay "
-                "identical: the same gradients and decisions on every process; their devices computed "
-                "different ones)"
-            )
+            raise DeviceError(f"{what}: the model of process {differ[0]} differs from process 0's (they must stay "
+                              "identical: the same gradients and decisions on every process; their devices computed "
+                              "different ones)")
 
 
 def launched_size() -> int:
@@ -123,9 +119,8 @@ def process_group() -> SingleProcess:
     try:
         from mpi4py import MPI
     except ImportError:
-        raise InputError(
-            None, f"started as one of {launched_size()} MPI processes, but mpi4py is not installed: {MPI_HINT}"
-        ) from None
+        raise InputError(None, f"started as one of {launched_size()} MPI processes, but mpi4py is not installed: "
+                               f"{MPI_HINT}") from None
     return MPIGroup(MPI.COMM_WORLD, MPI)
 
 
@@ -134,7 +129,6 @@ def device_of_process(group: SingleProcess, spec: str | None) -> str | None:
     where a host has several GPUs, the local process's turn among them; None: the default device."""
     from ..runtime import DEVICE_ENV, is_simulator, list_devices
     import pyopencl as cl
-
     if group.size == 1 or spec is not None or os.environ.get(DEVICE_ENV):
         return spec
     gpus = [key for key, d in list_devices() if d.type & cl.device_type.GPU and not is_simulator(d)]

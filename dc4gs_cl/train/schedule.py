@@ -1,6 +1,5 @@
 """The 3DGS recipe's schedules (written for RECIPE_ITERATIONS iterations), scaled to a run's length: the
 densification strategy's window and opacity steps, the SH degree steps and the learning rates."""
-
 from __future__ import annotations
 
 from dataclasses import replace
@@ -10,20 +9,14 @@ from ..densify import STRATEGIES, Strategy
 from ..optim.adam import exponential_lr
 from ..optim.batch_gradients import batch_rate_factor
 
-MIN_DENSIFY_STEPS = 10  # a short run still densifies about this often
+MIN_DENSIFY_STEPS = 10   # a short run still densifies about this often
 SH_DEGREE_EVERY = 1_000  # one more SH degree every this many (scaled) iterations
-EVALUATE_AT = (7_000,)  # test views evaluated at these (scaled) iterations and at the end, as the Inria code
+EVALUATE_AT = (7_000,)   # test views evaluated at these (scaled) iterations and at the end, as the Inria code
 
 
 # TrainConfig's settings that replace the strategy's (DensifyConfig's field of the same name) as given, unscaled
-SCHEDULE_OVERRIDES = (
-    "densify_from",
-    "densify_every",
-    "opacity_reset_every",
-    "densify_until",
-    "split_threshold",
-    "max_gaussians",
-)
+SCHEDULE_OVERRIDES = ("densify_from", "densify_every", "opacity_reset_every", "densify_until", "split_threshold",
+                      "max_gaussians")
 
 
 class Schedule:
@@ -47,17 +40,13 @@ class Schedule:
         start, stop = self.scaled(base.densify_from), self.scaled(base.densify_until)
         if cls.scaled_interval:
             every = self.scaled(base.densify_every)
-        else:  # that many views: a batch of B views gathers them in 1/B as many iterations (Grendel counts views)
+        else:   # that many views: a batch of B views gathers them in 1/B as many iterations (Grendel counts views)
             every = min(max(1, round(base.densify_every / self.cfg.batch)), max(1, (stop - start) // MIN_DENSIFY_STEPS))
-        c = replace(
-            base,
-            densify_from=start,
-            densify_until=stop,
-            densify_every=every,
-            big_world_after=self.scaled(base.big_world_after),
-            opacity_reset_every=self.scaled(base.opacity_reset_every),
-            opacity_clamp_every=None if base.opacity_clamp_every is None else self.scaled(base.opacity_clamp_every),
-        )
+        c = replace(base, densify_from=start, densify_until=stop, densify_every=every,
+                    big_world_after=self.scaled(base.big_world_after),
+                    opacity_reset_every=self.scaled(base.opacity_reset_every),
+                    opacity_clamp_every=None if base.opacity_clamp_every is None
+                    else self.scaled(base.opacity_clamp_every))
         given = {name: value for name in SCHEDULE_OVERRIDES if (value := getattr(self.cfg, name)) is not None}
         return cls.for_run(replace(c, **given), self.cfg)
 
@@ -76,13 +65,9 @@ class Schedule:
         factor; the opacities are left out where they take no step."""
         c = self.cfg
         f = batch_rate_factor(c.batch)
-        lrs = {
-            "means": f * exponential_lr(it, c.lr_means * extent, c.lr_means_final * extent, c.iterations),
-            "log_scales": f * c.lr_scales,
-            "quats": f * c.lr_quats,
-            "opacity_logits": f * c.lr_opacity,
-            "sh": (f * c.lr_sh_dc, f * c.lr_sh_rest),
-        }
+        lrs = {"means": f * exponential_lr(it, c.lr_means * extent, c.lr_means_final * extent, c.iterations),
+               "log_scales": f * c.lr_scales, "quats": f * c.lr_quats, "opacity_logits": f * c.lr_opacity,
+               "sh": (f * c.lr_sh_dc, f * c.lr_sh_rest)}
         if not opacity_steps:
             del lrs["opacity_logits"]
         return lrs

@@ -15,7 +15,6 @@ soon as they are final, before the loss: the device runs the loss and the backwa
 next iteration. Buffers are sized by a pair capacity and carry rows; a view with more runs again with room (step).
 The loss is read every few iterations for the metrics file and the progress display (log.py).
 """
-
 from __future__ import annotations
 
 import signal
@@ -54,18 +53,9 @@ class Stopped(KeyboardInterrupt):
 
 
 class Trainer:
-    def __init__(
-        self,
-        cfg: TrainConfig,
-        scene: Scene,
-        rt: Runtime,
-        out: str | Path | RunFolder | None = None,
-        strategy: Strategy | None = None,
-        check_finite: bool = False,
-        frozen: bool = False,
-        lpips: tuple = (None, ""),
-        group: SingleProcess | None = None,
-    ):
+    def __init__(self, cfg: TrainConfig, scene: Scene, rt: Runtime, out: str | Path | RunFolder | None = None,
+                 strategy: Strategy | None = None, check_finite: bool = False, frozen: bool = False,
+                 lpips: tuple = (None, ""), group: SingleProcess | None = None):
         """out: the run folder, which checkpoints, saved models and run() need (None: none, for a trainer that
         only steps); strategy: the density control (default: the configuration's, its schedule scaled to the
         run); check_finite: every stage checks its outputs and the first NaN or Inf stops the run (finite.py);
@@ -75,27 +65,22 @@ class Trainer:
         one alone), of which process 0 writes the run folder."""
         if not scene.train:
             raise InputError(scene.root, "the scene has no training cameras")
-        if rt.caps.loop_limit:  # runtime.LOOP_LIMITED_DRIVERS: its renders are right, its gradients of busy views not
-            raise DeviceError(
-                f"{describe(rt.device)} cuts every work-item's loops short after {rt.caps.loop_limit:,} "
-                "iterations (llvmpipe's loop limiter, removed in Mesa 25.0), which leaves the gradients "
-                "of busy views wrong: train on another device (see `dc4gs-cl devices`; PoCL comes with "
-                "dc4gs-cl) or with Mesa 25 or later. Rendering and eval work on it."
-            )
+        if rt.caps.loop_limit:   # runtime.LOOP_LIMITED_DRIVERS: its renders are right, its gradients of busy views not
+            raise DeviceError(f"{describe(rt.device)} cuts every work-item's loops short after {rt.caps.loop_limit:,} "
+                              "iterations (llvmpipe's loop limiter, removed in Mesa 25.0), which leaves the gradients "
+                              "of busy views wrong: train on another device (see `dc4gs-cl devices`; PoCL comes with "
+                              "dc4gs-cl) or with Mesa 25 or later. Rendering and eval work on it.")
         self.group = group or SingleProcess()
         if cfg.batch % self.group.size:
-            raise InputError(
-                None,
-                f"--batch {cfg.batch} must be a multiple of the {self.group.size} processes (each "
-                "renders the same number of a batch's views)",
-            )
+            raise InputError(None, f"--batch {cfg.batch} must be a multiple of the {self.group.size} processes (each "
+                                   "renders the same number of a batch's views)")
         self.cfg, self.scene, self.rt = cfg, scene, rt
         self.run_folder = out if isinstance(out, RunFolder) or out is None else RunFolder(out)
         self.frozen = frozen
         self.lpips, self.lpips_note = lpips
         self.schedule = Schedule(cfg)
         tuning = Tuning.for_device(rt.caps)
-        if cfg.low_memory:  # float-atomic sums instead of per-pair slots
+        if cfg.low_memory:   # float-atomic sums instead of per-pair slots
             tuning = replace(tuning, pair_sums=False)
         self.renderer = Renderer(rt, tuning, RenderOptions(antialiased=cfg.antialiased), check_finite=check_finite)
         self.context = self.renderer.context
@@ -105,22 +90,19 @@ class Trainer:
         self.rng = np.random.default_rng(cfg.seed)
         self.iteration = 0
         self.camera_stack: list[int] = []
-        self.pair_capacity = 0  # the pairs a view's buffers hold; grows when a view has more (step)
-        self.carry_rows = 0  # the backward's carry rows, for Gaussians whose pairs span its runs (likewise)
+        self.pair_capacity = 0   # the pairs a view's buffers hold; grows when a view has more (step)
+        self.carry_rows = 0      # the backward's carry rows, for Gaussians whose pairs span its runs (likewise)
         self.strategy = strategy or self.schedule.strategy()
         initial = initial_model(scene.points, scene.colors, self.rng, cfg.sh_degree, **self.strategy.initial)
         if cfg.max_gaussians is not None and len(initial) > cfg.max_gaussians:
-            raise InputError(
-                None,
-                f"--max-gaussians {cfg.max_gaussians:,} is below the {len(initial):,} Gaussians the "
-                "scene starts from (one per SfM point)",
-            )
+            raise InputError(None, f"--max-gaussians {cfg.max_gaussians:,} is below the {len(initial):,} Gaussians the "
+                                   "scene starts from (one per SfM point)")
         self.model = TrainableGaussians(rt, initial, batch_adam_config(cfg.batch))
         self.batch = BatchGradients(self.context, self.model.widths) if cfg.batch > 1 else None
-        self.actions = Actions()  # the last iteration's
+        self.actions = Actions()   # the last iteration's
         self.strategy.attach(self.context, scene.extent, self.model.n, cfg.white_background)
         self.strategy.reduce_window = self.group.reduce_window
-        self.log: TrainingLog | None = None  # while run() runs, and after it for the final evaluation
+        self.log: TrainingLog | None = None   # while run() runs, and after it for the final evaluation
 
     @property
     def params(self) -> DeviceGaussians:
@@ -141,9 +123,7 @@ class Trainer:
         """One iteration: one view (the model stepped by its gradients, fused into their computation), or with
         --batch B, B views (the model stepped by their mean; optim/batch_gradients.py)."""
         self._queue_iteration()
-        if (
-            self.iteration in self.cfg.save_at
-        ):  # before this iteration's densification and opacity limits, as Inria saves
+        if self.iteration in self.cfg.save_at:   # before this iteration's densification and opacity limits, as Inria saves
             self.save_model()
         if self.strategy.apply(self.actions, self.iteration, self.model, self.rng) is not None:
             if self.context.check.enabled:
@@ -159,7 +139,7 @@ class Trainer:
         it = self.iteration
         views = [(self.next_camera(), self._background()) for _ in range(self.cfg.batch)]
         self.actions = Actions() if self.frozen else self.strategy.actions(it)
-        step_args = None  # the optimiser's Adam step (counted once, however often a view runs), moments, regularisers
+        step_args = None   # the optimiser's Adam step (counted once, however often a view runs), moments, regularisers
         if self.actions.optimiser_step:
             lrs = self.schedule.learning_rates(it, self.scene.extent, self.actions.opacity_steps)
             adam = self.model.adam
@@ -173,9 +153,8 @@ class Trainer:
                 self.batch.step(self.params, self.cfg.batch, *step_args)
             self.strategy.after_step(it, self.params, lrs, self.cfg.seed)
 
-    def _queue_fitting(
-        self, it: int, cam: Camera, background: np.ndarray, step_args: tuple | None, summed: dict | None
-    ) -> None:
+    def _queue_fitting(self, it: int, cam: Camera, background: np.ndarray, step_args: tuple | None,
+                       summed: dict | None) -> None:
         """Queue a view (_queue_view) and wait for its counts alone, read as soon as they are final, before the loss
         (the device runs the rest of the view while the host goes on): a view whose pairs overflowed the capacity it
         was given (render/isect.py), or whose Gaussians spanning the backward's runs its carry rows
@@ -202,9 +181,8 @@ class Trainer:
             self.carry_rows = int(counts["SPANNING"] * (1 + BUFFER_HEADROOM))
         return True
 
-    def _queue_view(
-        self, it: int, cam: Camera, background: np.ndarray, step_args: tuple | None, summed: dict | None
-    ) -> FrameCounts:
+    def _queue_view(self, it: int, cam: Camera, background: np.ndarray, step_args: tuple | None,
+                    summed: dict | None) -> FrameCounts:
         """Queue a view of iteration it: the render, the loss, what the strategy gathers, the rasterizer backward
         and, where the iteration steps (step_args: ProjectBackward.step's Adam step, moments and regularisers), the
         projection backward: Adam's step fused in, or with a batch (summed: its sums' buffers) the view's gradients
@@ -214,38 +192,28 @@ class Trainer:
         target, keep = self.scene.image(cam), self.scene.mask(cam)
         target_buf, dL_dimage = ws.get("train.target", target.nbytes), ws.get("train.dL_dimage", target.nbytes)
         keep_buf = None
-        if keep is not None:  # masked pixels: no loss, no gradient, no statistic (loss.cl, rasterize_backward.cl)
+        if keep is not None:   # masked pixels: no loss, no gradient, no statistic (loss.cl, rasterize_backward.cl)
             keep_buf = ws.get("train.keep", keep.size)
-            rt.write_async(keep_buf, keep)  # bool: one byte, 0 or 1, as the kernels' uchar
-        rt.write_async(target_buf, target)  # the scene keeps its images as decoded: nothing to wait for
+            rt.write_async(keep_buf, keep)   # bool: one byte, 0 or 1, as the kernels' uchar
+        rt.write_async(target_buf, target)   # the scene keeps its images as decoded: nothing to wait for
 
         # --check-finite reads each stage's outputs as it goes: the view sized exactly, so that none is left void
         capacity = None if self.context.check.enabled else self.pair_capacity
         res = self.renderer.render(self.params, cam, self.sh_degree, background, capacity)
         gathering = s.gather(it, self.params, cam, res)
         # before the loss: a view that needs more carry rows is void before any lasting state changes
-        plan = self.rasterize_backward.plan(
-            res, gathering.layout, gathering.window, None if capacity is None else self.carry_rows
-        )
-        counts = self.context.frame_counts_later()  # final from here on: no later kernel counts or overflows
-        self.loss(
-            res.raster.image,
-            target_buf,
-            cam.width,
-            cam.height,
-            dL_dimage,
-            keep=keep_buf,
-            kept=np.count_nonzero(keep) if keep is not None else 0,
-        )
-        sums, layout = self.rasterize_backward.folding(
-            res, dL_dimage, background, gathering.layout, gathering.geometry, keep_buf, gathering.window, plan
-        )
+        plan = self.rasterize_backward.plan(res, gathering.layout, gathering.window,
+                                            None if capacity is None else self.carry_rows)
+        counts = self.context.frame_counts_later()   # final from here on: no later kernel counts or overflows
+        self.loss(res.raster.image, target_buf, cam.width, cam.height, dL_dimage, keep=keep_buf,
+                  kept=np.count_nonzero(keep) if keep is not None else 0)
+        sums, layout = self.rasterize_backward.folding(res, dL_dimage, background, gathering.layout,
+                                                       gathering.geometry, keep_buf, gathering.window, plan)
         if step_args is not None and summed is None:
             self.project_backward.step(self.params, cam, self.sh_degree, res, sums, layout, *step_args)
         elif step_args is not None:
-            self.project_backward.gradients(
-                self.params, cam, self.sh_degree, res, sums, layout, summed, accumulate=True
-            )
+            self.project_backward.gradients(self.params, cam, self.sh_degree, res, sums, layout, summed,
+                                            accumulate=True)
         return counts
 
     def start_from(self, gs: GaussianSet, iteration: int) -> None:
@@ -258,13 +226,8 @@ class Trainer:
     def memory_held(self) -> dict[str, int]:
         """Device bytes held now, by what holds them (capacity included)."""
         m = self.model
-        return {
-            "parameters": m.params.nbytes,
-            "Adam m": m.adam.m.nbytes,
-            "Adam v": m.adam.v.nbytes,
-            **self.strategy.memory_held(),
-            **self.context.ws.held(),
-        }
+        return {"parameters": m.params.nbytes, "Adam m": m.adam.m.nbytes, "Adam v": m.adam.v.nbytes,
+                **self.strategy.memory_held(), **self.context.ws.held()}
 
     # checkpoints --------------------------------------------------------------------------------------
     def _folder_for(self, purpose: str) -> RunFolder:
@@ -284,20 +247,12 @@ class Trainer:
             self.group.check_same(gs.params, f"iteration {self.iteration}")
         if not self.group.writes:
             return
-        state = TrainingState(
-            config=self.cfg,
-            params=gs.params,
-            m=gs.m,
-            v=gs.v,
-            window=window,
-            iteration=self.iteration,
-            adam_steps=self.model.adam.steps,
-            rng=self.rng.bit_generator.state,
-            camera_stack=self.camera_stack,
-            train_cameras=[c.name for c in self.scene.train],
-            # so that the first metrics sample after --resume is the same
-            loss_sums=self.loss.running_sums(),
-        )
+        state = TrainingState(config=self.cfg, params=gs.params, m=gs.m, v=gs.v,
+                              window=window, iteration=self.iteration,
+                              adam_steps=self.model.adam.steps, rng=self.rng.bit_generator.state,
+                              camera_stack=self.camera_stack, train_cameras=[c.name for c in self.scene.train],
+                              # so that the first metrics sample after --resume is the same
+                              loss_sums=self.loss.running_sums())
         self._folder_for("a checkpoint").write_checkpoint(*state.entries())
 
     def resume(self) -> Checkpoint:
@@ -306,19 +261,15 @@ class Trainer:
         checkpoint = self._folder_for("resuming").read_checkpoint()
         state, path = checkpoint.training_state(len(STAT_KEYS)), checkpoint.path
         if diffs := state.config.differences(self.cfg):
-            raise InputError(
-                path,
-                "checkpoint is from other settings ("
-                + ", ".join(f"{k}: checkpoint {a!r} vs now {b!r}" for k, (a, b) in diffs.items())
-                + ")",
-            )
+            raise InputError(path, "checkpoint is from other settings (" + ", ".join(
+                f"{k}: checkpoint {a!r} vs now {b!r}" for k, (a, b) in diffs.items()) + ")")
         if state.train_cameras != [c.name for c in self.scene.train]:
             raise InputError(path, "checkpoint was made with other training images")
         try:
             self.model.upload(GaussianSet(state.params, state.m, state.v))
         except (ValueError, KeyError):
             raise InputError(path, "checkpoint arrays do not match the model layout") from None
-        self.strategy.restore_state(state.window, holder=self.group.rank == 0)  # a parallel run's: process 0's
+        self.strategy.restore_state(state.window, holder=self.group.rank == 0)   # a parallel run's: process 0's
         self.model.adam.steps = state.adam_steps
         self.rng.bit_generator.state = state.rng
         self.camera_stack = state.camera_stack
@@ -339,23 +290,13 @@ class Trainer:
         """Evaluate the test views now (evaluate.evaluate; with render_dir, their PNGs too) and log it; the
         training clock and the per-stage times leave the evaluation out."""
         from ..evaluation.evaluate import evaluate
-
         log = self.log
         if log is not None:
             log.pause()
-        result = evaluate(
-            self.rt,
-            self.renderer,
-            self.params,
-            self.scene,
-            self.scene.test,
-            self.sh_degree,
-            render_dir,
-            self.lpips,
-            self.lpips_note,
-        )
+        result = evaluate(self.rt, self.renderer, self.params, self.scene, self.scene.test, self.sh_degree, render_dir,
+                          self.lpips, self.lpips_note)
         if self.rt.profiling:
-            self.rt.stage_times()  # the evaluation's renders are not training time
+            self.rt.stage_times()   # the evaluation's renders are not training time
         if log is not None:
             log.evaluation(self.iteration, result)
             log.resume()
@@ -370,34 +311,24 @@ class Trainer:
         run_folder = self._folder_for("run() (its metrics file, checkpoints and model)")
         stop = {"signal": None}
         main_thread = threading.current_thread() is threading.main_thread()
-        previous = (
-            {sig: signal.signal(sig, lambda signum, _: stop.update(signal=signum)) for sig in STOP_SIGNALS}
-            if main_thread
-            else {}
-        )
-        writes = self.group.writes  # a parallel run's other processes log nothing and evaluate nothing
-        self.log = TrainingLog(
-            run_folder if writes else None,
-            self.cfg.iterations,
-            self.iteration,
-            progress if writes else "none",
-            line_every,
-            self.rt.stage_times if self.rt.profiling else None,
-        )
-        evaluate_at = (
-            {i for i in self.schedule.evaluations() if i < self.cfg.iterations} if self.scene.test and writes else set()
-        )
+        previous = {sig: signal.signal(sig, lambda signum, _: stop.update(signal=signum))
+                    for sig in STOP_SIGNALS} if main_thread else {}
+        writes = self.group.writes   # a parallel run's other processes log nothing and evaluate nothing
+        self.log = TrainingLog(run_folder if writes else None, self.cfg.iterations, self.iteration,
+                               progress if writes else "none", line_every,
+                               self.rt.stage_times if self.rt.profiling else None)
+        evaluate_at = ({i for i in self.schedule.evaluations() if i < self.cfg.iterations}
+                       if self.scene.test and writes else set())
         try:
             while self.iteration < self.cfg.iterations:
-                if self.group.any(stop["signal"] is not None):  # every process stops at the same iteration
+                if self.group.any(stop["signal"] is not None):   # every process stops at the same iteration
                     self.save_checkpoint()
                     raise Stopped(stop["signal"] or signal.SIGTERM)
                 self.step()
                 self.log.step()
-                if viewer is not None:  # returns at once while no browser is connected
-                    viewer.publish(
-                        self.params, self.sh_degree, self.iteration, stopping=lambda: stop["signal"] is not None
-                    )
+                if viewer is not None:   # returns at once while no browser is connected
+                    viewer.publish(self.params, self.sh_degree, self.iteration,
+                                   stopping=lambda: stop["signal"] is not None)
                 if self.iteration % SAMPLE_EVERY == 0 or self.iteration == self.cfg.iterations:
                     stats = self.loss.read_stats()
                     self.log.sample(self.iteration, stats["loss"], stats["mse"], self.model.n)

@@ -14,7 +14,6 @@ opacity = sigmoid(logit), colour = 0.5 + SH_C0 * f_dc, SH coefficients as stored
 every code is clamped to its range. Files are little-endian and written atomically (files.py): complete or
 not at all. .splat and compressed PLY reorder the Gaussians; the readers return the file's order.
 """
-
 from __future__ import annotations
 
 import argparse
@@ -30,12 +29,8 @@ from .compressed_ply import read_compressed_ply, write_compressed_ply
 from .splat import read_splat, write_splat
 from .spz import read_spz, spz_antialiased, write_spz
 
-FORMATS = {
-    "ply": (".ply", write_ply),
-    "splat": (".splat", write_splat),
-    "spz": (".spz", write_spz),
-    "compressed-ply": (".compressed.ply", write_compressed_ply),
-}
+FORMATS = {"ply": (".ply", write_ply), "splat": (".splat", write_splat), "spz": (".spz", write_spz),
+           "compressed-ply": (".compressed.ply", write_compressed_ply)}
 READERS = {"ply": read_ply, "splat": read_splat, "spz": read_spz, "compressed-ply": read_compressed_ply}
 
 
@@ -49,11 +44,8 @@ def export_format(path: str | os.PathLike, fmt: str | None = None) -> str:
     for fmt, (suffix, _) in sorted(FORMATS.items(), key=lambda item: -len(item[1][0])):
         if name.endswith(suffix):
             return fmt
-    raise InputError(
-        path,
-        "unknown export format: name the file "
-        f"{', '.join(suffix for suffix, _ in FORMATS.values())} or give the format",
-    )
+    raise InputError(path, "unknown export format: name the file "
+                           f"{', '.join(suffix for suffix, _ in FORMATS.values())} or give the format")
 
 
 def read_model_file(path: str | os.PathLike) -> GaussianModel:
@@ -69,7 +61,7 @@ def read_model_file(path: str | os.PathLike) -> GaussianModel:
     if len(model) == 0:
         raise InputError(path, "no Gaussians")
     bad = sum(int((~np.isfinite(a)).sum()) for a in (model.means, model.log_scales, model.quats, model.sh))
-    if bad:  # .splat's raw floats, a scale read as 0 (log -inf)
+    if bad:   # .splat's raw floats, a scale read as 0 (log -inf)
         raise InputError(path, f"{bad} NaN or Inf values")
     check_ranges(path, model)
     return model
@@ -90,16 +82,15 @@ def _has_chunks(path) -> bool:
     return any(e["name"] == "chunk" for e in elements)
 
 
-def export_model(
-    model: GaussianModel, path: str | os.PathLike, fmt: str | None = None, antialiased: bool = False
-) -> None:
+def export_model(model: GaussianModel, path: str | os.PathLike, fmt: str | None = None,
+                 antialiased: bool = False) -> None:
     """Write `model` to `path` in `fmt` (default: by the file name); antialiased: the model trained so, which .spz
     records (the other formats cannot). Atomic: the file appears complete or not at all; an unwritable path raises
     OutputError, an unknown format or an empty model InputError."""
     fmt = export_format(path, fmt)
     if len(model) == 0:
         raise InputError(path, "no Gaussians to export")
-    check_ranges(path, model)  # (a model read from a PLY was checked there) no format then holds an Inf
+    check_ranges(path, model)   # (a model read from a PLY was checked there) no format then holds an Inf
     if fmt == "spz":
         write_spz(Path(path), model, antialiased)
     else:
@@ -111,23 +102,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     source = p.add_mutually_exclusive_group(required=True)
     source.add_argument("--model", type=Path, help="a training output folder: its last saved model (or --iteration)")
     source.add_argument("--ply", type=Path, help="a standard 3DGS PLY")
-    p.add_argument(
-        "--iteration", type=int, default=None, help="with --model: which saved iteration (default: the last)"
-    )
-    p.add_argument(
-        "--out",
-        type=Path,
-        required=True,
-        help="the file to write; its name gives the format ("
-        + ", ".join(suffix for suffix, _ in FORMATS.values())
-        + ") unless --format does",
-    )
-    p.add_argument(
-        "--format",
-        choices=list(FORMATS),
-        default=None,
-        help="ply (lossless), splat (antimatter15, no SH), spz (Niantic) or compressed-ply (PlayCanvas)",
-    )
+    p.add_argument("--iteration", type=int, default=None, help="with --model: which saved iteration (default: the last)")
+    p.add_argument("--out", type=Path, required=True,
+                   help="the file to write; its name gives the format (" +
+                        ", ".join(suffix for suffix, _ in FORMATS.values()) + ") unless --format does")
+    p.add_argument("--format", choices=list(FORMATS), default=None,
+                   help="ply (lossless), splat (antimatter15, no SH), spz (Niantic) or compressed-ply (PlayCanvas)")
 
 
 def cmd_export(args) -> int:
@@ -136,7 +116,7 @@ def cmd_export(args) -> int:
 
     if args.iteration is not None and args.model is None:
         raise InputError(None, "--iteration needs --model")
-    fmt = export_format(args.out, args.format)  # a bad name fails before the model is read
+    fmt = export_format(args.out, args.format)   # a bad name fails before the model is read
     if args.model is not None:
         if not args.model.is_dir():
             raise InputError(args.model, "no such training output folder")
@@ -146,9 +126,7 @@ def cmd_export(args) -> int:
     model, antialiased = source.model, bool(source.antialiased)
     export_model(model, args.out, fmt, antialiased)
     print(f"{fmt}: {len(model):,} Gaussians, {args.out.stat().st_size:,} bytes written to {args.out}")
-    if antialiased and fmt != "spz":  # the viewers would render it without its compensation
-        print(
-            f"the run trained --antialiased, which a {fmt} file cannot record: render it with --antialiased "
-            "(.spz records it)"
-        )
+    if antialiased and fmt != "spz":   # the viewers would render it without its compensation
+        print(f"the run trained --antialiased, which a {fmt} file cannot record: render it with --antialiased "
+              "(.spz records it)")
     return 0

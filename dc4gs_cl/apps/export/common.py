@@ -1,6 +1,5 @@
 """What the export formats share: byte codes, "smallest three" quaternions, bit fields, and reading and
 (atomic) writing of whole files."""
-
 from __future__ import annotations
 
 import os
@@ -16,8 +15,8 @@ from ...model import GaussianModel, logit
 # Readers clamp a decoded opacity into [ALPHA_FLOOR, 1 - ALPHA_FLOOR]: a byte of 0 or 255 keeps a finite
 # logit, and half a byte step stays within the quantisation error.
 ALPHA_FLOOR = 0.5 / 255
-SQRT_HALF = np.sqrt(0.5)  # bound of the three smaller components of a unit quaternion
-SMALLEST_THREE_BITS = (2, 10, 10, 10)  # the largest component's index, then the other three
+SQRT_HALF = np.sqrt(0.5)       # bound of the three smaller components of a unit quaternion
+SMALLEST_THREE_BITS = (2, 10, 10, 10)   # the largest component's index, then the other three
 
 
 def dc_colour(f_dc: np.ndarray) -> np.ndarray:
@@ -45,7 +44,7 @@ def from_smallest_three(largest: np.ndarray, others: np.ndarray) -> np.ndarray:
     q = np.empty((len(others), 4))
     keep = np.arange(4)[None, :] != largest[:, None]
     q[keep] = others.ravel()
-    q[~keep] = np.sqrt(np.maximum(0.0, 1.0 - (others**2).sum(axis=1)))
+    q[~keep] = np.sqrt(np.maximum(0.0, 1.0 - (others ** 2).sum(axis=1)))
     return q
 
 
@@ -84,13 +83,8 @@ def to_bytes(x: np.ndarray) -> np.ndarray:
 
 def read_model(means, log_scales, quats, opacity, sh) -> GaussianModel:
     """A model as read; the opacity clamped off 0 and 1 (see ALPHA_FLOOR), quaternions normalised."""
-    return GaussianModel(
-        means=means,
-        log_scales=log_scales,
-        quats=unit_quats(quats),
-        opacity_logits=logit(np.clip(opacity, ALPHA_FLOOR, 1 - ALPHA_FLOOR)),
-        sh=sh,
-    )
+    return GaussianModel(means=means, log_scales=log_scales, quats=unit_quats(quats),
+                         opacity_logits=logit(np.clip(opacity, ALPHA_FLOOR, 1 - ALPHA_FLOOR)), sh=sh)
 
 
 def read_bytes(path) -> bytes:
@@ -102,9 +96,8 @@ def read_bytes(path) -> bytes:
 
 def write_bytes(path, data: bytes) -> None:
     def write(tmp: Path) -> None:
-        with open(tmp, "xb") as f:  # "x": never clobber
+        with open(tmp, "xb") as f:   # "x": never clobber
             f.write(data)
             f.flush()
-            os.fsync(f.fileno())  # the data is on disk before the name points at it
-
+            os.fsync(f.fileno())     # the data is on disk before the name points at it
     write_atomic(path, write)

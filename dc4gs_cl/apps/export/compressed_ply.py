@@ -14,7 +14,6 @@ order, in chunks of 256 (the last one's bounds over its real members). Elements:
 
 "In bounds" with b bits: round((2^b - 1) * (v - min) / (max - min)); read min + (max - min) * u / (2^b - 1).
 """
-
 from __future__ import annotations
 
 import os
@@ -24,48 +23,18 @@ import numpy as np
 from ...errors import InputError
 from ...model import GaussianModel, rgb_to_sh_dc
 from ...ply import read_header
-from .common import (
-    SMALLEST_THREE_BITS,
-    SQRT_HALF,
-    dc_colour,
-    from_smallest_three,
-    pack_bits,
-    read_model,
-    smallest_three,
-    to_bytes,
-    unit_quats,
-    unorm,
-    unpack_bits,
-    unpack_unorm,
-    write_bytes,
-)
+from .common import (SMALLEST_THREE_BITS, SQRT_HALF, dc_colour, from_smallest_three, pack_bits, read_model,
+                     smallest_three, to_bytes, unit_quats, unorm, unpack_bits, unpack_unorm, write_bytes)
 
 CHUNK_SIZE = 256
-CHUNK_PROPS = [
-    "min_x",
-    "min_y",
-    "min_z",
-    "max_x",
-    "max_y",
-    "max_z",
-    "min_scale_x",
-    "min_scale_y",
-    "min_scale_z",
-    "max_scale_x",
-    "max_scale_y",
-    "max_scale_z",
-    "min_r",
-    "min_g",
-    "min_b",
-    "max_r",
-    "max_g",
-    "max_b",
-]
+CHUNK_PROPS = ["min_x", "min_y", "min_z", "max_x", "max_y", "max_z",
+               "min_scale_x", "min_scale_y", "min_scale_z", "max_scale_x", "max_scale_y", "max_scale_z",
+               "min_r", "min_g", "min_b", "max_r", "max_g", "max_b"]
 VERTEX_PROPS = ["packed_position", "packed_rotation", "packed_scale", "packed_color"]
 XYZ_BITS, COLOR_BITS = (11, 10, 11), (8, 8, 8, 8)
-LOG_SCALE_LIMIT = 20.0  # chunk scale bounds are clamped to +-this (PlayCanvas: guards infinities)
-SH_SPAN = 8.0  # f_rest codes cover [-SH_SPAN / 2, SH_SPAN / 2]
-MORTON_BITS = 21  # per axis: three make a 63-bit code
+LOG_SCALE_LIMIT = 20.0         # chunk scale bounds are clamped to +-this (PlayCanvas: guards infinities)
+SH_SPAN = 8.0                  # f_rest codes cover [-SH_SPAN / 2, SH_SPAN / 2]
+MORTON_BITS = 21               # per axis: three make a 63-bit code
 
 
 def write_compressed_ply(path: str | os.PathLike, model: GaussianModel) -> None:
@@ -78,28 +47,19 @@ def write_compressed_ply(path: str | os.PathLike, model: GaussianModel) -> None:
 
     def in_chunks(v):
         return v[rows].astype(np.float64).reshape(chunks, CHUNK_SIZE, -1)
-
     pos_lo, pos_hi, pos = _in_bounds(in_chunks(model.means), XYZ_BITS)
     scale_lo, scale_hi, scale = _in_bounds(in_chunks(model.log_scales), XYZ_BITS, LOG_SCALE_LIMIT)
     col_lo, col_hi, col = _in_bounds(dc_colour(in_chunks(model.sh[:, 0])), COLOR_BITS[:3])
     alpha = unorm(model.opacities[rows].astype(np.float64), COLOR_BITS[3])
     largest, others = smallest_three(unit_quats(model.quats[rows]))
     rotation = pack_bits([largest, *unorm(others * SQRT_HALF + 0.5, SMALLEST_THREE_BITS[1]).T], SMALLEST_THREE_BITS)
-    vertex = np.stack(
-        [pack_bits(pos.T, XYZ_BITS), rotation, pack_bits(scale.T, XYZ_BITS), pack_bits([*col.T, alpha], COLOR_BITS)],
-        axis=1,
-    )[:n].astype("<u4")
+    vertex = np.stack([pack_bits(pos.T, XYZ_BITS), rotation, pack_bits(scale.T, XYZ_BITS),
+                       pack_bits([*col.T, alpha], COLOR_BITS)], axis=1)[:n].astype("<u4")
     chunk = np.concatenate([pos_lo, pos_hi, scale_lo, scale_hi, col_lo, col_hi], axis=1).astype("<f4")
     rest = _channel_major(model.sh[order])
-    lines = [
-        "ply",
-        "format binary_little_endian 1.0",
-        "comment written by dc4gs-cl",
-        f"element chunk {chunks}",
-        *(f"property float {p}" for p in CHUNK_PROPS),
-        f"element vertex {n}",
-        *(f"property uint {p}" for p in VERTEX_PROPS),
-    ]
+    lines = ["ply", "format binary_little_endian 1.0", "comment written by dc4gs-cl", f"element chunk {chunks}",
+             *(f"property float {p}" for p in CHUNK_PROPS), f"element vertex {n}",
+             *(f"property uint {p}" for p in VERTEX_PROPS)]
     if rest.shape[1]:
         lines += [f"element sh {n}", *(f"property uchar f_rest_{i}" for i in range(rest.shape[1]))]
     header = ("\n".join(lines + ["end_header"]) + "\n").encode("ascii")
@@ -114,15 +74,10 @@ def morton_order(means: np.ndarray) -> np.ndarray:
     lo, span = p.min(axis=0), np.ptp(p, axis=0)
     cells = np.floor((p - lo) / np.where(span > 0, span, 1) * ((1 << MORTON_BITS) - 1)).astype(np.uint64)
     code = np.zeros(len(p), np.uint64)
-    for axis in range(3):  # spread each axis' bits three apart, x lowest
+    for axis in range(3):   # spread each axis' bits three apart, x lowest
         v = cells[:, axis]
-        for shift, mask in (
-            (32, 0x1F00000000FFFF),
-            (16, 0x1F0000FF0000FF),
-            (8, 0x100F00F00F00F00F),
-            (4, 0x10C30C30C30C30C3),
-            (2, 0x1249249249249249),
-        ):
+        for shift, mask in ((32, 0x1F00000000FFFF), (16, 0x1F0000FF0000FF), (8, 0x100F00F00F00F00F),
+                            (4, 0x10C30C30C30C30C3), (2, 0x1249249249249249)):
             v = (v | v << np.uint64(shift)) & np.uint64(mask)
         code |= v << np.uint64(axis)
     return np.argsort(code, kind="stable")
@@ -147,12 +102,11 @@ def read_compressed_ply(path: str | os.PathLike) -> GaussianModel:
     if len(chunk) != -(-n // CHUNK_SIZE):
         raise InputError(path, f"{len(chunk)} chunks for {n} Gaussians: expected one per {CHUNK_SIZE}")
 
-    def in_bounds(first, word, bits):  # the 3 min and 3 max from chunk property `first` on, around word's codes
+    def in_bounds(first, word, bits):   # the 3 min and 3 max from chunk property `first` on, around word's codes
         i = CHUNK_PROPS.index(first)
-        b = np.stack([chunk[name].astype(np.float64) for name in CHUNK_PROPS[i : i + 6]], axis=1)
+        b = np.stack([chunk[name].astype(np.float64) for name in CHUNK_PROPS[i:i + 6]], axis=1)
         lo, hi = np.split(np.repeat(b, CHUNK_SIZE, axis=0)[:n], 2, axis=1)
         return lo + (hi - lo) * np.stack(unpack_unorm(word, bits)[:3], axis=1)
-
     largest = unpack_bits(vertex["packed_rotation"], SMALLEST_THREE_BITS)[0]
     others = np.stack(unpack_unorm(vertex["packed_rotation"], SMALLEST_THREE_BITS)[1:], axis=1)
     sh = np.zeros((n, 0))
@@ -161,13 +115,11 @@ def read_compressed_ply(path: str | os.PathLike) -> GaussianModel:
         sh = SH_SPAN * (np.where(codes == 0, 0.0, np.where(codes == 255, 1.0, (codes + 0.5) / 256)) - 0.5)
     rest = sh.shape[1] // 3
     colour = in_bounds("min_r", vertex["packed_color"], COLOR_BITS)
-    return read_model(
-        in_bounds("min_x", vertex["packed_position"], XYZ_BITS),
-        in_bounds("min_scale_x", vertex["packed_scale"], XYZ_BITS),
-        from_smallest_three(largest, (others - 0.5) / SQRT_HALF),
-        unpack_unorm(vertex["packed_color"], COLOR_BITS)[3],
-        np.concatenate([rgb_to_sh_dc(colour)[:, None], sh.reshape(n, 3, rest).transpose(0, 2, 1)], axis=1),
-    )
+    return read_model(in_bounds("min_x", vertex["packed_position"], XYZ_BITS),
+                      in_bounds("min_scale_x", vertex["packed_scale"], XYZ_BITS),
+                      from_smallest_three(largest, (others - 0.5) / SQRT_HALF),
+                      unpack_unorm(vertex["packed_color"], COLOR_BITS)[3],
+                      np.concatenate([rgb_to_sh_dc(colour)[:, None], sh.reshape(n, 3, rest).transpose(0, 2, 1)], axis=1))
 
 
 def _in_bounds(v: np.ndarray, bits, limit: float | None = None):
@@ -177,7 +129,7 @@ def _in_bounds(v: np.ndarray, bits, limit: float | None = None):
     if limit is not None:
         lo, hi = np.clip(lo, -limit, limit), np.clip(hi, -limit, limit)
     lo, hi = lo.astype(np.float32), hi.astype(np.float32)
-    span = hi.astype(np.float64)[:, None] - lo[:, None]  # in float64, as readers decode it
+    span = hi.astype(np.float64)[:, None] - lo[:, None]   # in float64, as readers decode it
     t = np.where(span > 0, (v - lo[:, None]) / np.where(span > 0, span, 1), 0.0)
     codes = np.stack([unorm(t[..., i], width) for i, width in enumerate(bits)], axis=-1)
     return lo, hi, codes.reshape(-1, 3)

@@ -9,7 +9,6 @@ No SH beyond DC. Largest exp(sum of log scales) * opacity first, as antimatter15
 as the viewer's own converter (main.js) does (its convert.py truncates). Read: u / 255 and (u - 128) / 128
 (then normalised).
 """
-
 from __future__ import annotations
 
 import os
@@ -21,7 +20,7 @@ from ...model import GaussianModel, rgb_to_sh_dc
 from .common import dc_colour, read_bytes, read_model, to_bytes, unit_quats, write_bytes
 
 SPLAT_RECORD = np.dtype([("position", "<f4", 3), ("scale", "<f4", 3), ("rgba", "u1", 4), ("rotation", "u1", 4)])
-SPLAT_ROTATION_SCALE = 128.0  # byte = 128 * q + 128
+SPLAT_ROTATION_SCALE = 128.0   # byte = 128 * q + 128
 
 
 def write_splat(path: str | os.PathLike, model: GaussianModel) -> None:
@@ -46,18 +45,11 @@ def read_splat(path: str | os.PathLike) -> GaussianModel:
     """A .splat file as antimatter15's viewer decodes it: SH degree 0, unit quaternions."""
     data = read_bytes(path)
     if not data or len(data) % SPLAT_RECORD.itemsize:
-        raise InputError(
-            path, f"not a .splat file: {len(data)} bytes is no positive multiple of {SPLAT_RECORD.itemsize}"
-        )
+        raise InputError(path, f"not a .splat file: {len(data)} bytes is no positive multiple of {SPLAT_RECORD.itemsize}")
     rec = np.frombuffer(data, SPLAT_RECORD)
     rgba = rec["rgba"] / 255.0
-    with np.errstate(divide="ignore", invalid="ignore"):  # a scale of 0 reads as log scale -inf, a negative as NaN
-        # (read_model_file refuses both)
+    with np.errstate(divide="ignore", invalid="ignore"):   # a scale of 0 reads as log scale -inf, a negative as NaN
+                                                            # (read_model_file refuses both)
         log_scales = np.log(rec["scale"])
-    return read_model(
-        rec["position"],
-        log_scales,
-        rec["rotation"] / SPLAT_ROTATION_SCALE - 1,
-        rgba[:, 3],
-        rgb_to_sh_dc(rgba[:, None, :3]),
-    )
+    return read_model(rec["position"], log_scales, rec["rotation"] / SPLAT_ROTATION_SCALE - 1, rgba[:, 3],
+                      rgb_to_sh_dc(rgba[:, None, :3]))

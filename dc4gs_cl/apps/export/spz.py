@@ -23,7 +23,6 @@ turns the scene half a turn about x (y and z of positions and of the quaternion 
 odd in y, z change sign), which their reader undoes when asked for RDF, as splat-transform and their
 spz_to_ply do.
 """
-
 from __future__ import annotations
 
 import gzip
@@ -34,46 +33,26 @@ import numpy as np
 
 from ...errors import InputError
 from ...model import GaussianModel
-from .common import (
-    SMALLEST_THREE_BITS,
-    SQRT_HALF,
-    from_smallest_three,
-    pack_bits,
-    read_bytes,
-    read_model,
-    smallest_three,
-    to_bytes,
-    unit_quats,
-    unpack_bits,
-    write_bytes,
-)
+from .common import (SMALLEST_THREE_BITS, SQRT_HALF, from_smallest_three, pack_bits, read_bytes, read_model,
+                     smallest_three, to_bytes, unit_quats, unpack_bits, write_bytes)
 
 SPZ_MAGIC, SPZ_VERSION = 0x5053474E, 3
-SPZ_HEADER = np.dtype(
-    [
-        ("magic", "<u4"),
-        ("version", "<u4"),
-        ("count", "<u4"),
-        ("sh_degree", "u1"),
-        ("fractional_bits", "u1"),
-        ("flags", "u1"),
-        ("reserved", "u1"),
-    ]
-)
+SPZ_HEADER = np.dtype([("magic", "<u4"), ("version", "<u4"), ("count", "<u4"), ("sh_degree", "u1"),
+                       ("fractional_bits", "u1"), ("flags", "u1"), ("reserved", "u1")])
 SPZ_FRACTIONAL_BITS = 12
 SPZ_POSITION_MAX = (1 << 23) - 1
-SPZ_COLOR_SCALE = 0.15  # f_dc scale: wider than SH_C0, so colours a little outside [0, 1] survive
+SPZ_COLOR_SCALE = 0.15         # f_dc scale: wider than SH_C0, so colours a little outside [0, 1] survive
 SPZ_SCALE_OFFSET, SPZ_SCALE_STEPS = 10.0, 16.0
 SPZ_SH_STEPS = 128.0
-SPZ_SH_BUCKETS = (8, 16)  # degree 1, degrees 2+: 2^(8 - bits) for their writer's default 5 and 4 bits
-SPZ_ROTATION_MAX = 511  # 9-bit magnitudes
-SPZ_AXIS_SIGNS = np.array([1.0, -1.0, -1.0])  # RDF <-> RUB on x, y, z: a half turn about x
+SPZ_SH_BUCKETS = (8, 16)       # degree 1, degrees 2+: 2^(8 - bits) for their writer's default 5 and 4 bits
+SPZ_ROTATION_MAX = 511         # 9-bit magnitudes
+SPZ_AXIS_SIGNS = np.array([1.0, -1.0, -1.0])   # RDF <-> RUB on x, y, z: a half turn about x
 # The sign each SH rest coefficient (degrees 1..3, 3DGS order) takes under (x, y, z) -> (x, -y, -z).
 SPZ_SH_SIGNS = np.array([-1, -1, 1, -1, 1, 1, -1, 1, -1, 1, -1, -1, 1, -1, 1], np.float64)
-GZIP_LEVEL = 6  # zlib's default, as their writer uses
+GZIP_LEVEL = 6                 # zlib's default, as their writer uses
 
 
-SPZ_ANTIALIASED = 0x1  # the header's flag bit
+SPZ_ANTIALIASED = 0x1         # the header's flag bit
 
 
 def write_spz(path: str | os.PathLike, model: GaussianModel, antialiased: bool = False) -> None:
@@ -82,26 +61,22 @@ def write_spz(path: str | os.PathLike, model: GaussianModel, antialiased: bool =
     n, rest = len(model), model.sh.shape[1] - 1
     means = model.means.astype(np.float64) * SPZ_AXIS_SIGNS
     bits = spz_fractional_bits(path, means)
-    fixed = np.rint(means * 2.0**bits).astype("<i4")
-    q = unit_quats(model.quats)[:, [1, 2, 3, 0]]  # (x, y, z, w), as spz orders them
+    fixed = np.rint(means * 2.0 ** bits).astype("<i4")
+    q = unit_quats(model.quats)[:, [1, 2, 3, 0]]            # (x, y, z, w), as spz orders them
     q[:, :3] *= SPZ_AXIS_SIGNS
     largest, others = smallest_three(q)
     magnitudes = np.minimum(np.rint(SPZ_ROTATION_MAX * np.abs(others) / SQRT_HALF), SPZ_ROTATION_MAX)
     fields = (others < 0) * (SPZ_ROTATION_MAX + 1) + magnitudes
     bucket = np.where(np.arange(rest) < 3, *SPZ_SH_BUCKETS)[None, :, None]
     sh = np.rint(model.sh[:, 1:] * SPZ_SH_SIGNS[:rest, None] * SPZ_SH_STEPS) + SPZ_SH_STEPS
-    header = np.array(
-        [(SPZ_MAGIC, SPZ_VERSION, n, model.sh_degree, bits, SPZ_ANTIALIASED if antialiased else 0, 0)], SPZ_HEADER
-    )
-    parts = [
-        header,
-        fixed.view(np.uint8).reshape(n, 3, 4)[:, :, :3],  # the low three bytes of each
-        to_bytes(255 * model.opacities),
-        to_bytes(255 * (SPZ_COLOR_SCALE * model.sh[:, 0].astype(np.float64) + 0.5)),
-        to_bytes(SPZ_SCALE_STEPS * (model.log_scales.astype(np.float64) + SPZ_SCALE_OFFSET)),
-        pack_bits([largest, *fields.T], SMALLEST_THREE_BITS).astype("<u4"),
-        to_bytes(np.floor((sh + bucket // 2) / bucket) * bucket),
-    ]
+    header = np.array([(SPZ_MAGIC, SPZ_VERSION, n, model.sh_degree, bits, SPZ_ANTIALIASED if antialiased else 0, 0)],
+                      SPZ_HEADER)
+    parts = [header, fixed.view(np.uint8).reshape(n, 3, 4)[:, :, :3],   # the low three bytes of each
+             to_bytes(255 * model.opacities),
+             to_bytes(255 * (SPZ_COLOR_SCALE * model.sh[:, 0].astype(np.float64) + 0.5)),
+             to_bytes(SPZ_SCALE_STEPS * (model.log_scales.astype(np.float64) + SPZ_SCALE_OFFSET)),
+             pack_bits([largest, *fields.T], SMALLEST_THREE_BITS).astype("<u4"),
+             to_bytes(np.floor((sh + bucket // 2) / bucket) * bucket)]
     data = b"".join(np.ascontiguousarray(p).tobytes() for p in parts)
     write_bytes(path, gzip.compress(data, GZIP_LEVEL, mtime=0))
 
@@ -110,7 +85,7 @@ def spz_fractional_bits(path, means: np.ndarray) -> int:
     """SPZ_FRACTIONAL_BITS, or fewer where the largest coordinate would overflow 24 bits."""
     largest = float(np.abs(means).max(initial=0.0))
     for bits in range(SPZ_FRACTIONAL_BITS, -1, -1):
-        if np.rint(largest * 2.0**bits) <= SPZ_POSITION_MAX:
+        if np.rint(largest * 2.0 ** bits) <= SPZ_POSITION_MAX:
             return bits
     raise InputError(path, f"a coordinate of {largest:g} is beyond the {SPZ_POSITION_MAX:,} units .spz can store")
 
@@ -135,19 +110,16 @@ def read_spz(path: str | os.PathLike) -> GaussianModel:
         raise InputError(path, "not a .spz file (shorter than its header)")
     h = np.frombuffer(data, SPZ_HEADER, count=1)[0]
     if h["magic"] != SPZ_MAGIC or h["version"] != SPZ_VERSION or h["sh_degree"] > 3:
-        raise InputError(
-            path,
-            f"not a version {SPZ_VERSION} .spz file of SH degree 0..3 (magic {h['magic']:#x}, "
-            f"version {h['version']}, SH degree {h['sh_degree']})",
-        )
+        raise InputError(path, f"not a version {SPZ_VERSION} .spz file of SH degree 0..3 (magic {h['magic']:#x}, "
+                               f"version {h['version']}, SH degree {h['sh_degree']})")
     n, rest = int(h["count"]), (int(h["sh_degree"]) + 1) ** 2 - 1
     sizes = [9 * n, n, 3 * n, 3 * n, 4 * n, 3 * rest * n]
     if len(data) < SPZ_HEADER.itemsize + sum(sizes):
         raise InputError(path, f"truncated: the header promises {n} Gaussians")
     ends = SPZ_HEADER.itemsize + np.cumsum(sizes)
-    raw = [np.frombuffer(data[e - s : e], np.uint8) for s, e in zip(sizes, ends)]
+    raw = [np.frombuffer(data[e - s:e], np.uint8) for s, e in zip(sizes, ends)]
     b = raw[0].reshape(n, 3, 3).astype(np.int32)
-    fixed = ((b[..., 0] | b[..., 1] << 8 | b[..., 2] << 16) ^ 0x800000) - 0x800000  # sign-extend 24 bits
+    fixed = ((b[..., 0] | b[..., 1] << 8 | b[..., 2] << 16) ^ 0x800000) - 0x800000   # sign-extend 24 bits
     largest, *fields = unpack_bits(raw[4].view("<u4"), SMALLEST_THREE_BITS)
     fields = np.stack(fields, axis=1)
     sign = 1 - 2 * (fields > SPZ_ROTATION_MAX).astype(np.float64)
@@ -155,10 +127,6 @@ def read_spz(path: str | os.PathLike) -> GaussianModel:
     q[:, :3] *= SPZ_AXIS_SIGNS
     dc = (raw[2].reshape(n, 1, 3) / 255.0 - 0.5) / SPZ_COLOR_SCALE
     sh_rest = (raw[5].reshape(n, rest, 3) - SPZ_SH_STEPS) / SPZ_SH_STEPS * SPZ_SH_SIGNS[:rest, None]
-    return read_model(
-        fixed * SPZ_AXIS_SIGNS / 2.0 ** int(h["fractional_bits"]),
-        raw[3].reshape(n, 3) / SPZ_SCALE_STEPS - SPZ_SCALE_OFFSET,
-        q[:, [3, 0, 1, 2]],
-        raw[1] / 255.0,
-        np.concatenate([dc, sh_rest], axis=1),
-    )
+    return read_model(fixed * SPZ_AXIS_SIGNS / 2.0 ** int(h["fractional_bits"]),
+                      raw[3].reshape(n, 3) / SPZ_SCALE_STEPS - SPZ_SCALE_OFFSET,
+                      q[:, [3, 0, 1, 2]], raw[1] / 255.0, np.concatenate([dc, sh_rest], axis=1))
