@@ -1,1 +1,2 @@
-from .cli import main; raise SystemExit(main())
+from .cli import main
+raise SystemExit(main())

@@ -1,7 +1,7 @@
 """A training run's settings: one frozen value, validated once, written to the run folder's config.json and
 read back by --resume and eval (run_folder.py); with the densification settings it holds (DC4GSConfig, MCMC's
-MCMCConfig) or a strategy takes (DensifyConfig), and the `train` flags, each declared once with the setting it gives (TRAIN_FLAGS:
-the command line is built from them, and every check names a setting by its flag).
+MCMCConfig) or a strategy takes (DensifyConfig), and the `train` flags, each declared once with the setting it gives
+(TRAIN_FLAGS: the command line is built from them, and every check names a setting by its flag).
 
 Device-free (no OpenCL, no strategy classes), so that `report` and `export` import without a device
 (tests/test_structure.py)."""
@@ -314,7 +314,8 @@ class TrainConfig:
     save_at: tuple[int, ...] = ()          # PLYs at these iterations (the last one is always saved)
     checkpoint_every: int = 1_000
     eval_at: tuple[int, ...] | None = None  # test views evaluated after these iterations (None: the recipe's)
-    batch: int = 1                         # views per optimiser step (an iteration), over all processes (optim/batch_gradients.py)
+    batch: int = 1                         # views per optimiser step (an iteration), over all processes
+                                           # (optim/batch_gradients.py)
     # learning rates (3DGS); the position's decays log-linearly over the run and scales with the extent
     lr_means: float = 1.6e-4
     lr_means_final: float = 1.6e-6
@@ -355,7 +356,8 @@ class TrainConfig:
             ("checkpoint_every", self.checkpoint_every < 1, f"{self.checkpoint_every} must be at least 1"),
             ("batch", self.batch < 1, f"{self.batch} must be at least 1"),
             *((name, value is not None and value < least, f"{value} must be >= {least}")
-              for name, value, least in (("densify_until", self.densify_until, 0), ("densify_from", self.densify_from, 0),
+              for name, value, least in (("densify_until", self.densify_until, 0),
+                                         ("densify_from", self.densify_from, 0),
                                          ("densify_every", self.densify_every, 1),
                                          ("opacity_reset_every", self.opacity_reset_every, 0))),
             ("lambda_dssim", not 0 <= self.lambda_dssim <= 1, f"{self.lambda_dssim} must lie in [0, 1]"),
@@ -369,7 +371,8 @@ class TrainConfig:
              f"{self.max_gaussians} must be at least 1"),
             ("sh_degree", not 0 <= self.sh_degree <= SH_MAX_DEGREE, f"{self.sh_degree} must be 0..{SH_MAX_DEGREE}"),
             ("seed", not 0 <= self.seed <= MAX_SEED, f"{self.seed} must be 0..2^63-1")])
-        problems += flagged_problems([(f.name, not (math.isfinite(getattr(self, f.name)) and getattr(self, f.name) >= 0),
+        problems += flagged_problems([(f.name, not (math.isfinite(getattr(self, f.name))
+                                                    and getattr(self, f.name) >= 0),
                                        f"{getattr(self, f.name)} must be a finite number >= 0")
                                       for f in fields(TrainConfig) if f.name.startswith("lr_")])
         if problems:

@@ -226,7 +226,8 @@ def _to_model(path, cols, names: list[str]) -> GaussianModel:
 def check_ranges(path, model: GaussianModel) -> None:
     """InputError naming the first Gaussian whose mean or log scale lies beyond what the kernels and the exports
     keep finite (constants.MAX_ABS_MEAN, MAX_ABS_LOG_SCALE)."""
-    for what, values, limit in (("mean", model.means, MAX_ABS_MEAN), ("log scale", model.log_scales, MAX_ABS_LOG_SCALE)):
+    for what, values, limit in (("mean", model.means, MAX_ABS_MEAN),
+                                ("log scale", model.log_scales, MAX_ABS_LOG_SCALE)):
         beyond = np.flatnonzero((np.abs(values) > limit).any(axis=1))
         if len(beyond):
             i = int(beyond[0])

@@ -83,7 +83,8 @@ def _read_checkpoint_file(path: Path) -> tuple[dict[str, np.ndarray], dict]:
             raise ValueError("metadata is not a JSON object")
     except Exception as e:   # zipfile, zlib and numpy raise a dozen kinds on a damaged archive; all mean "corrupt"
         raise InputError(path, f"corrupt checkpoint ({e.__class__.__name__}: {_one_line(e)})") from None
-    if CHECKSUM in meta and meta[CHECKSUM] != checkpoint_checksum(arrays, meta):   # checkpoints before checksums have none
+    # checkpoints before checksums have none
+    if CHECKSUM in meta and meta[CHECKSUM] != checkpoint_checksum(arrays, meta):
         raise InputError(path, "corrupt checkpoint (checksum mismatch)")
     return arrays, meta
 
@@ -260,8 +261,9 @@ class RunFolder:
         # (it has no folder), images only where that folder is the scene's, no data_device (there is no CUDA)
         root = Path(scene.root)
         values = {"sh_degree": cfg.sh_degree, **({"source_path": str(root.resolve())} if root.exists() else {}),
-                  "model_path": str(self.path.resolve()), **({"images": "images"} if (root / "images").is_dir() else {}),
-                  "resolution": cfg.resolution or -1, "white_background": cfg.white_background, "eval": cfg.test_every > 0}
+                  "model_path": str(self.path.resolve()),
+                  **({"images": "images"} if (root / "images").is_dir() else {}), "resolution": cfg.resolution or -1,
+                  "white_background": cfg.white_background, "eval": cfg.test_every > 0}
         cfg_args = "Namespace(" + ", ".join(f"{k}={v!r}" for k, v in values.items()) + ")"
         write_atomic(self.path / "cfg_args", lambda tmp: tmp.write_text(cfg_args))
         cams = [{"id": i, "img_name": Path(c.name).stem, "width": c.width, "height": c.height,

@@ -505,7 +505,8 @@ class DeviceArrays:
         return self.rt.to_host(self.buffers[name], (self.n, self.widths[name]))
 
     def upload_group(self, name: str, array: np.ndarray) -> None:
-        self.rt.write(self.buffers[name], np.ascontiguousarray(array, dtype=np.float32).reshape(self.n, self.widths[name]))
+        self.rt.write(self.buffers[name],
+                      np.ascontiguousarray(array, dtype=np.float32).reshape(self.n, self.widths[name]))
 
     def zero(self, name: str | None = None) -> None:
         """Zero every group (or only `name`) for the n Gaussians."""

@@ -44,7 +44,8 @@ def blend_masks(c):
         y0, x0 = (tile // c["tiles_x"]) * K.TILE_SIZE, (tile % c["tiles_x"]) * K.TILE_SIZE
         ys, xs = np.mgrid[y0:min(y0 + K.TILE_SIZE, c["height"]), x0:min(x0 + K.TILE_SIZE, c["width"])]
         if end > first and ys.size:
-            masks.append(_tile_blend(c["mean2d"], c["conic"], c["opacity"], c["gaussian_of_pair"][first:end], xs, ys)[4])
+            masks.append(_tile_blend(c["mean2d"], c["conic"], c["opacity"], c["gaussian_of_pair"][first:end],
+                                     xs, ys)[4])
     return np.concatenate([m.ravel() for m in masks])
 
 

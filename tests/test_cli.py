@@ -97,7 +97,8 @@ def test_a_run_trained_antialiased_renders_antialiased(tmp_path, rng, capsys):
     # export says it cannot
     from dc4gs_cl.apps.export import cmd_export, read_model_file, recorded_antialiased
     for name in ("m.spz", "m.ply"):
-        assert cmd_export(argparse.Namespace(model=run, ply=None, iteration=None, out=tmp_path / name, format=None)) == 0
+        assert cmd_export(argparse.Namespace(model=run, ply=None, iteration=None, out=tmp_path / name,
+                                             format=None)) == 0
     assert recorded_antialiased(tmp_path / "m.spz") is True and recorded_antialiased(tmp_path / "m.ply") is None
     assert "cannot record" in capsys.readouterr().out
     write_ply(tmp_path / "spz-read.ply", read_model_file(tmp_path / "m.spz"))

@@ -404,7 +404,8 @@ def test_densify_stats_kernel_matches_reference(rt, rng, pooling, track):
     from dc4gs_cl.render.stage import StageContext
     from dc4gs_cl.statistics import ABS_PER_VIEW, PIXELGS_DEPTH_FRACTION, StatisticsSpec
     n, views, candidates, extent, width, height = 300, 7, 5, 3.0, 120, 80
-    spec = StatisticsSpec(dc=True, split_candidates=candidates, window_pooling=pooling == "window", tracked=ABS_PER_VIEW)
+    spec = StatisticsSpec(dc=True, split_candidates=candidates, window_pooling=pooling == "window",
+                          tracked=ABS_PER_VIEW)
     layout, geo_record = spec.sums, geometry_record(candidates)
     stats, fold = Window(rt, spec, extent, track_threshold=track), DensifyStats(StageContext(rt, poison=True))
     stats.reset(n)
@@ -480,7 +481,8 @@ def test_dc_guided_split_children(rng, shrink_others):
     from dc4gs_cl.model import GaussianSet
     n = 3
     q = rng.normal(size=(n, 4))
-    params = {"means": rng.normal(size=(n, 3)), "log_scales": np.log([[0.2, 0.5, 0.1], [0.3, 0.3, 0.3], [0.1, 0.1, 0.4]]),
+    params = {"means": rng.normal(size=(n, 3)),
+              "log_scales": np.log([[0.2, 0.5, 0.1], [0.3, 0.3, 0.3], [0.1, 0.1, 0.4]]),
               "quats": q, "opacity_logits": np.array([[0.4], [1.0], [-0.5]]), "sh": rng.normal(size=(n, 12))}
     params = {k: v.astype(np.float32) for k, v in params.items()}
     gs = GaussianSet(dict(params), {k: np.ones_like(v) for k, v in params.items()},
@@ -502,7 +504,8 @@ def test_dc_guided_split_children(rng, shrink_others):
             want[axis] = sigma * fraction
             np.testing.assert_allclose(np.exp(gs.params["log_scales"][child]), want, rtol=1e-5)
             o = 1 / (1 + np.exp(-params["opacity_logits"][parent, 0]))
-            np.testing.assert_allclose(1 / (1 + np.exp(-gs.params["opacity_logits"][child, 0])), o * fraction, rtol=1e-5)
+            np.testing.assert_allclose(1 / (1 + np.exp(-gs.params["opacity_logits"][child, 0])),
+                                       o * fraction, rtol=1e-5)
             np.testing.assert_array_equal(gs.params["quats"][child], params["quats"][parent])
             np.testing.assert_array_equal(gs.params["sh"][child], params["sh"][parent])
             for moments in (gs.m, gs.v):

@@ -80,7 +80,8 @@ def test_a_launch_beyond_a_kernels_limits_is_refused_by_name(rt):
     kernel = cl.Kernel(program, "add_one")
     buf = rt.to_device(np.zeros(64, np.float32))
     limit = rt.kernel_limits(kernel).work_group
-    with pytest.raises(DeviceError, match=rf"stage test: kernel add_one .* work-groups of {2 * limit} items.*allows {limit}"):
+    with pytest.raises(DeviceError,
+                       match=rf"stage test: kernel add_one .* work-groups of {2 * limit} items.*allows {limit}"):
         rt.launch("test", kernel, 2 * limit, 2 * limit, buf)
     narrow = Runtime()
     narrow.caps = replace(narrow.caps, max_work_group_size=8)

@@ -125,7 +125,8 @@ def assert_within_bounds(fmt, model, back, splat_rotation_step=0.5 / 128):
         c = np.clip(sh[:, 1:], -SH_SPAN / 2, SH_SPAN / 2)
         inner = np.abs(c) < SH_SPAN / 2 - SH_SPAN / 256
         check("SH rest", back.sh[:, 1:], c, np.where(inner, SH_SPAN / 512, SH_SPAN / 256))
-        check_quats("rotation", back.quats, m.quats, smallest_three_bound(0.5 / ((1 << SMALLEST_THREE_BITS[1]) - 1) / SQRT_HALF))
+        check_quats("rotation", back.quats, m.quats,
+                    smallest_three_bound(0.5 / ((1 << SMALLEST_THREE_BITS[1]) - 1) / SQRT_HALF))
 
 
 # our readers -------------------------------------------------------------------------------------------

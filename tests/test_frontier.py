@@ -35,7 +35,8 @@ def test_sweep_runs_each_point_once_and_reports_it(tmp_path):
     for r in first:
         assert r["split_threshold"] == pytest.approx(4e-4 * r["scale"])
         saved = json.loads((tmp_path / "runs" / r["key"].replace("|", "-") / "config.json").read_text())
-        assert saved["split_threshold"] == pytest.approx(r["split_threshold"]) and saved["dc4gs"]["dcc"] == (r["method"] == "dcc")
+        assert (saved["split_threshold"] == pytest.approx(r["split_threshold"])
+                and saved["dc4gs"]["dcc"] == (r["method"] == "dcc"))
         assert math.isfinite(r["psnr"]) and r["gaussians_final"] > 0 and r["wall_s"] > 0
         assert sorted(r["per_view_psnr"]) == ["view_000.png", "view_008.png", "view_016.png", "view_024.png"]
     by = {(r["method"], r["scale"]): r for r in first}

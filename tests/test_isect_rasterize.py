@@ -143,7 +143,8 @@ def test_exact_skips_change_no_pixel_and_fast_exp_matches_driver_exp(rt, rng):
     g = DeviceGaussians(rt, model)
     images, pairs = {}, {}
     for name, opts in [("default", RenderOptions()), ("no_alpha_cut", RenderOptions(alpha_cut=False)),
-                       ("no_early_stop", RenderOptions(early_stop=False)), ("driver_exp", RenderOptions(fast_exp=False))]:
+                       ("no_early_stop", RenderOptions(early_stop=False)),
+                       ("driver_exp", RenderOptions(fast_exp=False))]:
         res = Renderer(rt, SHAPES["cpu"], opts, poison=True).render(g, cam, 3, (0.3, 0.3, 0.3))
         images[name], pairs[name] = res.image(rt), res.isect.n_pairs
     assert pairs["no_alpha_cut"] > pairs["default"]

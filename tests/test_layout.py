@@ -90,7 +90,8 @@ def test_sums_and_window_derive_from_one_spec(strategy, dc4gs):
 
 
 def test_sums_layout_refuses_inconsistent_switches():
-    for bad in (dict(dc_stats=True), dict(stats=True, split_candidates=5), dict(stats=True, dc_stats=True, split_candidates=4)):
+    for bad in (dict(dc_stats=True), dict(stats=True, split_candidates=5),
+                dict(stats=True, dc_stats=True, split_candidates=4)):
         with pytest.raises(ValueError):
             SumsLayout(**bad)
 

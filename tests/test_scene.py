@@ -41,7 +41,8 @@ def write_colmap(root: Path, camera: str = "PINHOLE 64 48 50 50 32 24",
     model.mkdir(parents=True)
     (model / "cameras.txt").write_text(f"1 {camera}\n")
     (model / "images.txt").write_text("".join(
-        f"{i + 1} {' '.join(map(str, q))} {' '.join(map(str, t))} 1 {name}\n\n" for i, (name, q, t) in enumerate(images)))
+        f"{i + 1} {' '.join(map(str, q))} {' '.join(map(str, t))} 1 {name}\n\n"
+        for i, (name, q, t) in enumerate(images)))
     (model / "points3D.txt").write_text("".join(
         f"{i + 1} {x} {y} {z} 128 128 128 0\n" for i, (x, y, z) in enumerate(points)))
     if size is not None:
@@ -531,7 +532,7 @@ def test_the_scene_line_states_mixed_view_sizes(tmp_path, capsys):
     write_image(root / "odd.png", np.full((1, 1, 3), 0.5))      # a 1x1 view among 16x12 ones
     nerf_scene(root, {"camera_angle_x": 0.9}, [{"file_path": f"./v{i}"} for i in range(3)] + [{"file_path": "./odd"}],
                size=(16, 12))
-    assert main(["train", "--scene", str(root), "--iterations", "1", "--test-every", "0", "--out", str(tmp_path / "out"),
-                 "--no-progress"]) == 0
+    assert main(["train", "--scene", str(root), "--iterations", "1", "--test-every", "0",
+                 "--out", str(tmp_path / "out"), "--no-progress"]) == 0
     line = next(entry for entry in capsys.readouterr().err.splitlines() if entry.startswith("scene:"))
     assert "16x12 x 3, 1x1 x 1" in line, line

@@ -29,7 +29,8 @@ def degenerate_model(rng, case, cam, n=600):
         "huge scales": lambda i: model.log_scales.__setitem__(i, 15.0),
         "needles": lambda i: model.log_scales.__setitem__((i, 0), -30.0),
         "near plane": lambda i: model.means.__setitem__(i, cam.center + forward * rng.uniform(0.1, 0.3, (len(i), 1))),
-        "behind camera": lambda i: model.means.__setitem__(i, cam.center - forward * rng.uniform(0.0, 1.0, (len(i), 1))),
+        "behind camera": lambda i: model.means.__setitem__(i,
+                                                           cam.center - forward * rng.uniform(0.0, 1.0, (len(i), 1))),
         "coincident": lambda i: model.means.__setitem__(i, model.means[i[0]]),
         "opacity +30": lambda i: model.opacity_logits.__setitem__(i, 30.0),
         "opacity -30": lambda i: model.opacity_logits.__setitem__(i, -30.0),
@@ -131,7 +132,8 @@ def extreme_scene(rng, extent_scale: float):
                                                                 lambda s, dtype: rng.uniform(0, 1, s).astype(dtype))
               ((c.height, c.width, 3), dtype=np.float32) for c in cams}
     points = rng.normal(0, extent_scale, (300, 3))
-    return Scene(root=Path("."), train=cams, test=[], points=points, colors=rng.uniform(0, 1, (300, 3)).astype(np.float32),
+    return Scene(root=Path("."), train=cams, test=[], points=points,
+                 colors=rng.uniform(0, 1, (300, 3)).astype(np.float32),
                  background=np.zeros(3, np.float32), read_image=lambda cam: images[cam.name])
 
 
@@ -154,8 +156,8 @@ def make_extreme(rng, params: dict, cams, extent: float) -> list[str]:
             params["opacity_logits"][pick] = rng.choice([-80.0, 80.0], (k, 1))
         elif edit in ("near plane", "behind"):   # on, just in front of, or behind a camera's near plane
             cam = cams[int(rng.integers(len(cams)))]
-            depth = (rng.choice([NEAR_PLANE, NEAR_PLANE * (1 + 1e-6), NEAR_PLANE * (1 - 1e-6)], k) if edit == "near plane"
-                     else -rng.uniform(0, 2, k))
+            depth = (rng.choice([NEAR_PLANE, NEAR_PLANE * (1 + 1e-6), NEAR_PLANE * (1 - 1e-6)], k)
+                     if edit == "near plane" else -rng.uniform(0, 2, k))
             offset = rng.uniform(-1, 1, (k, 2)) * np.abs(depth)[:, None] * 0.5
             cam_space = np.column_stack([offset, depth])
             params["means"][pick] = (cam_space - cam.t) @ cam.R   # camera -> world

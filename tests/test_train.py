@@ -130,8 +130,8 @@ def test_metrics_file_and_progress_lines_off_a_terminal(straight_run, tmp_path):
     assert proc.returncode == 0, proc.stderr
     err = proc.stderr
     assert "\r" not in err
-    assert [int(line.split()[1].split("/")[0]) for line in err.splitlines() if line.startswith("iteration ") and "/" in line
-            ] == [20, 40, 60]
+    assert [int(line.split()[1].split("/")[0]) for line in err.splitlines()
+            if line.startswith("iteration ") and "/" in line] == [20, 40, 60]
 
 
 def snapshot(folder: Path) -> dict:
@@ -164,7 +164,7 @@ def test_corrupt_and_mismatched_checkpoints(finished_run, tmp_path, capsys):
     run = tmp_path / "copy"
     shutil.copytree(finished_run, run)
     (run / CHECKPOINT).write_bytes(os.urandom(500))
-    assert "checkpoint.npz" in bad(capsys, "--out", str(run), "--resume") 
+    assert "checkpoint.npz" in bad(capsys, "--out", str(run), "--resume")
     shutil.copy(finished_run / CHECKPOINT, run / CHECKPOINT)
     cfg = json.loads((run / "config.json").read_text())
     cfg["seed"] = 7
@@ -212,7 +212,8 @@ def test_max_gaussians_caps_every_densification_step(rt, tmp_path):
     scene = load_scene("builtin", resolution=4)
     start = len(scene.points)
     cap = start + 150
-    trainer = Trainer(TrainConfig(scene="builtin", iterations=400, resolution=4, max_gaussians=cap), scene, rt, tmp_path)
+    trainer = Trainer(TrainConfig(scene="builtin", iterations=400, resolution=4, max_gaussians=cap),
+                      scene, rt, tmp_path)
     peak = 0
     while trainer.iteration < 400:
         trainer.step()
@@ -274,7 +275,8 @@ def test_recipe_settings_reach_the_schedule_and_the_loss(rt):
     assert Trainer(cfg, load_scene("builtin", resolution=4), rt).loss.lambda_dssim == 0.4
     from dc4gs_cl.apps.train import train_config
     from dc4gs_cl.cli import build_parser
-    for flags, rest in ((["--feature_lr", "0.004"], 0.004 / 20), (["--feature-lr", "0.004", "--feature-rest-lr", "1e-4"], 1e-4)):
+    for flags, rest in ((["--feature_lr", "0.004"], 0.004 / 20),
+                        (["--feature-lr", "0.004", "--feature-rest-lr", "1e-4"], 1e-4)):
         args = build_parser().parse_args(["train", *flags])
         assert train_config(args, None).lr_sh_rest == rest and train_config(args, None).lr_sh_dc == 0.004
 

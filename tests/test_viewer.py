@@ -142,7 +142,8 @@ def test_a_connection_needs_the_token_and_the_page_s_own_origin(served, capsys):
 def camera_message(**values) -> bytes:
     """A viser client's camera message (what the browser sends as the view moves), with these values."""
     import msgspec
-    return msgspec.msgpack.encode({"type": "ViewerCameraMessage", "wxyz": [1.0, 0.0, 0.0, 0.0], "position": [0.0, -3.0, 0.0],
+    return msgspec.msgpack.encode({"type": "ViewerCameraMessage", "wxyz": [1.0, 0.0, 0.0, 0.0],
+                                   "position": [0.0, -3.0, 0.0],
                                    "fov": 1.0, "near": 0.01, "far": 100.0, "image_height": 96, "image_width": 128,
                                    "look_at": [0.0, 0.0, 0.0], "up_direction": [0.0, 0.0, 1.0], **values})
 
@@ -190,7 +191,8 @@ def test_a_fuzzing_client_leaves_the_viewer_serving(served, rng, capsys):
             with contextlib.suppress(TimeoutError):
                 ws.recv(timeout=0.2)
         else:
-            raise AssertionError(f"no frame for a well-behaved client after the fuzzing: {capsys.readouterr().err[-2000:]}")
+            raise AssertionError("no frame for a well-behaved client after the fuzzing: "
+                                 f"{capsys.readouterr().err[-2000:]}")
     assert viewer._worker.is_alive()
 
 

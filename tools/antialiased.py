@@ -6,8 +6,8 @@ below a pixel, and the fixed 0.3 px^2 dilation widens them into bright blobs), o
 
 -r is the training resolution (the CLI's -r); each factor f evaluates at -r K*f (1: as trained). Both runs
 train with the same seed and recipe in this process (library calls, no run folders) and are evaluated with the
-mode they trained in (PSNR and SSIM of dc4gs_cl.evaluation.evaluate; ground truth resized by the scene loader, the built-in
-scene's rendered at each size).
+mode they trained in (PSNR and SSIM of dc4gs_cl.evaluation.evaluate; ground truth resized by the scene loader, the
+built-in scene's rendered at each size).
 """
 from __future__ import annotations
 

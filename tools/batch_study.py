@@ -70,14 +70,15 @@ def main(argv=None) -> int:
         ap.error("each batch must be a multiple of its processes and divide --views")
     args.out.mkdir(parents=True, exist_ok=True)
     lines = [f"{Path(args.scene).name} (-r {args.resolution}), {args.strategy}, {args.views:,} views per run", "",
-             "| batch x processes | iterations | seed | PSNR | SSIM | Gaussians | wall s | sums MB / it | sums ms / it |",
+             "| batch x processes | iterations | seed | PSNR | SSIM | Gaussians | wall s | "
+             "sums MB / it | sums ms / it |",
              "|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for seed in args.seeds:
         for batch, processes in specs:
             e = run(args.scene, args.resolution, batch, processes, args.views // batch, seed, args.strategy, args.out)
             sums = (f"{e['sums_mb']:.2f} | {e['sums_ms']:.1f}" if e["sums_mb"] is not None else "- | -")
-            lines.append(f"| {batch} x {processes} | {e['iterations']:,} | {seed} | {e['psnr']:.2f} | {e['ssim']:.4f} | "
-                         f"{e['gaussians']:,} | {e['wall_s']:.0f} | {sums} |")
+            lines.append(f"| {batch} x {processes} | {e['iterations']:,} | {seed} | {e['psnr']:.2f} | "
+                         f"{e['ssim']:.4f} | {e['gaussians']:,} | {e['wall_s']:.0f} | {sums} |")
             print(lines[-1], flush=True)
     (args.out / "batch-study.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))

@@ -86,13 +86,15 @@ def main(argv=None) -> int:
                 trainer.step()
             times[name].append({k: v / args.iterations * 1e3 for k, v in rt.stage_times().items()})
     stages = list(dict.fromkeys(k for runs in times.values() for t in runs for k in t))
-    medians = {name: {s: float(np.median([t.get(s, 0.0) for t in runs])) for s in stages} for name, runs in times.items()}
+    medians = {name: {s: float(np.median([t.get(s, 0.0) for t in runs])) for s in stages}
+               for name, runs in times.items()}
     base_total = sum(medians["base"].values())
     print("| configuration | device ms/it | vs base | " + " | ".join(stages) + " |")
     print("|---|---|---|" + "---|" * len(stages))
     for name, m in medians.items():
         total = sum(m.values())
-        print(f"| {name} | {total:.2f} | {total / base_total - 1:+.1%} | " + " | ".join(f"{m[s]:.2f}" for s in stages) + " |")
+        print(f"| {name} | {total:.2f} | {total / base_total - 1:+.1%} | "
+              + " | ".join(f"{m[s]:.2f}" for s in stages) + " |")
     return 0
 
 

@@ -125,7 +125,8 @@ def sort_comparison(rt: Runtime, renderer: Renderer, res, runs: int) -> list[str
     d = compare(f"depth keys ({v:,} keys, {depth_bits} bits)", depth_keys, visible, depth_bits)
     t = compare(f"tile keys ({p:,} pairs, {tile_bits} bits)", tile_of_pair, gaussian_of_pair, tile_bits)
     # The one-sort formulation: 64-bit (tile << 32 | depth) keys over all pairs, sorted by pyopencl.
-    keys64 = (tile_of_pair.astype(np.uint64) << np.uint64(32)) | depth[gaussian_of_pair].view(np.uint32).astype(np.uint64)
+    keys64 = ((tile_of_pair.astype(np.uint64) << np.uint64(32))
+              | depth[gaussian_of_pair].view(np.uint32).astype(np.uint64))
     t64, order = py64.time(keys64, gaussian_of_pair, 32 + tile_bits, runs)
     assert np.array_equal(order, gaussian_of_pair), "both formulations must give the same pair order"
     rows.append(f"  {'whole job: our 2 sorts vs pyopencl 64-bit keys':44s} ours {d[0] + t[0]:8.2f} ms   "
@@ -151,7 +152,8 @@ def variant_rows(rt: Runtime, base: Renderer, g: DeviceGaussians, cam: Camera, r
                         ("skip off: early stop of saturated tiles", RenderOptions(early_stop=False)),
                         ("driver exp instead of ours", RenderOptions(fast_exp=False)),
                         ("approx: -cl-fast-relaxed-math", RenderOptions(relaxed_math=True)),
-                        ("approx: relaxed math with the driver's exp", RenderOptions(fast_exp=False, relaxed_math=True)),
+                        ("approx: relaxed math with the driver's exp",
+                         RenderOptions(fast_exp=False, relaxed_math=True)),
                         ("approx: depth sorted on top 16 bits", RenderOptions(depth_sort_bits=16)),
                         ("approx: depth sorted on top 10 bits", RenderOptions(depth_sort_bits=10))]:
         r = Renderer(rt, base.tuning, opts)
@@ -159,7 +161,8 @@ def variant_rows(rt: Runtime, base: Renderer, g: DeviceGaussians, cam: Camera, r
         img = res.image(rt)
         err = np.abs(img - image)
         psnr = 10 * np.log10(1.0 / max(float(np.mean(err ** 2)), 1e-20))
-        rows.append(f"  {label:44s} total {sum(st.values()):8.2f} ms (default {total:8.2f}; raster {st['rasterize']:7.2f}, "
+        rows.append(f"  {label:44s} total {sum(st.values()):8.2f} ms (default {total:8.2f}; "
+                    f"raster {st['rasterize']:7.2f}, "
                     f"pairs {res.isect.n_pairs:,})  max |diff| {err.max():.2e}  PSNR vs default {psnr:6.1f} dB")
     return rows
 

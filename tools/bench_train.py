@@ -143,7 +143,8 @@ def config(scene: Scene, strategy: str, iterations: int, resolution: int, **sett
 
 def dc4gs_summary(runs: list[dict]) -> list[str]:
     """Each DC4GS row against its base on the same scene: Gaussians and PSNR, and the paper's claim."""
-    lines = ["| scene | variant | Gaussians vs base | PSNR vs base | SSIM vs base | wall time vs base |", "|---|---|---|---|---|---|"]
+    lines = ["| scene | variant | Gaussians vs base | PSNR vs base | SSIM vs base | wall time vs base |",
+             "|---|---|---|---|---|---|"]
     by_key = {(r["scene"], r["strategy"]): r for r in runs}
     fewer, gain = {}, {}   # per variant ("+dc4gs", "+dcc", "+dc4gs:window", ...): over scenes and bases
     for r in runs:
@@ -271,7 +272,8 @@ def main(argv=None) -> int:
     ap.add_argument("--scenes", nargs="+", default=None,
                     help=f"scene folders of ../shared/data (default: every COLMAP one), or {BUILTIN_SCENE}")
     ap.add_argument("--strategies", nargs="+", default=None,
-                    help="densification strategies, e.g. absgs absgs+dc4gs absgs+dcc:window (default: 3dgs absgs pixelgs)")
+                    help="densification strategies, e.g. absgs absgs+dc4gs absgs+dcc:window "
+                         "(default: 3dgs absgs pixelgs)")
     ap.add_argument("--dc4gs", action="store_true", help=f"the DC4GS results table: {' '.join(DC4GS_TABLE)}")
     ap.add_argument("--iterations", type=int, default=None, help="iterations per run (default 3000)")
     ap.add_argument("-r", "--resolution", type=int, default=None,

@@ -116,11 +116,12 @@ class Recorder:
                 "edge_fraction_split": float(edge[is_split].mean()) if is_split.any() else None,
                 "edge_fraction_withheld": float(edge[~is_split].mean()) if (~is_split).any() else None,
                 "colour_variation_split": float(np.median(steps[is_split].sum(axis=1))) if is_split.any() else None,
-                "colour_variation_withheld": float(np.median(steps[~is_split].sum(axis=1))) if (~is_split).any() else None,
+                "colour_variation_withheld": float(np.median(steps[~is_split].sum(axis=1)))
+                                             if (~is_split).any() else None,
                 "cut_to_edge": nearest(cut)[on_edge].tolist(),
                 "middle_to_edge": nearest(np.zeros_like(cut))[on_edge].tolist(),
-                "uniform_to_edge": nearest(6 * self.uniform.uniform(*search_interval(window[SPLIT_COSTS].shape[1]), len(cut)) - 3)[
-                    on_edge].tolist(),
+                "uniform_to_edge": nearest(6 * self.uniform.uniform(*search_interval(window[SPLIT_COSTS].shape[1]),
+                                                                    len(cut)) - 3)[on_edge].tolist(),
                 "cut_is_middle": float(np.mean(x[on_edge] == 0.5)) if on_edge.any() else None})
         self.steps.append(step)
         if self.snapshot is None and it >= self.show_at:
@@ -166,7 +167,8 @@ def markdown(report: dict) -> str:
              f"{report['iterations']:,} iterations", "", f"Device: {report['device']}. Split threshold "
              f"{report['threshold']:g}; candidates = what the base would split, withheld = candidates DCC does not "
              "split; 1 - kappa = DCC criterion / base criterion over the candidates (25th / 50th / 75th percentile).",
-             "", "| iteration | Gaussians | candidates | DCC splits | withheld | 1 - kappa |", "|---:|---:|---:|---:|---:|---|"]
+             "", "| iteration | Gaussians | candidates | DCC splits | withheld | 1 - kappa |",
+             "|---:|---:|---:|---:|---:|---|"]
     for s in report["steps"]:
         lines.append(f"| {s['iteration']:,} | {s['gaussians']:,} | {s['candidates']:,} | {s['split']:,} | "
                      f"{s['withheld']:,} | {' / '.join(f'{q:.2f}' for q in s['one_minus_kappa_quartiles']) or '-'} |")
@@ -206,7 +208,8 @@ def main(argv=None) -> int:
     ap.add_argument("--base", default="absgs", choices=sorted(STRATEGIES))
     ap.add_argument("--iterations", type=int, default=3000)
     ap.add_argument("-r", "--resolution", type=int, default=None)
-    ap.add_argument("--test-split", choices=TEST_SPLITS, default="llff", help="the held-out views (the panels show the first)")
+    ap.add_argument("--test-split", choices=TEST_SPLITS, default="llff",
+                    help="the held-out views (the panels show the first)")
     ap.add_argument("--out", type=Path, default=Path("decisions"))
     ap.add_argument("--device", default=None)
     args = ap.parse_args(argv)

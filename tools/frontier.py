@@ -127,8 +127,9 @@ def markdown(report: dict) -> str:
         base_pts = mean_points(methods.get("base", []))
         size = next(iter(methods.values()))[0]["size"]
         tables += [f"## {scene} ({size}), {base}, {iterations:,} iterations, {split} test views", "",
-                   "| method | scale | seed | split threshold (mcmc: cap) | Gaussians | PSNR | SSIM | vs base at equal G | "
-                   "wall s | per view PSNR (worst first) |", "|---|---:|---:|---:|---:|---:|---:|---:|---:|---|"]
+                   "| method | scale | seed | split threshold (mcmc: cap) | Gaussians | PSNR | SSIM | "
+                   "vs base at equal G | wall s | per view PSNR (worst first) |",
+                   "|---|---:|---:|---:|---:|---:|---:|---:|---:|---|"]
         for method in METHODS:
             for r in methods.get(method, []):
                 d = at_equal_gaussians(r, base_pts) if method != "base" else None

@@ -63,7 +63,8 @@ def write_image(path: Path, pixels: np.ndarray, dtype: str) -> None:
         kind, data = oiio.HALF, np.ascontiguousarray(pixels, np.float32)
     else:
         top = np.iinfo(dtype).max
-        kind, data = {"uint8": oiio.UINT8, "uint16": oiio.UINT16}[dtype], (np.clip(pixels, 0, 1) * top + 0.5).astype(dtype)
+        kind, data = ({"uint8": oiio.UINT8, "uint16": oiio.UINT16}[dtype],
+                      (np.clip(pixels, 0, 1) * top + 0.5).astype(dtype))
     out = oiio.ImageOutput.create(str(path))
     assert out.open(str(path), oiio.ImageSpec(data.shape[1], data.shape[0], data.shape[2], kind)), oiio.geterror()
     assert out.write_image(data), oiio.geterror()
@@ -387,7 +388,8 @@ MUST_FAIL = {"truncate", "empty", "huge count", "wrong size", "non-finite pixels
 @dataclass
 class Format:
     name: str
-    build: Callable[[Path, np.random.Generator], Path]   # writes a valid input under a folder, returns the file to mutate
+    build: Callable[[Path, np.random.Generator], Path]   # writes a valid input under a folder,
+                                                         # returns the file to mutate
     read: Callable[[Path], object]                        # reads it (given that file) as the commands do
     mutations: dict[str, Callable]
     checksum: bool = False                                # a changed read is a finding too
@@ -435,11 +437,13 @@ def _formats() -> list[Format]:
     return images + colmap + [
         Format("ply", ply_input, read_ply_values,
                {**BASIC, "huge count": ply_huge_count, "non-finite": binary_non_finite(4, ply_body)},
-               cli=lambda path, out: ["render", "--ply", str(path), "--scene", "builtin", "-r", "8", "--out", str(out)]),
+               cli=lambda path, out: ["render", "--ply", str(path), "--scene", "builtin", "-r", "8",
+                                      "--out", str(out)]),
         *(Format(f"export {fmt}", export_input(fmt), lambda path: read_ply_values(path, read_model_file),
                  {**BASIC, **({"truncate": truncate_off_records(SPLAT_RECORD.itemsize),
                                "non-finite": binary_non_finite(4, lambda data: 0)} if fmt == "splat" else {})},
-                 cli=lambda path, out: ["render", "--ply", str(path), "--scene", "builtin", "-r", "8", "--out", str(out)])
+                 cli=lambda path, out: ["render", "--ply", str(path), "--scene", "builtin", "-r", "8",
+                                        "--out", str(out)])
           for fmt in ("splat", "spz", "compressed-ply")),
         Format("transforms.json (instant-ngp)", lambda root, rng: nerf_scene(root, rng), read_from_scene, SCENE_JSON,
                cli=train_cli),

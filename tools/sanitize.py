@@ -263,7 +263,8 @@ class Backward:
 # exact switches off, and MCMC's regularised step and position noise.
 FORWARDS = (
     ({}, (Backward(True, False, "absgs+dc4gs", runs=True), Backward(True, True, "pixelgs+dcs"),
-          Backward(False, True, "absgs+dc4gs"), Backward(True, False, None), Backward(True, False, "mcmc", batch=True))),
+          Backward(False, True, "absgs+dc4gs"), Backward(True, False, None),
+          Backward(True, False, "mcmc", batch=True))),
     ({"fast_exp": False, "alpha_cut": False, "early_stop": False, "antialiased": True},
      (Backward(False, False, "3dgs"), Backward(False, False, "mcmc"))),
 )

@@ -296,7 +296,8 @@ def accuracy(rt: Runtime, suite: Suite) -> list[dict]:
     loss(res.raster.image, rt.to_device(target), w, h, dL_dimage)
     got_loss = loss.read_stats()["loss"]
     x = image.astype(np.float64)
-    rows.append({"stage": "loss", "quantity": "value", "rel_l2": rel_l2([got_loss], [loss_reference.loss_value(x, target)])})
+    rows.append({"stage": "loss", "quantity": "value",
+                 "rel_l2": rel_l2([got_loss], [loss_reference.loss_value(x, target)])})
     rows.append({"stage": "loss", "quantity": "dL/dimage", "rel_l2": rel_l2(rt.to_host(dL_dimage, image.shape),
                                                                              loss_reference.loss_gradient(x, target))})
 
@@ -434,11 +435,13 @@ def markdown(report: dict) -> str:
             lines.append(f"| {label} | " + " | ".join(f"{m[quantity]:.{2 if quantity == 'host_ms' else 1}f}"
                                                       for m in runs.values()) + " |")
         lines.append("| peak bytes / Gaussian | " + " | ".join(f"{m['bytes_per_gaussian']:,.0f}"
-                                                             if "bytes_per_gaussian" in m else "" for m in runs.values())
+                                                             if "bytes_per_gaussian" in m else ""
+                                                             for m in runs.values())
                      + " |")
         if ratios := gsplat_ratios(case):
             side = case["gsplat"]
-            lines.append("| gsplat wall | " + " | ".join(f"{ratios[r][0]:.2f}" if r in ratios else "" for r in runs) + " |")
+            lines.append("| gsplat wall | " + " | ".join(f"{ratios[r][0]:.2f}" if r in ratios else ""
+                                                         for r in runs) + " |")
             lines.append("| **ours / gsplat** | " + " | ".join(f"**{ratios[r][1]:.2f}**" if r in ratios else ""
                                                            for r in runs) + " |")
             lines += ["", f"gsplat: the same Gaussians and cameras (its first view against ours: "

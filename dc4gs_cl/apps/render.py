@@ -24,8 +24,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     """The `render` command's arguments (cli.py adds --antialiased, --check-finite and --device)."""
     source = p.add_mutually_exclusive_group()
     source.add_argument("--ply", type=Path, default=None, metavar="FILE",
-                        help="a model file: a standard 3DGS PLY (SH degree 0..3) or any format `export` writes (.splat, "
-                             ".spz, .compressed.ply); with neither --ply nor --model, the Gaussians "
+                        help="a model file: a standard 3DGS PLY (SH degree 0..3) or any format `export` writes "
+                             "(.splat, .spz, .compressed.ply); with neither --ply nor --model, the Gaussians "
                              "training would start from (the scene's SfM points), which shows whether a scene's "
                              "cameras are read right")
     source.add_argument("--model", type=Path, default=None,

@@ -109,7 +109,8 @@ def views_html(runs: list[RunMetrics]) -> str:
         return "<p>No test views were rendered (no test/ours_N/ folder).</p>"
     names = sorted(p.name for p in (first / GROUND_TRUTH).glob("*.png"))[:REPORT_VIEWS]
     head = "<tr><th>view</th><th>ground truth</th>" + "".join(
-        f"<th>{html.escape(r.label)}<br>{html.escape(f.name) if f else ''}</th>" for r, f in zip(runs, rendered)) + "</tr>"
+        f"<th>{html.escape(r.label)}<br>{html.escape(f.name) if f else ''}</th>"
+        for r, f in zip(runs, rendered)) + "</tr>"
     rows = []
     for name in names:
         cells = [f"<td>{html.escape(name)}</td>",

@@ -162,8 +162,8 @@ def _train_locked(args, run: RunFolder, group) -> int:
           f"({done / max(seconds, 1e-9):.1f} it/s); {trainer.model.n:,} Gaussians")
     if group.size > 1 and done:
         print(f"gradients summed over {group.size} processes: {group.reduced_bytes / done / 1e6:.2f} MB and "
-              f"{group.reduce_seconds / done * 1e3:.1f} ms an iteration (device to host, MPI Allreduce, host to device; "
-              f"{group.reduce_seconds / max(seconds, 1e-9):.0%} of the training time)")
+              f"{group.reduce_seconds / done * 1e3:.1f} ms an iteration (device to host, MPI Allreduce, "
+              f"host to device; {group.reduce_seconds / max(seconds, 1e-9):.0%} of the training time)")
     if scene.test:
         result = trainer.evaluate_test(run.views_dir("test", trainer.iteration))
         for line in run.write_results(trainer.iteration, result):

@@ -88,10 +88,11 @@ class Loss(Stage):
         partial = scratch["partial"]
         args = (np.int32(n3w), np.int32(h))
         stats = (self.ctx.frame, np.int32(groups_x * h), np.float32(1 / scale), partial, self.stats)
-        rt.launch(stage, self.k_ssim, shape, local, *args, np.float32(-self.lambda_dssim / scale), image, target, *d, partial)
+        rt.launch(stage, self.k_ssim, shape, local, *args, np.float32(-self.lambda_dssim / scale),
+                  image, target, *d, partial)
         if grad_out is not None:   # its first work-group adds the stats too
-            rt.launch(stage, self.k_grad, shape, local, *args, np.float32((1 - self.lambda_dssim) / scale), image, target,
-                      *d, grad_out, *stats)
+            rt.launch(stage, self.k_grad, shape, local, *args, np.float32((1 - self.lambda_dssim) / scale),
+                      image, target, *d, grad_out, *stats)
         else:
             rt.launch(stage, self.k_reduce, self.wg, self.wg, *stats)
         self.calls += 1

@@ -36,7 +36,8 @@ INIT_SCALE_FACTOR = 0.1
 OPACITY_EPS = float(np.finfo(np.float32).eps)   # new opacities stay below 1 - this
 
 
-def relocated_opacity_scale(opacity: np.ndarray, scale: np.ndarray, shares: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def relocated_opacity_scale(opacity: np.ndarray, scale: np.ndarray,
+                            shares: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The paper's equation (9): N Gaussians taking the place of one of opacity o and scale s (N = shares, at most
     MAX_SHARES) each get opacity 1 - (1 - o)^(1/N) and scale o / D s, with
     D = sum_{i=1..N} sum_{k=0..i-1} C(i-1, k) (-1)^k o_new^(k+1) / sqrt(k+1), so that together they render as it

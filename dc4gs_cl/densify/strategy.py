@@ -171,7 +171,8 @@ class Strategy:
     def actions(self, it: int) -> Actions:
         c = self.config
         ceilings = [ceiling for ceiling, now in ((c.opacity_clamp, self.clamp_opacity_now(it)),
-                                                 (c.opacity_reset_to, self.reset_opacity_now(it, self.white_background)))
+                                                 (c.opacity_reset_to,
+                                                  self.reset_opacity_now(it, self.white_background)))
                     if now]
         return Actions(densify=self.densify_now(it), opacity_ceiling=min(ceilings) if ceilings else None)
 

@@ -1,6 +1,6 @@
-"""Training on a batch of views per step (--batch B, and the processes of a parallel run, train/parallel.py): each view's
-projection backward adds its parameters' gradients to the batch's (kernels/project_backward.cl, ACCUMULATE), the
-processes add theirs, and Adam steps once on their mean (kernels/batch_gradients.cl). The learning rates and Adam's
+"""Training on a batch of views per step (--batch B, and the processes of a parallel run, train/parallel.py): each
+view's projection backward adds its parameters' gradients to the batch's (kernels/project_backward.cl, ACCUMULATE),
+the processes add theirs, and Adam steps once on their mean (kernels/batch_gradients.cl). The learning rates and Adam's
 betas follow Grendel's rule for a batch of B views (Zhao et al., "On Scaling Up 3D Gaussian Splatting Training",
 2024): rates times sqrt(B), betas to the power B, so that B views in one step move the model about as B steps of one
 view would. A batch of one keeps the fused step (project_backward.cl, FUSED_ADAM)."""

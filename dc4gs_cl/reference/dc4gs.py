@@ -34,7 +34,8 @@ def split_geometry_reference(means, log_scales, quats, cam: Camera, visible, n_c
     cand_px, cand_z = project_pixels(cand, cam)
     end_px, end_z = project_pixels(end, cam)
     length = np.linalg.norm(end_px - cand_px[:, 0], axis=1)
-    valid = np.asarray(visible) & (cand_z.min(1) > K.NEAR_PLANE) & (end_z > K.NEAR_PLANE) & (length > K.MIN_SPLIT_LINE_PX)
+    valid = (np.asarray(visible) & (cand_z.min(1) > K.NEAR_PLANE) & (end_z > K.NEAR_PLANE)
+             & (length > K.MIN_SPLIT_LINE_PX))
     return cand_px, end_px, valid
 
 

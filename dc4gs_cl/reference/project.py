@@ -204,7 +204,8 @@ def project_backward_reference(means, log_scales, quats, opacity_logits, sh, cam
     dR = dM * s[:, None, :]
     w, qx, qy, qz = qn.T
     dq = 2 * np.stack([
-        -qz * dR[:, 0, 1] + qy * dR[:, 0, 2] + qz * dR[:, 1, 0] - qx * dR[:, 1, 2] - qy * dR[:, 2, 0] + qx * dR[:, 2, 1],
+        -qz * dR[:, 0, 1] + qy * dR[:, 0, 2] + qz * dR[:, 1, 0] - qx * dR[:, 1, 2] - qy * dR[:, 2, 0]
+        + qx * dR[:, 2, 1],
         qy * dR[:, 0, 1] + qz * dR[:, 0, 2] + qy * dR[:, 1, 0] - 2 * qx * dR[:, 1, 1] - w * dR[:, 1, 2]
         + qz * dR[:, 2, 0] + w * dR[:, 2, 1] - 2 * qx * dR[:, 2, 2],
         -2 * qy * dR[:, 0, 0] + qx * dR[:, 0, 1] + w * dR[:, 0, 2] + qx * dR[:, 1, 0] + qz * dR[:, 1, 2]

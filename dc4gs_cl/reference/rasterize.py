@@ -112,7 +112,8 @@ def rasterize_backward_reference(mean2d, conic, opacity, rgb, gaussian_of_pair, 
         wc = w[..., None] * rgb[g][None]                                               # (pix, G, 3)
         behind = wc[:, ::-1].cumsum(1)[:, ::-1] - wc                                   # sum over m > k
         t_final = 1 - w.sum(1)   # = prod(1 - alpha) over blended Gaussians
-        dC_dalpha = t_before[..., None] * rgb[g][None] - (behind + (t_final[:, None, None] * bg)) / (1 - alpha)[..., None]
+        dC_dalpha = (t_before[..., None] * rgb[g][None]
+                     - (behind + (t_final[:, None, None] * bg)) / (1 - alpha)[..., None])
         dL_dalpha = np.where(blend, np.einsum("pgc,pc->pg", dC_dalpha, dLdC), 0.0)
         live = blend & (oG < K.ALPHA_MAX)
         dL_dG = np.where(live, opacity[g] * dL_dalpha, 0.0)

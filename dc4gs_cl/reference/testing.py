@@ -28,7 +28,8 @@ def random_camera(rng: np.random.Generator, width: int, height: int, distance: f
     d = rng.normal(size=3)
     eye = distance * d / np.linalg.norm(d)
     cam = Camera.look_at("random", eye, rng.uniform(-0.2, 0.2, 3), width, height, fov_x=rng.uniform(0.6, 1.2))
-    return replace(cam, fy=cam.fx * rng.uniform(0.9, 1.1), cx=cam.cx + rng.uniform(-5, 5), cy=cam.cy + rng.uniform(-5, 5))
+    return replace(cam, fy=cam.fx * rng.uniform(0.9, 1.1), cx=cam.cx + rng.uniform(-5, 5),
+                   cy=cam.cy + rng.uniform(-5, 5))
 
 
 def gsplat_test_garden(path: str | Path, rng: np.random.Generator) -> tuple[GaussianModel, list[Camera]]:

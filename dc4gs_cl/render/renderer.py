@@ -56,5 +56,6 @@ class Renderer:
         degree = gaussians.sh_degree if sh_degree is None else sh_degree
         proj = self.project(gaussians, cam, degree, tiles_x, tiles_y)
         isect = self.intersect(proj, tiles_x, tiles_y, pair_capacity)
-        raster = self.rasterize(proj, isect, cam.width, cam.height, tiles_x, tiles_y, np.asarray(background, np.float32))
+        raster = self.rasterize(proj, isect, cam.width, cam.height, tiles_x, tiles_y,
+                                np.asarray(background, np.float32))
         return RenderResult(cam.width, cam.height, tiles_x, tiles_y, proj, isect, raster)

@@ -158,7 +158,8 @@ def scene_extent(cameras: list[Camera]) -> float:
 TEST_SPLITS = ("llff", "interpolated")
 
 
-def split_train_test(cameras: list[Camera], test_every: int = 8, test_split: str = "llff") -> tuple[list[Camera], list[Camera]]:
+def split_train_test(cameras: list[Camera], test_every: int = 8,
+                     test_split: str = "llff") -> tuple[list[Camera], list[Camera]]:
     """Hold out test cameras from the cameras sorted by name (the order along the camera path in captured scenes).
 
     llff: index % test_every == 0 (the field's "llffhold 8" rule). It holds out the path's first view, which

@@ -50,7 +50,8 @@ class _Reader:
 
     def skip(self, count: int, size: int) -> None:
         if count > (len(self.data) - self.at) // size:
-            self.fail(f"{count:,} entries of {size} bytes do not fit in the rest of the file (truncated, or a damaged count)")
+            self.fail(f"{count:,} entries of {size} bytes do not fit in the rest of the file "
+                      "(truncated, or a damaged count)")
         self.at += count * size
 
     def count(self, record_size: int) -> int:

@@ -40,7 +40,8 @@ def transforms_files(path: Path) -> list[Path]:
     return [first, test] if first.name == "transforms_train.json" and test.is_file() else [first]
 
 
-def read_nerf(files: list[Path], test_every: int, test_split: str = "llff") -> tuple[list[Camera], list[Camera], dict[str, pycolmap.Camera]]:
+def read_nerf(files: list[Path], test_every: int,
+              test_split: str = "llff") -> tuple[list[Camera], list[Camera], dict[str, pycolmap.Camera]]:
     """Train and test cameras (full size, PINHOLE) and the distorted cameras by name. Blender files carry
     their own split (transforms_val.json is ignored); transforms.json is split by split_train_test."""
     distorted: dict[str, pycolmap.Camera] = {}

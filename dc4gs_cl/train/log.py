@@ -38,7 +38,8 @@ class TrainingLog:
     def __init__(self, run_folder: RunFolder | None, total: int, iteration: int, mode: str = "bar",
                  line_every: int = DEFAULT_LINE_EVERY, stage_times: Callable[[], dict[str, float]] | None = None):
         """iteration: where training starts (a resumed run: its checkpoint's), the metrics file is cut back to
-        it (run_folder None: no metrics file, a parallel run's other processes). stage_times: the runtime's per-stage device seconds since its last call (profiling runs only)."""
+        it (run_folder None: no metrics file, a parallel run's other processes). stage_times: the runtime's per-stage
+        device seconds since its last call (profiling runs only)."""
         if mode not in PROGRESS_MODES:
             raise ValueError(f"progress mode {mode!r} is not one of {PROGRESS_MODES}")
         self.run_folder, self.total, self.mode, self.line_every = run_folder, total, mode, line_every

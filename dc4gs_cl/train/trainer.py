@@ -123,7 +123,8 @@ class Trainer:
         """One iteration: one view (the model stepped by its gradients, fused into their computation), or with
         --batch B, B views (the model stepped by their mean; optim/batch_gradients.py)."""
         self._queue_iteration()
-        if self.iteration in self.cfg.save_at:   # before this iteration's densification and opacity limits, as Inria saves
+        # before this iteration's densification and opacity limits, as Inria saves
+        if self.iteration in self.cfg.save_at:
             self.save_model()
         if self.strategy.apply(self.actions, self.iteration, self.model, self.rng) is not None:
             if self.context.check.enabled:

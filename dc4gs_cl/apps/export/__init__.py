@@ -102,7 +102,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     source = p.add_mutually_exclusive_group(required=True)
     source.add_argument("--model", type=Path, help="a training output folder: its last saved model (or --iteration)")
     source.add_argument("--ply", type=Path, help="a standard 3DGS PLY")
-    p.add_argument("--iteration", type=int, default=None, help="with --model: which saved iteration (default: the last)")
+    p.add_argument("--iteration", type=int, default=None,
+                   help="with --model: which saved iteration (default: the last)")
     p.add_argument("--out", type=Path, required=True,
                    help="the file to write; its name gives the format (" +
                         ", ".join(suffix for suffix, _ in FORMATS.values()) + ") unless --format does")

@@ -119,7 +119,8 @@ def read_compressed_ply(path: str | os.PathLike) -> GaussianModel:
                       in_bounds("min_scale_x", vertex["packed_scale"], XYZ_BITS),
                       from_smallest_three(largest, (others - 0.5) / SQRT_HALF),
                       unpack_unorm(vertex["packed_color"], COLOR_BITS)[3],
-                      np.concatenate([rgb_to_sh_dc(colour)[:, None], sh.reshape(n, 3, rest).transpose(0, 2, 1)], axis=1))
+                      np.concatenate([rgb_to_sh_dc(colour)[:, None],
+                                      sh.reshape(n, 3, rest).transpose(0, 2, 1)], axis=1))
 
 
 def _in_bounds(v: np.ndarray, bits, limit: float | None = None):

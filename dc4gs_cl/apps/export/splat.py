@@ -45,7 +45,8 @@ def read_splat(path: str | os.PathLike) -> GaussianModel:
     """A .splat file as antimatter15's viewer decodes it: SH degree 0, unit quaternions."""
     data = read_bytes(path)
     if not data or len(data) % SPLAT_RECORD.itemsize:
-        raise InputError(path, f"not a .splat file: {len(data)} bytes is no positive multiple of {SPLAT_RECORD.itemsize}")
+        raise InputError(path, f"not a .splat file: {len(data)} bytes is no positive multiple "
+                               f"of {SPLAT_RECORD.itemsize}")
     rec = np.frombuffer(data, SPLAT_RECORD)
     rgba = rec["rgba"] / 255.0
     with np.errstate(divide="ignore", invalid="ignore"):   # a scale of 0 reads as log scale -inf, a negative as NaN
