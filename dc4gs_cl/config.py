@@ -379,9 +379,10 @@ class TrainConfig:
             raise InputError(None, "; ".join(problems))
 
     def differences(self, other: "TrainConfig") -> dict[str, tuple]:
-        """name -> (this, other) for the settings that change the trained model and differ."""
-        return {f.name: (getattr(self, f.name), getattr(other, f.name)) for f in fields(TrainConfig)
-                if f.name not in OUTPUT_SETTINGS and getattr(self, f.name) != getattr(other, f.name)}
+        """setting -> (this, other) for the settings that change the trained model and differ, a group's named
+        "<group>.<field>" (SETTINGS), in the fields' order."""
+        return {name: (setting_value(self, name), setting_value(other, name)) for name in SETTINGS
+                if name not in OUTPUT_SETTINGS and setting_value(self, name) != setting_value(other, name)}
 
     def to_json(self) -> dict:
         d = asdict(self)

@@ -213,3 +213,13 @@ def test_cfg_args_holds_what_is_true_of_the_run(tmp_path, rng):
     colmap.write_settings(TrainConfig(scene=str(root), resolution=2, test_every=0), load_scene(str(root), resolution=2))
     text = (colmap.path / "cfg_args").read_text()
     assert f"source_path={str(root.resolve())!r}" in text and "images='images'" in text and "resolution=2" in text
+
+
+def test_differing_settings_are_named_one_by_one_in_the_fields_order():
+    """--resume's refusal lists each differing setting, a group's by "<group>.<field>" (not the group's repr), and
+    leaves out the settings that do not change the model."""
+    a = TrainConfig(scene="builtin", strategy="mcmc")
+    b = TrainConfig(scene="builtin", strategy="mcmc", seed=3, save_at=(5,), mcmc=MCMCConfig(noise_lr=1e3),
+                    dc4gs=DC4GSConfig(dcs=True))
+    assert list(a.differences(b).items()) == [("seed", (0, 3)), ("mcmc.noise_lr", (5e5, 1e3)),
+                                              ("dc4gs.dcs", (False, True))]
