@@ -11,6 +11,7 @@ import os
 import re
 import secrets
 import shutil
+import stat
 import tempfile
 from pathlib import Path
 from typing import Callable
@@ -32,12 +33,31 @@ def is_temporary(path: Path) -> bool:
     return TEMPORARY_NAME.fullmatch(path.name) is not None
 
 
+def check_replaceable(path: Path, folder: bool = False) -> None:
+    """OutputError where `path` exists as something an output must never replace: a device, FIFO or socket
+    (`export --out /dev/full` once replaced the device node with a regular file), or a folder where a file goes
+    (a file where a folder goes). A symbolic link is replaced itself, never followed."""
+    try:
+        mode = os.lstat(path).st_mode
+    except FileNotFoundError:
+        return
+    except OSError as e:
+        raise OutputError(path, f"cannot write: {e.strerror or e}") from e
+    if stat.S_ISLNK(mode) or (stat.S_ISDIR(mode) if folder else stat.S_ISREG(mode)):
+        return
+    kind = ("a folder" if stat.S_ISDIR(mode) else "a device" if stat.S_ISCHR(mode) or stat.S_ISBLK(mode)
+            else "a FIFO" if stat.S_ISFIFO(mode) else "a socket" if stat.S_ISSOCK(mode) else "a file")
+    raise OutputError(path, f"is {kind}, not a {'folder' if folder else 'regular file'}: refusing to replace it")
+
+
 def write_atomic(path: str | os.PathLike, write: Callable[[Path], None], keep_previous: Path | None = None) -> None:
     """Call write(temporary_path), which creates that file, then move it onto `path`: readers see the old
     file or the new one, and a failed or interrupted write leaves no temporary file behind.
     keep_previous: once the new file is complete, the old `path` is moved there instead of being replaced.
-    A failing write (disk full, read-only folder, ...) raises OutputError naming `path`."""
+    A failing write (disk full, read-only folder, ...) raises OutputError naming `path`, and so does a `path`
+    that is not a regular file (check_replaceable), before anything is written."""
     path = Path(path)
+    check_replaceable(path)
     tmp = temporary_sibling(path)
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
@@ -64,7 +84,9 @@ def write_json(path: str | os.PathLike, data) -> None:
 
 
 def staging_folder(final: Path) -> Path:
-    """An empty hidden folder beside `final`, to be filled and then passed to replace_folder."""
+    """An empty hidden folder beside `final`, to be filled and then passed to replace_folder (OutputError where
+    `final` is something else than a folder: check_replaceable)."""
+    check_replaceable(final, folder=True)
     try:
         final.parent.mkdir(parents=True, exist_ok=True)
         return Path(tempfile.mkdtemp(prefix=f".{final.name}.", suffix=".staging", dir=final.parent))

@@ -256,6 +256,17 @@ def test_cli_exports_a_run_and_says_what_it_wrote(tmp_path, rng, capsys):
     assert out.stat().st_size == 32 * N
 
 
+def test_cli_refuses_an_output_that_is_not_a_regular_file(tmp_path, rng, capsys):
+    """`export --out /dev/full` printed "bytes written" and replaced the device node (a FIFO stands in for it)."""
+    import stat
+    RunFolder(tmp_path / "run").save_model(700, model_for(rng, 1))
+    fifo = tmp_path / "fifo.splat"
+    os.mkfifo(fifo)
+    with pytest.raises(OutputError, match="is a FIFO, not a regular file"):   # one line, exit 2 (cli.py)
+        run_cli("--model", tmp_path / "run", "--out", fifo)
+    assert "bytes written" not in capsys.readouterr().out and stat.S_ISFIFO(os.lstat(fifo).st_mode)
+
+
 @pytest.mark.parametrize("source", ["--model", "--ply"])
 def test_missing_source_names_its_path(tmp_path, source):
     missing = tmp_path / "nowhere"

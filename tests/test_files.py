@@ -43,3 +43,38 @@ def test_file_stems_are_unique_across_folders():
     assert cam("cam1/0001.jpg").file_stem == "cam1_0001"
     assert cam("cam2/0001.jpg").file_stem == "cam2_0001"
     assert cam("r_0").file_stem == "r_0"
+
+
+@pytest.mark.parametrize("kind", ["fifo", "folder"])
+def test_an_output_never_replaces_what_is_not_a_regular_file(tmp_path, kind):
+    """`export --out /dev/full` once printed "bytes written" and replaced the device node with a regular file (the
+    atomic rename): a FIFO (here, for a device node) or a folder where a file goes is refused, and left as it was."""
+    import os
+    import stat
+
+    from dc4gs_cl.errors import OutputError
+    path = tmp_path / "out.ply"
+    os.mkfifo(path) if kind == "fifo" else path.mkdir()
+    with pytest.raises(OutputError, match="not a regular file"):
+        write_atomic(path, lambda tmp: tmp.write_bytes(b"model"))
+    mode = os.lstat(path).st_mode
+    assert stat.S_ISFIFO(mode) if kind == "fifo" else stat.S_ISDIR(mode)
+    assert [p.name for p in tmp_path.iterdir()] == ["out.ply"]   # no temporary left
+
+
+def test_a_folder_of_renders_never_replaces_a_file(tmp_path):
+    from dc4gs_cl.errors import OutputError
+    final = tmp_path / "renders"
+    final.write_bytes(b"a user's file")
+    with pytest.raises(OutputError, match="not a folder"):
+        staging_folder(final)
+    assert final.read_bytes() == b"a user's file" and [p.name for p in tmp_path.iterdir()] == ["renders"]
+
+
+def test_a_symbolic_link_is_replaced_not_followed(tmp_path):
+    elsewhere = tmp_path / "elsewhere.json"
+    elsewhere.write_text("kept")
+    link = tmp_path / "out.json"
+    link.symlink_to(elsewhere)
+    write_json(link, {"a": 1})
+    assert elsewhere.read_text() == "kept" and not link.is_symlink() and link.read_text() == '{\n  "a": 1\n}'
