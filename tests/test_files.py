@@ -45,6 +45,14 @@ def test_file_stems_are_unique_across_folders():
     assert cam("r_0").file_stem == "r_0"
 
 
+@pytest.mark.parametrize("name, stem", [("../../../x/y.png", "x_y"), (".hidden.png", "hidden"),
+                                        ("./a/.b/c.jpg", "a_.b_c"), ("..png", "_"), ("/abs/p.png", "abs_p"),
+                                        ("..\\..\\w.png", "w")])
+def test_no_output_name_is_hidden_or_climbs_out(name, stem):
+    """A view named ../../../x/y.png was written as the hidden file .._.._.._x_y.png."""
+    assert Camera(name, 4, 3, 1.0, 1.0, 2.0, 1.5, np.eye(3), np.zeros(3)).file_stem == stem
+
+
 @pytest.mark.parametrize("kind", ["fifo", "folder"])
 def test_an_output_never_replaces_what_is_not_a_regular_file(tmp_path, kind):
     """`export --out /dev/full` once printed "bytes written" and replaced the device node with a regular file (the

@@ -49,12 +49,13 @@ class Camera:
 
     @property
     def file_stem(self) -> str:
-        """The image name without its extension, folders joined by "_" (a root or drive left out): a file name for
-        this view's outputs, inside whatever folder they go to (no separator; never "", "." or ".."). No other
-        view of a scene shares it (unique_file_stems)."""
+        """The image name without its extension, folders joined by "_" (a root or drive, "." and ".." left out): a
+        file name for this view's outputs, inside whatever folder they go to (no separator; never hidden: no leading
+        dot, so "../../x/y.png" gives "x_y", never ".._.._x_y"; never ""). No other view of a scene shares it
+        (unique_file_stems)."""
         name = Path(self.name.replace("\\", "/"))
-        stem = "_".join(part for part in name.with_suffix("").parts if part not in (name.anchor, "/"))
-        return stem if stem.strip(".") else stem.replace(".", "_") or "_"
+        parts = (part for part in name.with_suffix("").parts if part not in (name.anchor, "/", ".", ".."))
+        return "_".join(parts).lstrip(".") or "_"
 
     @property
     def center(self) -> np.ndarray:
