@@ -175,6 +175,48 @@ def test_spz_header_and_coordinates(tmp_path, rng):
     check("stored first position", fixed / 2.0 ** 12, m.means[0] * [1, -1, -1], 2.0 ** -13)
 
 
+def spz_variant(tmp_path, rng, edit, trailer: bytes = b""):
+    """A one-Gaussian .spz whose inflated data edit(bytearray) changed, gzipped again (trailer: bytes after it)."""
+    path = written(tmp_path, model_for(rng, 1), "spz")
+    data = bytearray(gzip.decompress(path.read_bytes()))
+    edit(data)
+    path.write_bytes(gzip.compress(bytes(data), mtime=0) + trailer)
+    return path
+
+
+@pytest.mark.parametrize("case, says", [
+    ("inflates past its data", "data past the"), ("a second gzip member", "data past the"),
+    ("fractional bits 255", "fractional bits 255"), ("20 million promised", "DC4GS_MAX_READ_GAUSSIANS")])
+def test_spz_bombs_are_refused_before_they_take_memory(tmp_path, rng, case, says):
+    """A 2 MB .spz inflating to 2 GiB took 4.3 GB and 69 s (the trailing data then ignored); one promising 20
+    million Gaussians 7.7 GB; fractional bits 255 put every Gaussian at the origin: one line each, and the read
+    never holds more than a few MB (the trailing 256 MiB of zeros are never inflated)."""
+    import tracemalloc
+    if case == "inflates past its data":
+        path = spz_variant(tmp_path, rng, lambda d: d.extend(bytes(1 << 28)))
+    elif case == "a second gzip member":
+        path = spz_variant(tmp_path, rng, lambda d: None, gzip.compress(b"more", mtime=0))
+    elif case == "fractional bits 255":
+        path = spz_variant(tmp_path, rng, lambda d: d.__setitem__(13, 255))
+    else:
+        path = spz_variant(tmp_path, rng, lambda d: d.__setitem__(slice(8, 12), (20_000_001).to_bytes(4, "little")))
+    tracemalloc.start()
+    try:
+        with pytest.raises(InputError, match=says):
+            READERS["spz"](path)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak < 16 * 2**20, peak
+
+
+def test_spz_count_cap_is_raised_by_the_environment(tmp_path, rng, monkeypatch):
+    path = spz_variant(tmp_path, rng, lambda d: d.__setitem__(slice(8, 12), (20_000_001).to_bytes(4, "little")))
+    monkeypatch.setenv("DC4GS_MAX_READ_GAUSSIANS", "30000000")
+    with pytest.raises(InputError, match="truncated"):   # past the cap: read as far as the data goes
+        READERS["spz"](path)
+
+
 def test_spz_fewer_fractional_bits_for_far_gaussians(tmp_path, rng):
     m = model_for(rng, 0)
     m.means[0] = [5000.0, -3000.0, 0.5]        # beyond the 2048 units of 12 fractional bits

@@ -87,6 +87,21 @@ def read_model(means, log_scales, quats, opacity, sh) -> GaussianModel:
                          opacity_logits=logit(np.clip(opacity, ALPHA_FLOOR, 1 - ALPHA_FLOOR)), sh=sh)
 
 
+# the most Gaussians a model file may hold before its arrays are made (a header can promise any count: a .spz of 2 MB
+# promised 20 million and took 7.7 GB); DC4GS_MAX_READ_GAUSSIANS raises it
+MAX_READ_GAUSSIANS = 20_000_000
+MAX_READ_GAUSSIANS_ENV = "DC4GS_MAX_READ_GAUSSIANS"
+
+
+def check_gaussian_count(path, n: int) -> None:
+    """InputError where a file's header promises more Gaussians than MAX_READ_GAUSSIANS (or the environment's)."""
+    limit = os.environ.get(MAX_READ_GAUSSIANS_ENV, "")
+    limit = int(limit) if limit.isdigit() else MAX_READ_GAUSSIANS
+    if n > limit:
+        raise InputError(path, f"the header promises {n:,} Gaussians, more than the {limit:,} read at most "
+                               f"(set {MAX_READ_GAUSSIANS_ENV} to read more)")
+
+
 def read_bytes(path) -> bytes:
     try:
         return Path(path).read_bytes()

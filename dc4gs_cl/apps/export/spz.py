@@ -33,13 +33,14 @@ import numpy as np
 
 from ...errors import InputError
 from ...model import GaussianModel
-from .common import (SMALLEST_THREE_BITS, SQRT_HALF, from_smallest_three, pack_bits, read_bytes, read_model,
-                     smallest_three, to_bytes, unit_quats, unpack_bits, write_bytes)
+from .common import (SMALLEST_THREE_BITS, SQRT_HALF, check_gaussian_count, from_smallest_three, pack_bits, read_bytes,
+                     read_model, smallest_three, to_bytes, unit_quats, unpack_bits, write_bytes)
 
 SPZ_MAGIC, SPZ_VERSION = 0x5053474E, 3
 SPZ_HEADER = np.dtype([("magic", "<u4"), ("version", "<u4"), ("count", "<u4"), ("sh_degree", "u1"),
                        ("fractional_bits", "u1"), ("flags", "u1"), ("reserved", "u1")])
 SPZ_FRACTIONAL_BITS = 12
+SPZ_MAX_FRACTIONAL_BITS = 23   # a 24-bit signed coordinate holds at most this many (Niantic's writer: 12)
 SPZ_POSITION_MAX = (1 << 23) - 1
 SPZ_COLOR_SCALE = 0.15         # f_dc scale: wider than SH_C0, so colours a little outside [0, 1] survive
 SPZ_SCALE_OFFSET, SPZ_SCALE_STEPS = 10.0, 16.0
@@ -101,21 +102,32 @@ def spz_antialiased(path: str | os.PathLike) -> bool:
 
 
 def read_spz(path: str | os.PathLike) -> GaussianModel:
-    """A version 3 .spz file as Niantic's reader decodes it to RDF (the PLY's axes)."""
+    """A version 3 .spz file as Niantic's reader decodes it to RDF (the PLY's axes). The gzip stream is inflated
+    only as far as its header says the data reaches (a 2 MB file can inflate to gigabytes): data past that, a count
+    past check_gaussian_count's and fractional bits no writer uses are refused."""
+    stream = zlib.decompressobj(16 + zlib.MAX_WBITS)   # gzip
+    compressed = read_bytes(path)
     try:
-        data = gzip.decompress(read_bytes(path))
-    except (OSError, EOFError, zlib.error) as e:
+        data = stream.decompress(compressed, SPZ_HEADER.itemsize)
+        if len(data) < SPZ_HEADER.itemsize:
+            raise InputError(path, "not a .spz file (shorter than its header)")
+        h = np.frombuffer(data, SPZ_HEADER, count=1)[0]
+        if h["magic"] != SPZ_MAGIC or h["version"] != SPZ_VERSION or h["sh_degree"] > 3:
+            raise InputError(path, f"not a version {SPZ_VERSION} .spz file of SH degree 0..3 (magic "
+                                   f"{h['magic']:#x}, version {h['version']}, SH degree {h['sh_degree']})")
+        if h["fractional_bits"] > SPZ_MAX_FRACTIONAL_BITS:
+            raise InputError(path, f"fractional bits {h['fractional_bits']} in the header: writers use 0.."
+                                   f"{SPZ_MAX_FRACTIONAL_BITS} (24-bit coordinates)")
+        n, rest = int(h["count"]), (int(h["sh_degree"]) + 1) ** 2 - 1
+        check_gaussian_count(path, n)
+        sizes = [9 * n, n, 3 * n, 3 * n, 4 * n, 3 * rest * n]
+        data += stream.decompress(stream.unconsumed_tail, sum(sizes))
+        if len(data) < SPZ_HEADER.itemsize + sum(sizes):
+            raise InputError(path, f"truncated: the header promises {n} Gaussians")
+        if stream.decompress(stream.unconsumed_tail, 1) or stream.unused_data:
+            raise InputError(path, f"data past the {n:,} Gaussians its header promises")
+    except zlib.error as e:
         raise InputError(path, f"not a .spz file (not gzip data: {e})") from None
-    if len(data) < SPZ_HEADER.itemsize:
-        raise InputError(path, "not a .spz file (shorter than its header)")
-    h = np.frombuffer(data, SPZ_HEADER, count=1)[0]
-    if h["magic"] != SPZ_MAGIC or h["version"] != SPZ_VERSION or h["sh_degree"] > 3:
-        raise InputError(path, f"not a version {SPZ_VERSION} .spz file of SH degree 0..3 (magic {h['magic']:#x}, "
-                               f"version {h['version']}, SH degree {h['sh_degree']})")
-    n, rest = int(h["count"]), (int(h["sh_degree"]) + 1) ** 2 - 1
-    sizes = [9 * n, n, 3 * n, 3 * n, 4 * n, 3 * rest * n]
-    if len(data) < SPZ_HEADER.itemsize + sum(sizes):
-        raise InputError(path, f"truncated: the header promises {n} Gaussians")
     ends = SPZ_HEADER.itemsize + np.cumsum(sizes)
     raw = [np.frombuffer(data[e - s:e], np.uint8) for s, e in zip(sizes, ends)]
     b = raw[0].reshape(n, 3, 3).astype(np.int32)
