@@ -109,6 +109,23 @@ def test_missing_or_wrong_weights_name_the_file_and_the_fix(tmp_path, monkeypatc
         Lpips("squeeze")
 
 
+@pytest.mark.parametrize("kind", ["fifo", "device", "longer"])
+def test_weights_are_read_from_a_regular_file_and_no_further_than_their_size(tmp_path, monkeypatch, kind):
+    """DC4GS_LPIPS_WEIGHTS naming /dev/zero read at 400 MB/s until killed; a FIFO blocked forever."""
+    import os
+    monkeypatch.setenv(lpips_module.WEIGHTS_ENV, str(tmp_path))
+    path = tmp_path / "alexnet.ckpt"
+    if kind == "fifo":
+        os.mkfifo(path)
+    elif kind == "device":
+        path.symlink_to("/dev/zero")
+    else:
+        path.write_bytes(bytes(lpips_module.NETWORKS["alex"].size + 10))
+    says = "not a regular file" if kind != "longer" else "SHA-256"
+    with pytest.raises(LpipsUnavailable, match=says):
+        Lpips("alex")
+
+
 def test_weights_loader_refuses_anything_but_arrays():
     class Hostile:
         def __reduce__(self):

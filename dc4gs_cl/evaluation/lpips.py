@@ -42,6 +42,7 @@ class Network:
     ("pool", size, stride) (max, no padding) or ("tap",) (an LPIPS feature layer: the last ReLU's output)."""
     file: str
     sha256: str
+    size: int    # the file's bytes: no more is read (DC4GS_LPIPS_WEIGHTS may name anything)
     trunk: str
     layers: tuple
 
@@ -53,11 +54,12 @@ def _vgg16_layers() -> tuple:
 
 
 NETWORKS = {
-    "alex": Network("alexnet.ckpt", "443c5bc35326b81e4ac7517b853fd22d3effe38783697d87e2ec65cb01d744b1", "AlexNet_0",
+    "alex": Network("alexnet.ckpt", "443c5bc35326b81e4ac7517b853fd22d3effe38783697d87e2ec65cb01d744b1", 9_884_491,
+                    "AlexNet_0",
                     (("conv", 4, 2), ("tap",), ("pool", 3, 2), ("conv", 1, 2), ("tap",), ("pool", 3, 2),
                      ("conv", 1, 1), ("tap",), ("conv", 1, 1), ("tap",), ("conv", 1, 1), ("tap",))),
-    "vgg": Network("vgg16.ckpt", "2ecbe4ce01168921c28dfd502e2b74490ef8c4d66b0a0286bc7a6127facccc9d", "VGG16_0",
-                   _vgg16_layers()),
+    "vgg": Network("vgg16.ckpt", "2ecbe4ce01168921c28dfd502e2b74490ef8c4d66b0a0286bc7a6127facccc9d", 58_866_625,
+                   "VGG16_0", _vgg16_layers()),
 }
 
 
@@ -96,7 +98,11 @@ def _load(network: Network) -> dict:
         raise LpipsUnavailable(f"its weights are not installed: {INSTALL_HINT}")
     path = folder / network.file
     try:
-        data = path.read_bytes()
+        # a device (/dev/zero read at 400 MB/s until killed) or a FIFO (blocks forever)
+        if path.exists() and not path.is_file():
+            raise LpipsUnavailable(f"{path}: not a regular file; {INSTALL_HINT}")
+        with open(path, "rb") as f:
+            data = f.read(network.size + 1)   # one byte more tells a longer file
     except OSError as e:
         raise LpipsUnavailable(f"{path}: cannot read the weights ({e.strerror or e}); {INSTALL_HINT}") from None
     if hashlib.sha256(data).hexdigest() != network.sha256:
