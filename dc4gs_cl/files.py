@@ -19,13 +19,16 @@ from typing import Callable
 from .errors import OutputError
 
 
-TEMPORARY_NAME = re.compile(r"\..+\.[0-9a-f]{8}\.(tmp|old)(\.[A-Za-z0-9]+)?")   # temporary_sibling's names
+# temporary_sibling's names; the marker makes them ours alone (a user's .checkpoint.0123abcd.tmp.npz was removed
+# by the next run when the pattern was only a hex token and "tmp")
+TEMPORARY_MARKER = "dc4gs"
+TEMPORARY_NAME = re.compile(rf"\..+\.[0-9a-f]{{8}}\.{TEMPORARY_MARKER}-(tmp|old)(\.[A-Za-z0-9]+)?")
 
 
 def temporary_sibling(path: Path, kind: str = "tmp") -> Path:
     """A fresh hidden name beside `path` (same folder, so that a rename onto `path` is atomic), keeping its
     extension, by which writers such as OpenImageIO choose the format."""
-    return path.with_name(f".{path.stem}.{secrets.token_hex(4)}.{kind}{path.suffix}")
+    return path.with_name(f".{path.stem}.{secrets.token_hex(4)}.{TEMPORARY_MARKER}-{kind}{path.suffix}")
 
 
 def is_temporary(path: Path) -> bool:
