@@ -207,7 +207,16 @@ class RunFolder:
 
     # the folder as a whole -------------------------------------------------------------------------------
     def holds_run(self) -> bool:
-        return any((self.path / f).exists() for f in RUN_FILES + RUN_DIRS)
+        return bool(self.run_files())
+
+    def run_files(self) -> list[str]:
+        """The names of a run's files and folders this folder holds (folders with a trailing /)."""
+        return [f for f in RUN_FILES if (self.path / f).exists()] + [f"{d}/" for d in RUN_DIRS
+                                                                     if (self.path / d).exists()]
+
+    def missing_for_resume(self) -> str | None:
+        """What --resume would lack here: config.json or checkpoint.npz (None: the run can be resumed)."""
+        return CONFIG if not self.config_path.is_file() else None if self.has_checkpoint() else CHECKPOINT
 
     def clear(self) -> None:
         """Remove a previous run's files (only ours: anything else in the folder stays)."""

@@ -159,6 +159,24 @@ def test_refuses_a_folder_holding_another_run(finished_run, capsys):
     assert snapshot(finished_run) == before
 
 
+@pytest.mark.parametrize("kept", ["config.json", "checkpoint.npz"])
+def test_a_run_that_cannot_be_resumed_names_the_one_flag_that_works(finished_run, tmp_path, capsys, kept):
+    """A run killed after config.json and before its first checkpoint (or a folder with only checkpoint.npz): the
+    plain command said "continue it with --resume", --resume "nothing to resume". Both now name --force, which
+    works."""
+    import shutil
+    run = tmp_path / "killed"
+    run.mkdir()
+    shutil.copy(finished_run / kept, run / kept)
+    plain = bad(capsys, *SMALL, "--iterations", "4", "--test-every", "0", "--out", str(run))
+    assert "cannot be resumed" in plain and kept in plain and plain.endswith("replace it with --force")
+    resumed = bad(capsys, "--out", str(run), "--resume")
+    assert "nothing to resume" in resumed and resumed.endswith("replace what it holds with --force")
+    assert main(["train", *SMALL, "--iterations", "4", "--test-every", "0", "--out", str(run), "--force"]) == 0
+    capsys.readouterr()
+    assert "nothing to resume" in bad(capsys, "--out", str(tmp_path / "empty"), "--resume")
+
+
 def test_corrupt_and_mismatched_checkpoints(finished_run, tmp_path, capsys):
     import shutil
     run = tmp_path / "copy"

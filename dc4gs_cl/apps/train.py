@@ -12,7 +12,7 @@ from pathlib import Path
 from ..config import (BUILTIN_ITERATIONS, DEFAULT_LINE_EVERY, FLAGS, RECIPE_ITERATIONS, TRAIN_FLAGS, Flag, FlagGroup,
                       TrainConfig, flag_key, setting_value)
 from ..errors import InputError
-from ..run_folder import CHECKPOINT, CONFIG, CORRUPT_CHECKPOINT, RunFolder
+from ..run_folder import CONFIG, CORRUPT_CHECKPOINT, RunFolder
 from ..scene.builtin import BUILTIN_SCENE
 from ..scene.camera import view_sizes
 from .viewer import DEFAULT_PORT, Viewer
@@ -109,10 +109,17 @@ def _train_locked(args, run: RunFolder, group) -> int:
     from ..train import Stopped, Trainer
     from ..train.log import progress_mode
 
-    if args.resume and not run.has_checkpoint():
-        raise InputError(run.path, f"nothing to resume: no {CHECKPOINT}")
+    # each refusal names the one flag that works: a run killed before its first checkpoint cannot be resumed
+    missing = run.missing_for_resume()
+    if args.resume and missing:
+        raise InputError(run.path, f"nothing to resume: no {missing}; " + (
+            "replace what it holds with --force" if run.holds_run() else "without --resume, a new run starts"))
     if not args.resume and run.holds_run() and not args.force and group.writes:
-        raise InputError(run.path, "holds another run: continue it with --resume, or replace it with --force")
+        held = ", ".join(run.run_files())
+        raise InputError(run.path, f"holds another run ({held}): continue it with --resume, or replace it with "
+                                   "--force" if not missing else
+                                   f"holds a run that cannot be resumed ({held}; no {missing}): replace it with "
+                                   "--force")
     cfg = train_config(args, run, group.size)
     scene = run.load_scene(cfg)
     scene.read_all_images()
