@@ -58,7 +58,8 @@ METRIC_NUMBERS = ("loss", "train_psnr", "gaussians", "it_per_s", "elapsed_s", "t
                   "test_lpips_alex", "test_views")
 RUN_FILES = (CONFIG, "cfg_args", "cameras.json", CHECKPOINT, PREVIOUS_CHECKPOINT, CORRUPT_CHECKPOINT, RESULTS, PER_VIEW,
              METRICS, "results.corrupt.json", "per_view.corrupt.json")
-RUN_DIRS = ("point_cloud", "test", "train")
+MODELS, MODEL_KEY = "point_cloud", "iteration_"   # + N: the folder of the model saved at iteration N
+RUN_DIRS = (MODELS, "test", "train")
 META = "meta"           # the checkpoint entry holding the JSON metadata
 CHECKSUM = "sha256"     # the metadata key holding checkpoint_checksum(arrays, meta)
 STATE_GROUPS = ("param", "m", "v", "window")   # TrainingState's array groups, "<group>/<name>", in its fields' order
@@ -183,7 +184,7 @@ class RunFolder:
         return any(p.is_file() for p in self.checkpoint_paths)
 
     def model_path(self, iteration: int) -> Path:
-        return self.path / "point_cloud" / f"iteration_{iteration}" / "point_cloud.ply"
+        return self.path / MODELS / f"{MODEL_KEY}{iteration}" / "point_cloud.ply"
 
     def views_dir(self, split: str, iteration: int) -> Path:
         """Where a split's renders/ and gt/ of the model at `iteration` go."""
@@ -219,11 +220,23 @@ class RunFolder:
         return CONFIG if not self.config_path.is_file() else None if self.has_checkpoint() else CHECKPOINT
 
     def clear(self) -> None:
-        """Remove a previous run's files (only ours: anything else in the folder stays)."""
+        """Remove a previous run's files, only ours: its RUN_FILES, and in its RUN_DIRS only the folders a run
+        writes (point_cloud/iteration_N/, <split>/ours_N/), each RUN_DIR then removed if nothing else is left in it.
+        Anything else stays (--force once deleted a NeRF scene's train/ and test/ photos). A RUN_DIR that is a
+        symbolic link is removed itself, never followed (renders were written through one)."""
         for f in RUN_FILES:
             (self.path / f).unlink(missing_ok=True)
         for d in RUN_DIRS:
-            shutil.rmtree(self.path / d, ignore_errors=True)
+            folder = self.path / d
+            if folder.is_symlink():
+                folder.unlink()
+                continue
+            ours = rf"{MODEL_KEY if d == MODELS else ITERATION_KEY}\d+"
+            for sub in folder.glob("*") if folder.is_dir() else ():
+                if re.fullmatch(ours, sub.name) and sub.is_dir() and not sub.is_symlink():
+                    shutil.rmtree(sub, ignore_errors=True)
+            with contextlib.suppress(OSError):   # not empty: what is left is not ours
+                folder.rmdir()
 
     @contextlib.contextmanager
     def locked(self):
@@ -289,6 +302,15 @@ class RunFolder:
             problem = e.problem if isinstance(e, InputError) else _one_line(e)
             raise InputError(self.config_path, f"unreadable run settings ({problem})") from None
 
+    def check_not_the_scene(self, scene: Scene) -> None:
+        """InputError where this folder is, holds, or lies inside the folder of the scene's images: a run's
+        --force would clear it (a NeRF scene's train/ and test/ were deleted that way) and its renders mix in."""
+        out = self.path.resolve()
+        for folder in sorted({c.image_path.parent.resolve() for c in scene.train + scene.test if c.image_path}):
+            if folder == out or out in folder.parents or folder in out.parents:
+                raise InputError(self.path, f"is, holds or lies inside the scene's image folder {folder}: write the "
+                                            "run elsewhere (--out)")
+
     def load_scene(self, cfg: TrainConfig | None = None, scene: str | None = None, resolution: int | None = None,
                    white_background: bool = False) -> Scene:
         """The scene as the run's settings load it (cfg, else config.json): its resolution, test views,
@@ -308,8 +330,8 @@ class RunFolder:
         return path
 
     def saved_iterations(self) -> list[int]:
-        return sorted(int(m.group(1)) for d in (self.path / "point_cloud").glob("iteration_*")
-                      if (m := re.fullmatch(r"iteration_(\d+)", d.name)) and (d / "point_cloud.ply").is_file())
+        return sorted(int(m.group(1)) for d in (self.path / MODELS).glob(f"{MODEL_KEY}*")
+                      if (m := re.fullmatch(rf"{MODEL_KEY}(\d+)", d.name)) and (d / "point_cloud.ply").is_file())
 
     def load_model(self, iteration: int | None = None) -> tuple[int, GaussianModel]:
         """The model saved at `iteration` (None: the last one) and that iteration."""

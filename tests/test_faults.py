@@ -252,3 +252,36 @@ def test_sigterm_while_the_scene_loads_is_a_clean_exit(tmp_path, command):
     assert done.returncode == 128 + signal.SIGTERM, (done.returncode, done.stderr[-2000:])
     assert done.stderr.strip().splitlines() == [f"dc4gs-cl {command}: terminated"], done.stderr[-2000:]
     assert not out.exists()
+
+
+def test_force_removes_only_what_a_run_wrote(tmp_path):
+    """--force deleted any train/, test/ or point_cloud/ in --out, a NeRF scene's photos among them, and followed
+    a symbolic link out of the folder: now only a run's own files and folders go, a link is removed itself."""
+    out = tmp_path / "out"
+    ours = [out / "config.json", out / "test" / "ours_30" / "renders" / "a.png",
+            out / "point_cloud" / "iteration_30" / "point_cloud.ply", out / "train" / "ours_7" / "gt" / "b.png"]
+    theirs = [out / "test" / "r_0.png", out / "test" / "ours_notes.txt", out / "point_cloud" / "mine.ply",
+              out / "notes.txt"]
+    for p in ours + theirs:
+        p.parent.mkdir(parents=True, exist_ok=True)
+        p.write_bytes(b"x")
+    elsewhere = tmp_path / "elsewhere"
+    (elsewhere / "ours_1").mkdir(parents=True)
+    (out / "train").rename(tmp_path / "train-moved")
+    (out / "train").symlink_to(elsewhere, target_is_directory=True)
+    RunFolder(out).clear()
+    assert not any(p.exists() for p in ours[:3]) and all(p.exists() for p in theirs)
+    assert not (out / "train").exists() and (elsewhere / "ours_1").is_dir()   # the link went, not its target
+
+
+def test_a_run_is_never_written_into_the_scenes_image_folder(tmp_path, capsys):
+    """`train --scene s --out s --force` on a NeRF scene deleted its train/ and test/ photos: refused, named."""
+    from test_scene import nerf_scene
+    scene = nerf_scene(tmp_path / "s", {"camera_angle_x": 0.9},
+                       [{"file_path": f"{split}/r_{i}"} for split in ("train", "test") for i in range(2)])
+    photos = sorted(scene.rglob("*.png"))
+    for out in (scene, scene / "train", scene / "train" / "run"):
+        assert main(["train", "--scene", str(scene), "--out", str(out), "--force", "--iterations", "2"]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and "scene's image folder" in err[0], err
+    assert sorted(scene.rglob("*.png")) == photos

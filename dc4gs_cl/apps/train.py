@@ -122,6 +122,7 @@ def _train_locked(args, run: RunFolder, group) -> int:
                                    "--force")
     cfg = train_config(args, run, group.size)
     scene = run.load_scene(cfg)
+    run.check_not_the_scene(scene)
     scene.read_all_images()
     # stage times go to metrics.jsonl; no measurable cost on PoCL
     rt = Runtime(device_of_process(group, args.device), profiling=True)
