@@ -142,7 +142,22 @@ def read_header(path, f) -> tuple[str | None, list[dict]]:
             raise bad
     if order is False:
         raise InputError(path, "malformed PLY header: no 'format' line")
+    _check_counts(path, f, order, elements)
     return order, elements
+
+
+def _check_counts(path, f, order: str | None, elements: list[dict]) -> None:
+    """InputError where the elements' counts promise more rows than the file's bytes can hold, before any reader
+    sizes a buffer by them (`element chunk 1000000000000` ended in MemoryError, 20 digits in OverflowError): a
+    binary row takes at least its properties' bytes (a list its length), an ASCII row at least two ("0\n")."""
+    left = os.fstat(f.fileno()).st_size - f.tell()
+    for e in elements:
+        row = 2 if order is None else sum(np.dtype(t if t is not None else e["lists"][name][0]).itemsize
+                                          for name, t in e["props"].items())
+        if e["count"] * max(row, 1) > left:
+            raise InputError(path, f"truncated: the header promises {e['count']:,} '{e['name']}' rows of at least "
+                                   f"{row} bytes, more than the {max(left, 0):,} bytes after the header")
+        left -= e["count"] * row
 
 
 def _wanted(path, props: dict) -> list[str]:

@@ -417,3 +417,25 @@ def test_render_of_a_bad_model_file_is_one_line(tmp_path, capsys, name, data, sa
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and str(path) in err[0] and says in err[0], err
     assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize("fmt, line, huge", [
+    ("compressed-ply", b"element chunk ", 10**12), ("compressed-ply", b"element vertex ", 4 * 10**9),
+    ("compressed-ply", b"element sh ", 10**20), ("ply", b"element vertex ", 4 * 10**9),
+    ("ply", b"element vertex ", 10**20)])
+def test_ply_headers_promising_more_rows_than_the_file_holds_are_one_line(tmp_path, rng, fmt, line, huge):
+    """`element chunk 1000000000000`, `element vertex 4000000000` or `element sh 99999999999999999999` in a
+    compressed PLY ended in MemoryError or OverflowError: every element of every PLY format is checked against the
+    file's bytes before anything is sized by it."""
+    m = model_for(rng, 1)
+    path = tmp_path / f"model{FORMATS[fmt][0]}"
+    export_model(m, path, fmt)
+    data = path.read_bytes()
+    head, body = data.split(b"end_header\n", 1)
+    if line not in head:   # a compressed PLY of degree 0 has no sh element: add one
+        head += line + b"1\nproperty uchar f_rest_0\n"
+    start = head.index(line) + len(line)
+    head = head[:start] + str(huge).encode() + head[head.index(b"\n", start):]
+    path.write_bytes(head + b"end_header\n" + body)
+    with pytest.raises(InputError, match="truncated: the header promises"):
+        READERS[fmt](path)
