@@ -11,6 +11,8 @@ Every frame has the first training camera's image size and the principal point a
 """
 from __future__ import annotations
 
+from collections.abc import Callable, Sequence
+
 import numpy as np
 
 from ..errors import InputError
@@ -18,16 +20,36 @@ from ..geometry import quat_to_rotmat, rotmat_to_quat, slerp
 from .camera import Camera
 
 PATH_KINDS = ("interpolated", "orbit")
+MAX_PATH_FRAMES = 100_000   # about 55 minutes at 30 fps (--frames 1000000000 took 8 GB before a frame was written)
 
 
-def camera_path(cams: list[Camera], kind: str, frames: int) -> list[Camera]:
+class CameraPath(Sequence):
+    """A path's cameras, each made when it is asked for, so that a path's memory does not grow with its frames."""
+
+    def __init__(self, frames: int, frame: Callable[[int], Camera]):
+        self._frames, self._frame = frames, frame
+
+    def __len__(self) -> int:
+        return self._frames
+
+    def __getitem__(self, i):
+        if isinstance(i, slice):
+            return [self._frame(j) for j in range(*i.indices(self._frames))]
+        if not -self._frames <= i < self._frames:
+            raise IndexError(i)
+        return self._frame(i % self._frames)
+
+
+def camera_path(cams: list[Camera], kind: str, frames: int) -> CameraPath:
     """`frames` cameras along the path of `kind` through `cams` (the training cameras; at least two)."""
     if kind not in PATH_KINDS:
         raise ValueError(f"path {kind!r}: one of {', '.join(PATH_KINDS)}")
     if len(cams) < 2:
         raise InputError(None, f"--path needs at least two training cameras, the scene has {len(cams)}")
-    if frames < 2:
-        raise InputError(None, f"--frames {frames} must be at least 2")
+    if not 2 <= frames <= MAX_PATH_FRAMES:
+        raise InputError(None, f"--frames {frames} must be at least 2" if frames < 2 else
+                               f"--frames {frames:,}: at most {MAX_PATH_FRAMES:,} (a video of "
+                               f"{MAX_PATH_FRAMES // 1800} minutes at 30 fps)")
     cams = sorted(cams, key=lambda c: c.name)
     return (_interpolated if kind == "interpolated" else _orbit)(cams, frames)
 
@@ -36,21 +58,23 @@ def _camera(name: str, like: Camera, R: np.ndarray, center: np.ndarray, fx: floa
     return Camera(name, like.width, like.height, fx, fy, 0.5 * like.width, 0.5 * like.height, R, -R @ center)
 
 
-def _interpolated(cams: list[Camera], frames: int) -> list[Camera]:
+def _interpolated(cams: list[Camera], frames: int) -> CameraPath:
     first = cams[0]
     centres = np.array([c.center for c in cams])
     quats = [rotmat_to_quat(c.R) for c in cams]
     # focal lengths at the first camera's size, so that frames of one size zoom as the cameras did
     focals = np.array([(c.fx * first.width / c.width, c.fy * first.height / c.height) for c in cams])
-    out = []
-    for f, s in enumerate(np.linspace(0.0, len(cams) - 1, frames)):
+    step = (len(cams) - 1) / (frames - 1)   # np.linspace(0, len(cams) - 1, frames)'s, frame by frame
+
+    def frame(f: int) -> Camera:
+        s = float(len(cams) - 1) if f == frames - 1 else f * step
         i = min(int(s), len(cams) - 2)
         u = s - i
         p = [centres[max(i - 1, 0)], centres[i], centres[i + 1], centres[min(i + 2, len(cams) - 1)]]
         fx, fy = (1 - u) * focals[i] + u * focals[i + 1]
-        out.append(_camera(f"{f:05d}", first, quat_to_rotmat(slerp(quats[i], quats[i + 1], u)[None])[0],
-                           catmull_rom(*p, u), fx, fy))
-    return out
+        return _camera(f"{f:05d}", first, quat_to_rotmat(slerp(quats[i], quats[i + 1], u)[None])[0],
+                       catmull_rom(*p, u), fx, fy)
+    return CameraPath(frames, frame)
 
 
 def _orbit(cams: list[Camera], frames: int) -> list[Camera]:
@@ -65,11 +89,13 @@ def _orbit(cams: list[Camera], frames: int) -> list[Camera]:
     e1 = flat[0] / np.linalg.norm(flat[0]) if np.linalg.norm(flat[0]) > 1e-12 else _perpendicular(up)
     e2 = np.cross(up, e1)
     fov_x = 2 * np.arctan(0.5 * first.width / first.fx)
-    out = []
-    for f, angle in enumerate(np.linspace(0.0, 2 * np.pi, frames, endpoint=False)):
+    step = 2 * np.pi / frames   # np.linspace(0, 2 pi, frames, endpoint=False)'s, frame by frame
+
+    def frame(f: int) -> Camera:
+        angle = f * step
         eye = target + height * up + radius * (np.cos(angle) * e1 + np.sin(angle) * e2)
-        out.append(Camera.look_at(f"{f:05d}", eye, target, first.width, first.height, fov_x, up=up))
-    return out
+        return Camera.look_at(f"{f:05d}", eye, target, first.width, first.height, fov_x, up=up)
+    return CameraPath(frames, frame)
 
 
 def look_at_point(cams: list[Camera]) -> np.ndarray:
