@@ -235,3 +235,20 @@ def test_mcmc_settings_that_make_no_sense(tmp_path, capsys, args, says):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and says in err[0], err
     assert not (tmp_path / "o").exists()
+
+
+def test_a_cap_the_device_cannot_hold_is_refused_and_a_cap_says_what_it_takes(rt):
+    """MCMC's --max-gaussians 1000000000 was taken without a word and grew to 4.1 GB by iteration 120."""
+    from dc4gs_cl.config import TrainConfig
+    from dc4gs_cl.errors import InputError
+    from dc4gs_cl.scene.loader import load_scene
+    from dc4gs_cl.train import Trainer
+    scene = load_scene("builtin", resolution=8)
+    huge = rt.device.global_mem_size // 100   # 100 bytes a Gaussian would fill the device: the held bytes are more
+    with pytest.raises(InputError, match=f"--max-gaussians {huge:,}: .* GiB of the device's"):
+        Trainer(TrainConfig(scene="builtin", iterations=10, resolution=8, strategy="mcmc", max_gaussians=huge),
+                scene, rt)
+    trainer = Trainer(TrainConfig(scene="builtin", iterations=10, resolution=8, strategy="mcmc"), scene, rt)
+    held = trainer.held_bytes_per_gaussian()
+    assert trainer.cap == 1_000_000 and 4 * 3 * 59 <= held < 1024   # parameters of SH degree 3 and their moments
+    assert f"{trainer.cap * held / 2**30:.1f} GiB" in trainer.cap_memory(rt)

@@ -103,6 +103,26 @@ class Trainer:
         self.strategy.attach(self.context, scene.extent, self.model.n, cfg.white_background)
         self.strategy.reduce_window = self.group.reduce_window
         self.log: TrainingLog | None = None   # while run() runs, and after it for the final evaluation
+        if (cap := self.cap) is not None and cap * self.held_bytes_per_gaussian() > rt.device.global_mem_size:
+            # MCMC grows to its cap: --max-gaussians 1000000000 was taken and grew to 4.1 GB by iteration 120
+            raise InputError(None, f"--max-gaussians {cap:,}: {self.cap_memory(rt)}, more than this device holds")
+
+    @property
+    def cap(self) -> int | None:
+        """The most Gaussians the density control grows the model to (None: no cap)."""
+        return self.strategy.config.max_gaussians
+
+    def held_bytes_per_gaussian(self) -> int:
+        """Device bytes a Gaussian holds whatever the view: its parameters, Adam's two moments and the window's
+        statistics (float32). A training view adds its pairs' and images' buffers: the peak measured by bench is
+        1.0 to 1.8 KB a Gaussian (README)."""
+        return 4 * (3 * sum(self.model.widths.values()) + sum(self.strategy.statistics.window.widths().values()))
+
+    def cap_memory(self, rt: Runtime) -> str:
+        """What the cap means in memory on rt's device, in words."""
+        need = self.cap * self.held_bytes_per_gaussian()
+        return (f"its parameters, moments and statistics alone take {need / 2**30:.1f} GiB of the device's "
+                f"{rt.device.global_mem_size / 2**30:.1f} GiB (training's peak: about 1 to 1.8 KB a Gaussian)")
 
     @property
     def params(self) -> DeviceGaussians:
