@@ -261,7 +261,7 @@ def client_view(camera: ClientCamera, sent: list):
 @pytest.mark.parametrize("values", [{"image_width": 8000, "image_height": 40}, {"image_width": 100_000},
                                     {"fov": float("nan")},
                                     {"image_width": -5}, {"aspect": float("inf")}, {"position": (1e300, 0, 0)},
-                                    {"wxyz": (0, 0, 0, 0)}, {"image_height": "tall"}])
+                                    {"wxyz": (0, 0, 0, 0)}, {"wxyz": (1e300, 1e300, 0, 0)}, {"image_height": "tall"}])
 def test_a_client_cannot_ask_for_an_unbounded_frame(served, capsys, values):
     """A client's canvas size, field of view and pose are whatever it sends (a frame size of 100000 killed
     training with the viewer on): a frame is at most the slider's largest side, and a value that is not a finite

@@ -94,7 +94,8 @@ def view_camera(wxyz, position, fov_y: float, aspect: float, width: int, height:
 def client_frame(camera, max_side, scale: float) -> Camera | None:
     """The frame a client's camera asks for (viser's CameraHandle: canvas size, field of view, aspect, pose), at
     most max_side (clamped to the slider's range) a side, times scale; None where the client sent a value that is
-    not a finite number in range: whatever a websocket client sends, the render stays of a bounded size."""
+    not a finite number in range (a quaternion whose norm overflows included: [1e300, 1e300, 0, 0] gave an all-NaN
+    camera): whatever a websocket client sends, the render stays of a bounded size."""
     try:
         canvas = (int(camera.image_width), int(camera.image_height))
         fov, aspect = float(camera.fov), float(camera.aspect)
@@ -104,8 +105,8 @@ def client_frame(camera, max_side, scale: float) -> Camera | None:
         return None
     if not (all(1 <= c <= MAX_CANVAS_SIDE for c in canvas) and 0 < fov < math.pi and 1e-3 <= aspect <= 1e3
             and wxyz.shape == (4,) and position.shape == (3,) and np.isfinite(wxyz).all()
-            and np.linalg.norm(wxyz) > 0 and np.isfinite(position).all() and (np.abs(position) <= MAX_ABS_MEAN).all()
-            and math.isfinite(side)):
+            and 0 < np.linalg.norm(wxyz) < math.inf and np.isfinite(position).all()
+            and (np.abs(position) <= MAX_ABS_MEAN).all() and math.isfinite(side)):
         return None
     low, high, _ = FRAME_SIDE_SLIDER
     width, height = frame_size(*canvas, int(min(max(side, low), high)), scale)
