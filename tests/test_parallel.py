@@ -154,32 +154,67 @@ def test_started_by_a_launcher_without_mpi4py_says_how_to_get_it(monkeypatch):
         process_group()
 
 
+class TwoProcessWorld:
+    """What MPIGroup asks of a communicator, as process 0 of two; process 1 sends what other(process 0's) gives."""
+    def __init__(self, other):
+        self.other = other
+
+    def Get_rank(self):
+        return 0
+
+    def Get_size(self):
+        return 2
+
+    def Split_type(self, kind):
+        return self
+
+    def allgather(self, mine):
+        return [mine, self.other(mine)]
+
+
+MPI_CONSTANTS = type("MPI", (), {"COMM_TYPE_SHARED": 0})
+
+
 def test_processes_whose_models_differ_stop_with_one_line():
     """MPIGroup.check_same on a world whose processes hash their models differently: a DeviceError naming the first
     process that differs (the command line prints it as one line, exit 2); equal hashes pass."""
     from dc4gs_cl.errors import DeviceError
     from dc4gs_cl.train.parallel import MPIGroup
-
-    class World:   # what check_same asks of a communicator, the other process's model hash given
-        def __init__(self, other):
-            self.other = other
-
-        def Get_rank(self):
-            return 0
-
-        def Get_size(self):
-            return 2
-
-        def Split_type(self, kind):
-            return self
-
-        def allgather(self, mine):
-            return [mine, mine if self.other is None else self.other]
-
     model = {"means": np.zeros((3, 3), np.float32)}
-    MPIGroup(World(None), type("MPI", (), {"COMM_TYPE_SHARED": 0})).check_same(model, "iteration 30")
+    MPIGroup(TwoProcessWorld(lambda mine: mine), MPI_CONSTANTS).check_same(model, "iteration 30")
     with pytest.raises(DeviceError, match="iteration 30: the model of process 1 differs from process 0's"):
-        MPIGroup(World("0" * 64), type("MPI", (), {"COMM_TYPE_SHARED": 0})).check_same(model, "iteration 30")
+        MPIGroup(TwoProcessWorld(lambda mine: "0" * 64), MPI_CONSTANTS).check_same(model, "iteration 30")
+
+
+def test_processes_started_with_other_settings_stop_with_one_line_naming_the_first():
+    """MPIGroup.check_same_settings on a world whose process 1 has other settings: an InputError naming the first
+    one that differs by its flag (in process 0's order), before anything is sized by them."""
+    from dc4gs_cl.train.parallel import MPIGroup
+    settings, names = {"strategy": "3dgs", "sh_degree": 3, "out": "/a"}, {"strategy": "--strategy", "out": "--out"}
+
+    def group(**other):
+        return MPIGroup(TwoProcessWorld(lambda mine: {**mine, **other}), MPI_CONSTANTS)
+    group().check_same_settings(settings, names)
+    with pytest.raises(InputError, match=r"^process 1 was started with --strategy 'absgs', process 0 with '3dgs'"):
+        group(out="/b", strategy="absgs").check_same_settings(settings, names)
+    with pytest.raises(InputError, match=r"^process 1 was started with --out '/b', process 0 with '/a'"):
+        group(out="/b").check_same_settings(settings, names)
+
+
+@needs_mpi
+@pytest.mark.parametrize("other, named", [(["--strategy", "absgs"], "--strategy"),
+                                          (["--sh-degree", "1"], "--sh-degree"), (["--dc4gs"], "--dcc"),
+                                          (["--seed", "3"], "--seed")])
+def test_ranks_started_with_other_settings_all_stop_before_training(tmp_path, other, named):
+    """mpirun's `-n 1 dc4gs-cl train ... : -n 1 dc4gs-cl train ... --strategy absgs` corrupted the heap (SIGABRT),
+    --sh-degree the same, --dc4gs on one rank hung, --seed was caught only at the end."""
+    train = [sys.executable, "-m", "dc4gs_cl", "train", "--no-progress", "--lpips", "none", *RUN, "--out",
+             str(tmp_path / "run")]
+    cmd = [MPIRUN, "--allow-run-as-root", "--oversubscribe", "-n", "1", *train, ":", "-n", "1", *train, *other]
+    done = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
+    assert done.returncode != 0
+    assert f"process 1 was started with {named} " in done.stderr, done.stderr[-2000:]
+    assert "free()" not in done.stderr and not (tmp_path / "run" / "config.json").exists()
 
 
 def test_the_window_columns_that_take_a_maximum_exist():

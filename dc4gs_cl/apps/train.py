@@ -9,8 +9,8 @@ import time
 from contextlib import nullcontext
 from pathlib import Path
 
-from ..config import (BUILTIN_ITERATIONS, DEFAULT_LINE_EVERY, FLAGS, RECIPE_ITERATIONS, TRAIN_FLAGS, Flag, FlagGroup,
-                      TrainConfig, flag_key, setting_value)
+from ..config import (BUILTIN_ITERATIONS, DEFAULT_LINE_EVERY, FLAG_OF, FLAGS, RECIPE_ITERATIONS, SETTINGS, TRAIN_FLAGS,
+                      Flag, FlagGroup, TrainConfig, flag_key, setting_value)
 from ..errors import InputError
 from ..run_folder import CONFIG, CORRUPT_CHECKPOINT, RunFolder
 from ..scene.builtin import BUILTIN_SCENE
@@ -121,6 +121,9 @@ def _train_locked(args, run: RunFolder, group) -> int:
                                    f"holds a run that cannot be resumed ({held}; no {missing}): replace it with "
                                    "--force")
     cfg = train_config(args, run, group.size)
+    group.check_same_settings({**{name: setting_value(cfg, name) for name in SETTINGS}, "out": str(run.path.resolve()),
+                               "resume": args.resume, "force": args.force},
+                              {**FLAG_OF, "out": "--out", "resume": "--resume", "force": "--force"})
     scene = run.load_scene(cfg)
     run.check_not_the_scene(scene)
     scene.read_all_images()

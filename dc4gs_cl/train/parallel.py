@@ -58,6 +58,11 @@ class SingleProcess:
     def check_same(self, arrays: dict[str, np.ndarray], what: str) -> None:
         """Stop with one line where the processes' arrays differ (they must hold the same model)."""
 
+    def check_same_settings(self, settings: dict[str, object], names: dict[str, str]) -> None:
+        """Stop every process with one line naming the first setting (by names[setting], a flag) in which a
+        process differs from process 0, before any buffer is sized or message sent by them: ranks started with
+        other settings corrupted each other's memory, or hung."""
+
 
 class MPIGroup(SingleProcess):
     def __init__(self, comm, mpi):
@@ -91,6 +96,15 @@ class MPIGroup(SingleProcess):
 
     def broadcast(self, value):
         return self.comm.bcast(value, root=0)
+
+    def check_same_settings(self, settings: dict[str, object], names: dict[str, str]) -> None:
+        everyone = self.comm.allgather(settings)
+        for rank, theirs in enumerate(everyone[1:], 1):
+            for name, ours in everyone[0].items():
+                if theirs.get(name) != ours:
+                    raise InputError(None, f"process {rank} was started with {names.get(name, name)} "
+                                           f"{theirs.get(name)!r}, process 0 with {ours!r}: every process of a "
+                                           "parallel run takes the same settings")
 
     def check_same(self, arrays: dict[str, np.ndarray], what: str) -> None:
         digest = hashlib.sha256()
