@@ -115,3 +115,14 @@ def test_a_path_is_bounded_and_its_memory_does_not_grow_with_its_frames():
             tracemalloc.stop()
         assert len(path) == MAX_PATH_FRAMES and last.name == f"{MAX_PATH_FRAMES - 1:05d}" and peak < 2**20, peak
 
+
+def test_an_orbit_around_a_point_behind_the_cameras_is_told():
+    """The orbit of cameras that look at no common point rendered black frames with no warning: cameras_behind
+    tells render --path orbit to warn (cameras on a ring looking outwards: the least-squares point is behind all)."""
+    from dc4gs_cl.scene.paths import cameras_behind
+    ring = [Camera.look_at(f"{i}", (3 * np.cos(a), 3 * np.sin(a), 0.0), (6 * np.cos(a), 6 * np.sin(a), 0.0), 64, 48,
+                           1.0) for i, a in enumerate(np.linspace(0, 2 * np.pi, 8, endpoint=False))]
+    assert cameras_behind(ring, look_at_point(ring)) == len(ring)
+    inward = load_scene("builtin", resolution=8).train
+    assert cameras_behind(inward, look_at_point(inward)) == 0
+

@@ -119,12 +119,19 @@ def _render_path(args, source: ModelSource, scene) -> int:
     """render --path: the frames of a camera path through the training cameras, and a video of them."""
     from ..render import DeviceGaussians, Renderer, RenderOptions
     from ..runtime import Runtime, describe
-    from ..scene.paths import camera_path
+    from ..scene.paths import camera_path, cameras_behind, look_at_point
     from .video import render_path
 
     if args.fps < 1:
         raise InputError(None, f"--fps {args.fps} must be at least 1")
     cams = camera_path(scene.train, args.path, args.frames)
+    if args.path == "orbit":   # cameras facing outwards, or away from each other, rendered black frames unsaid
+        target = look_at_point(scene.train)
+        behind = cameras_behind(scene.train, target)
+        if 2 * behind > len(scene.train):
+            print(f"warning: the training cameras look at no common point: the orbit's centre {np.round(target, 3)} "
+                  f"lies behind {behind} of {len(scene.train)} of them, so its frames may show little; --path "
+                  "interpolated follows the cameras instead", file=sys.stderr)
     if args.out is not None:
         frames_dir = RunFolder(args.out).path_frames_dir(args.path)
     else:

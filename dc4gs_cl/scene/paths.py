@@ -113,6 +113,11 @@ def look_at_point(cams: list[Camera]) -> np.ndarray:
     return mean + np.mean([c.R[2] for c in cams], axis=0) * max(np.linalg.norm(centres - mean, axis=1).mean(), 1.0)
 
 
+def cameras_behind(cams: list[Camera], point: np.ndarray) -> int:
+    """How many of the cameras have `point` behind them (an orbit around it shows them little or nothing)."""
+    return sum(float((point - c.center) @ c.R[2]) <= 0 for c in cams)
+
+
 def _perpendicular(v: np.ndarray) -> np.ndarray:
     w = np.cross(v, [1.0, 0.0, 0.0] if abs(v[0]) < 0.9 else [0.0, 1.0, 0.0])
     return w / np.linalg.norm(w)
