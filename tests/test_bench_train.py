@@ -40,3 +40,15 @@ def test_strategy_specs_name_dc4gs_settings():
     for spec in ("absgs+dc4gs:often=2", "absgs+dc4gs:every", "absgs+dc4", "bogus"):
         with pytest.raises(ValueError, match="unknown strategy"):
             bench_train.variant(spec)
+
+
+def test_a_scene_of_ones_own_is_taken_by_its_path(tmp_path):
+    """tools/bench_train.py and frontier.py took only the shared scenes' names: a user's scene folder (here a
+    NeRF one) is taken by its path, its runs' folders named after it; what is no scene is refused naming it."""
+    from test_scene import nerf_scene
+    scene = nerf_scene(tmp_path / "mine", {"camera_angle_x": 0.9}, [{"file_path": f"r_{i}"} for i in range(3)])
+    assert bench_train.scene_path(str(scene)) == scene and bench_train.scene_path("builtin") == "builtin"
+    assert bench_train.unknown_scenes([str(scene), "builtin"]) is None
+    assert "nor scene folders: nowhere" in bench_train.unknown_scenes(["nowhere", str(scene)])
+    loaded, resolution = bench_train.load(str(scene), 1, tmp_path / "cache")
+    assert resolution == 1 and loaded.root == scene and len(loaded.train) + len(loaded.test) == 3

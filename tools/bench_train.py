@@ -89,14 +89,33 @@ def host_peak_bytes() -> int:
     return peak if sys.platform == "darwin" else peak * 1024   # bytes on macOS, kilobytes elsewhere
 
 
+def scene_path(name: str) -> str | Path | None:
+    """Where a --scenes entry is: "builtin", a COLMAP scene of DATA by its name, or a scene folder of the user's
+    (COLMAP or NeRF) by its path; None where it is none of these."""
+    if name == BUILTIN_SCENE:
+        return BUILTIN_SCENE
+    if (DATA / name).is_dir() and model_dir(DATA / name) is not None:
+        return DATA / name
+    return Path(name) if Path(name).is_dir() else None
+
+
+def unknown_scenes(names: list[str]) -> str | None:
+    """The error for --scenes entries that are no scene (None: all are), with what there is."""
+    unknown = [s for s in names if scene_path(s) is None]
+    available = ", ".join(colmap_scenes()) if DATA.is_dir() else "none"
+    return (f"not COLMAP scenes of {DATA} nor scene folders: {', '.join(unknown)} (there are: {available})"
+            if unknown else None)
+
+
 def load(name: str, resolution: int | None, cache: Path, test_split: str = "llff") -> tuple[Scene, int]:
-    """The scene (a folder of DATA, or "builtin") at -r `resolution` (default: at most MAX_WIDTH wide) with
-    every image decoded."""
-    path = BUILTIN_SCENE if name == BUILTIN_SCENE else DATA / name
+    """The scene (scene_path(name)) at -r `resolution` (default: at most MAX_WIDTH wide) with every image
+    decoded."""
+    path = scene_path(name)
     if resolution is None:
         full = load_scene(path, resolution=1)
         resolution = math.ceil(max(c.width for c in full.train + full.test) / MAX_WIDTH)
-    scene = load_scene(path, resolution=resolution, cache_dir=cache / "undistorted" / name, test_split=test_split)
+    scene = load_scene(path, resolution=resolution, cache_dir=cache / "undistorted" / Path(name).name,
+                       test_split=test_split)
     scene.read_all_images()
     return scene, resolution
 
@@ -244,7 +263,7 @@ def train_scene(device: str | None, name: str, scene: Scene, strategies: list[st
     for rt, strategy in zip(runtimes, strategies):
         warm_up(rt, scene, [strategy], resolution, warm)
     cfgs = [config(scene, strategy, iterations, resolution) for strategy in strategies]
-    folders = [root / f"{name}-{strategy}" for strategy in strategies]
+    folders = [root / f"{Path(name).name}-{strategy}" for strategy in strategies]
     if turn <= 0:
         return [train_one(rt, scene, cfg, out) for rt, cfg, out in zip(runtimes, cfgs, folders)]
     rss_scene = reset_host_peak()
@@ -270,7 +289,8 @@ def table_row(r: dict) -> str:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--scenes", nargs="+", default=None,
-                    help=f"scene folders of ../shared/data (default: every COLMAP one), or {BUILTIN_SCENE}")
+                    help=f"scenes of ../shared/data by name (default: every COLMAP one), {BUILTIN_SCENE}, or "
+                         "the paths of scene folders of your own (COLMAP or NeRF)")
     ap.add_argument("--strategies", nargs="+", default=None,
                     help="densification strategies, e.g. absgs absgs+dc4gs absgs+dcc:window "
                          "(default: 3dgs absgs pixelgs)")
@@ -305,9 +325,8 @@ def main(argv=None) -> int:
         except ValueError as e:
             ap.error(str(e))
     iterations = args.iterations or 3000
-    unknown = [s for s in scenes if s not in available and s != BUILTIN_SCENE]
-    if unknown:
-        ap.error(f"not COLMAP scenes of {DATA}: {', '.join(unknown)} (there are: {', '.join(available)})")
+    if problem := unknown_scenes(scenes):
+        ap.error(problem)
 
     device = describe(choose_device(args.device)[1])
     order = f"interleaved, {args.turn} iterations a turn" if args.turn > 0 else "one after the other"

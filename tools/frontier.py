@@ -43,6 +43,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import bench_train  # noqa: E402 (a module of tools/, found through the line above)
 
+from dc4gs_cl.config import MCMC_DEFAULT_CAP  # noqa: E402
 from dc4gs_cl.densify import STRATEGIES  # noqa: E402
 from dc4gs_cl.errors import InputError  # noqa: E402
 from dc4gs_cl.files import write_atomic, write_json  # noqa: E402
@@ -210,7 +211,8 @@ def record(path: Path, device: str, entry: dict) -> dict:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--scenes", nargs="+", default=None,
-                    help=f"\"{BUILTIN_SCENE}\" and / or COLMAP scene folders of ../shared/data (default: all of them)")
+                    help=f"\"{BUILTIN_SCENE}\", scenes of ../shared/data by name (default: all of them) and / or "
+                         "the paths of scene folders of your own (COLMAP or NeRF)")
     ap.add_argument("--bases", nargs="+", default=["absgs", "3dgs"], choices=sorted(STRATEGIES))
     ap.add_argument("--methods", nargs="+", default=list(DEFAULT_METHODS), choices=list(METHODS))
     ap.add_argument("--scales", nargs="+", type=float, default=list(SCALES),
@@ -239,10 +241,8 @@ def main(argv=None) -> int:
         return 0
     available = bench_train.colmap_scenes() if bench_train.DATA.is_dir() else []
     scenes = args.scenes or [BUILTIN_SCENE, *available]
-    unknown = [s for s in scenes if s != BUILTIN_SCENE and s not in available]
-    if unknown:
-        ap.error(f"not COLMAP scenes of {bench_train.DATA}: {', '.join(unknown)} "
-                 f"(there are: {', '.join(available) or 'none'})")
+    if problem := bench_train.unknown_scenes(scenes):
+        ap.error(problem)
 
     resolution = {}     # per scene: its recorded runs' -r (one curve, one image size), else the given or default one
     for name in scenes:
@@ -271,7 +271,8 @@ def main(argv=None) -> int:
                     print(f"{name}: skipped, the scene does not load: {e}", file=sys.stderr)
                     break
                 cam = scene.train[0]
-                strategies = [strategy_of(base, m, 10 ** 9) for m in args.methods]
+                # the warm-up builds kernels only: any cap the device holds
+                strategies = [strategy_of(base, m, MCMC_DEFAULT_CAP) for m in args.methods]
                 bench_train.warm_up(rt, scene, strategies, r, Path(tmp) / "warm-up")
                 threshold = STRATEGIES[base].default_config().split_threshold
                 for scale, method, seed in todo:
