@@ -17,7 +17,8 @@ Outcomes of a case:
            allowed only where a mutation changes value bytes in a format without a checksum (a flipped bit
            in a PLY float or a JPEG coefficient), which no reader can tell from the real thing
 Anything else is a finding: another exception (a traceback for the user), a message of several lines or
-naming no file, a truncated or emptied file read without error, a non-finite value read. With --cli the
+naming no file, a truncated or emptied file read without error, a non-finite value read, and a bomb (a .spz
+inflating past its data, a header promising more than the file holds) whose read takes more than READ_MEMORY_BOUND. With --cli the
 first error case of each format is also run through the command line (exit 2, one line on stderr, no
 output folder).
 """
@@ -32,6 +33,7 @@ import re
 import shutil
 import sys
 import tempfile
+import tracemalloc
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
@@ -353,6 +355,48 @@ def png_bomb(data: bytes, rng, path) -> bytes:
     return bytes(out)
 
 
+def spz_bomb(data: bytes, rng, path) -> bytes:
+    """A .spz whose gzip stream carries 64 MiB past the Gaussians its header promises (a file of 2 MB inflated to
+    2 GiB took 4.3 GB), or a second gzip member after it."""
+    import gzip
+    if rng.random() < 0.5:
+        return data + gzip.compress(b"more", mtime=0)
+    return gzip.compress(gzip.decompress(data) + bytes(1 << 26), compresslevel=1, mtime=0)
+
+
+def spz_huge_count(data: bytes, rng, path) -> bytes:
+    """A .spz header promising 20 million Gaussians or more (one with 20 million zeros took 7.7 GB)."""
+    import gzip
+    inner = bytearray(gzip.decompress(data))
+    inner[8:12] = int(rng.choice([20_000_001, 2**31, 2**32 - 1])).to_bytes(4, "little")
+    return gzip.compress(bytes(inner), compresslevel=1, mtime=0)
+
+
+def spz_fractional_bits(data: bytes, rng, path) -> bytes:
+    """Fractional bits no writer uses (255 put every Gaussian at the origin, unsaid)."""
+    import gzip
+    inner = bytearray(gzip.decompress(data))
+    inner[13] = int(rng.integers(24, 256))
+    return gzip.compress(bytes(inner), compresslevel=1, mtime=0)
+
+
+def element_huge_count(data: bytes, rng, path) -> bytes:
+    """One element of a PLY header (a compressed PLY's chunk, vertex or sh) promising far more rows than the file
+    holds (10^12 chunks ended in MemoryError, 20 digits in OverflowError)."""
+    names = re.findall(rb"element (\w+) \d+", data[:data.index(b"end_header")])
+    name = names[int(rng.integers(len(names)))]
+    count = int(rng.choice([2**32, 10**12, 10**20]))
+    return re.sub(rb"element %s \d+" % name, b"element %s %d" % (name, count), data, count=1)
+
+
+# the mutations a reader must refuse within READ_MEMORY_BOUND bytes of Python memory (tracemalloc: NumPy's arrays
+# and zlib's output count), whatever they promise
+BOUNDED = {"bomb", "huge count"}
+READ_MEMORY_BOUND = 64 * 2**20
+EXPORT_BOMBS = {"spz": {"bomb": spz_bomb, "huge count": spz_huge_count, "fractional bits": spz_fractional_bits},
+                "compressed-ply": {"huge count": element_huge_count}}
+
+
 def json_hostile_name(data: bytes, rng, path) -> bytes:
     """A frame's image named by an absolute path or through ".." (the same image, reached another way): read,
     its outputs must still be named inside the run folder (Camera.file_stem, checked by read_scene)."""
@@ -382,7 +426,8 @@ def exr_nan_pixels(data: bytes, rng, path) -> bytes:
 
 # Mutations that must never be read silently (truncation and emptiness are always detectable: each format
 # either states its length or ends in a recognisable way), and those that may change values undetectably.
-MUST_FAIL = {"truncate", "empty", "huge count", "wrong size", "non-finite pixels", "bomb", "duplicate frame"}
+MUST_FAIL = {"truncate", "empty", "huge count", "wrong size", "non-finite pixels", "bomb", "duplicate frame",
+             "fractional bits"}
 
 
 @dataclass
@@ -441,7 +486,8 @@ def _formats() -> list[Format]:
                                       "--out", str(out)]),
         *(Format(f"export {fmt}", export_input(fmt), lambda path: read_ply_values(path, read_model_file),
                  {**BASIC, **({"truncate": truncate_off_records(SPLAT_RECORD.itemsize),
-                               "non-finite": binary_non_finite(4, lambda data: 0)} if fmt == "splat" else {})},
+                               "non-finite": binary_non_finite(4, lambda data: 0)} if fmt == "splat" else {}),
+                  **EXPORT_BOMBS.get(fmt, {})},
                  cli=lambda path, out: ["render", "--ply", str(path), "--scene", "builtin", "-r", "8",
                                         "--out", str(out)])
           for fmt in ("splat", "spz", "compressed-ply")),
@@ -498,6 +544,9 @@ def run_case(fmt: Format, mutation: str, seed: int, template: Path, target: Path
     path = folder / target.relative_to(template)
     path.write_bytes(fmt.mutations[mutation](path.read_bytes(), rng, path))
     quiet = io.StringIO()
+    bounded = mutation in BOUNDED
+    if bounded:
+        tracemalloc.start()
     try:
         with contextlib.redirect_stderr(quiet):
             value = fmt.read(path)
@@ -517,6 +566,12 @@ def run_case(fmt: Format, mutation: str, seed: int, template: Path, target: Path
             case.finding = "a non-finite value was read"
         elif case.outcome == "changed" and (mutation in MUST_FAIL or fmt.checksum or mutation == "wrong type"):
             case.finding = f"{mutation} read without error"
+    finally:
+        if bounded:
+            peak = tracemalloc.get_traced_memory()[1]
+            tracemalloc.stop()
+            if peak > READ_MEMORY_BOUND and not case.finding:
+                case.finding = f"the read took {peak / 2**20:.0f} MB (at most {READ_MEMORY_BOUND / 2**20:.0f})"
     shutil.rmtree(folder.parent)
     return case
 
