@@ -18,7 +18,8 @@ Outcomes of a case:
            in a PLY float or a JPEG coefficient), which no reader can tell from the real thing
 Anything else is a finding: another exception (a traceback for the user), a message of several lines or
 naming no file, a truncated or emptied file read without error, a non-finite value read, and a bomb (a .spz
-inflating past its data, a header promising more than the file holds) whose read takes more than READ_MEMORY_BOUND. With --cli the
+inflating past its data, a header promising more than the file holds) whose read takes more than
+READ_MEMORY_BOUND. With --cli the
 first error case of each format is also run through the command line (exit 2, one line on stderr, no
 output folder).
 """
