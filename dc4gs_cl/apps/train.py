@@ -116,14 +116,15 @@ def _train_locked(args, run: RunFolder, group) -> int:
             "replace what it holds with --force" if run.holds_run() else "without --resume, a new run starts"))
     if not args.resume and run.holds_run() and not args.force and group.writes:
         held = ", ".join(run.run_files())
-        raise InputError(run.path, f"holds another run ({held}): continue it with --resume, or replace it with "
-                                   "--force" if not missing else
-                                   f"holds a run that cannot be resumed ({held}; no {missing}): replace it with "
-                                   "--force")
+        if missing:
+            raise InputError(run.path, f"holds a run that cannot be resumed ({held}; no {missing}): replace it with "
+                                       "--force")
+        raise InputError(run.path, f"holds another run ({held}): continue it with --resume, or replace it with --force")
     cfg = train_config(args, run, group.size)
-    group.check_same_settings({**{name: setting_value(cfg, name) for name in SETTINGS}, "out": str(run.path.resolve()),
-                               "resume": args.resume, "force": args.force},
-                              {**FLAG_OF, "out": "--out", "resume": "--resume", "force": "--force"})
+    # before anything is sized by them: ranks started with other settings corrupted each other's memory
+    given = {"out": str(run.path.resolve()), "resume": args.resume, "force": args.force}
+    group.check_same_settings({**{name: setting_value(cfg, name) for name in SETTINGS}, **given},
+                              {**FLAG_OF, **{name: f"--{name}" for name in given}})
     scene = run.load_scene(cfg)
     run.check_not_the_scene(scene)
     scene.read_all_images()
