@@ -215,6 +215,9 @@ def test_spz_count_cap_is_raised_by_the_environment(tmp_path, rng, monkeypatch):
     monkeypatch.setenv("DC4GS_MAX_READ_GAUSSIANS", "30000000")
     with pytest.raises(InputError, match="truncated"):   # past the cap: read as far as the data goes
         READERS["spz"](path)
+    monkeypatch.setenv("DC4GS_MAX_READ_GAUSSIANS", "lots")
+    with pytest.raises(InputError, match="DC4GS_MAX_READ_GAUSSIANS='lots': expected a count"):
+        READERS["spz"](path)
 
 
 def test_spz_fewer_fractional_bits_for_far_gaussians(tmp_path, rng):

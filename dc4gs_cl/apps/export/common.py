@@ -95,8 +95,10 @@ MAX_READ_GAUSSIANS_ENV = "DC4GS_MAX_READ_GAUSSIANS"
 
 def check_gaussian_count(path, n: int) -> None:
     """InputError where a file's header promises more Gaussians than MAX_READ_GAUSSIANS (or the environment's)."""
-    limit = os.environ.get(MAX_READ_GAUSSIANS_ENV, "")
-    limit = int(limit) if limit.isdigit() else MAX_READ_GAUSSIANS
+    given = os.environ.get(MAX_READ_GAUSSIANS_ENV, "")
+    if given and not given.isdigit():
+        raise InputError(None, f"{MAX_READ_GAUSSIANS_ENV}={given!r}: expected a count of Gaussians")
+    limit = int(given) if given else MAX_READ_GAUSSIANS
     if n > limit:
         raise InputError(path, f"the header promises {n:,} Gaussians, more than the {limit:,} read at most "
                                f"(set {MAX_READ_GAUSSIANS_ENV} to read more)")
