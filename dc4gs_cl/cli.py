@@ -16,13 +16,13 @@ import sys
 import threading
 from pathlib import Path
 
-from .apps import evaluation, export, render, report, train, viewer
+from .apps import evaluation, export, render, report, sfm, train, viewer
 from .config import ANTIALIASED_HELP, BUILTIN_ITERATIONS
 from .errors import DeviceError, InputError, OutputError
 from .finite import NonFiniteError
 from .evaluation.lpips import DEFAULT_LPIPS, LPIPS_CHOICES
 
-SCENE_COMMANDS = ("train", "eval", "render", "view")   # they read scenes, through pycolmap where COLMAP
+SCENE_COMMANDS = ("train", "eval", "render", "view", "sfm")   # they read scenes, through pycolmap where COLMAP
 
 
 class Terminated(KeyboardInterrupt):
@@ -96,6 +96,10 @@ def build_parser() -> argparse.ArgumentParser:
     _add_check_finite(p)
     _add_device(p)
 
+    p = sub.add_parser("sfm", help="make a COLMAP scene from a folder of photos (structure from motion through "
+                                   "pycolmap), as `train --scene PHOTOS` does before training")
+    sfm.add_arguments(p)
+
     p = sub.add_parser("view", help="look at a trained run or a PLY in the browser, rendered by dc4gs-cl's own "
                                     "renderer, with the training cameras (the viewer extra)")
     viewer.add_arguments(p)
@@ -156,7 +160,7 @@ def cmd_devices(args) -> int:
 
 COMMANDS = {"devices": cmd_devices, "render": render.cmd_render, "train": train.cmd_train,
             "eval": evaluation.cmd_eval, "report": report.cmd_report, "view": viewer.cmd_view,
-            "export": export.cmd_export, "bench": cmd_bench}
+            "export": export.cmd_export, "bench": cmd_bench, "sfm": sfm.cmd_sfm}
 
 
 def main(argv: list[str] | None = None) -> int:

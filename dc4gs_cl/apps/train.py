@@ -15,6 +15,7 @@ from ..errors import InputError
 from ..run_folder import CONFIG, CORRUPT_CHECKPOINT, RunFolder
 from ..scene.builtin import BUILTIN_SCENE
 from ..scene.camera import view_sizes
+from .sfm import add_settings as add_sfm_settings, scene_for_training
 from .viewer import DEFAULT_PORT, Viewer
 
 
@@ -35,6 +36,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="when the output is not a terminal (a log file, a job scheduler), one progress line every N "
                         f"iterations instead of a bar ({DEFAULT_LINE_EVERY})")
     p.add_argument("--profile", action="store_true", help="print per-stage device time per iteration at the end")
+    add_sfm_settings(p.add_argument_group("structure from motion (a --scene folder of photos, see `dc4gs-cl sfm`)"))
 
 
 def _add_flag(into, flag: Flag, group: FlagGroup) -> None:
@@ -120,6 +122,7 @@ def _train_locked(args, run: RunFolder, group) -> int:
             raise InputError(run.path, f"holds a run that cannot be resumed ({held}; no {missing}): replace it with "
                                        "--force")
         raise InputError(run.path, f"holds another run ({held}): continue it with --resume, or replace it with --force")
+    scene_for_training(args, group.size)   # a folder of photos: SfM makes its scene first (or made it before)
     cfg = train_config(args, run, group.size)
     # before anything is sized by them: ranks started with other settings corrupted each other's memory
     given = {"out": str(run.path.resolve()), "resume": args.resume, "force": args.force}
