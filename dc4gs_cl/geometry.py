@@ -58,3 +58,17 @@ def principal_axis(log_scales, quats) -> tuple[np.ndarray, np.ndarray, np.ndarra
     a = np.argmax(s, axis=1)
     rows = np.arange(len(s))
     return a, s[rows, a], quat_to_rotmat(quats)[rows, :, a]
+
+
+def similarity_alignment(src: np.ndarray, dst: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
+    """The similarity (s, R, t) taking the points src (N, 3) nearest to dst (N, 3) in least squares,
+    dst ~ s R src + t (Umeyama 1991; R a rotation, never a reflection). Compares SfM's cameras, whose frame and
+    scale are arbitrary, with a reference's."""
+    src, dst = np.asarray(src, np.float64), np.asarray(dst, np.float64)
+    ms, md = src.mean(axis=0), dst.mean(axis=0)
+    a, b = src - ms, dst - md
+    U, S, Vt = np.linalg.svd(b.T @ a)
+    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt)) or 1.0])
+    R = U @ D @ Vt
+    s = float(np.trace(np.diag(S) @ D) / (a ** 2).sum())
+    return s, R, md - s * R @ ms

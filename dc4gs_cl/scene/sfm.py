@@ -46,6 +46,7 @@ SEED = 0                      # RANSAC's and the mapper's: the same photos give 
 BA_TOLERANCE = 1e-6           # convert.py's --Mapper.ba_global_function_tolerance
 EXTRACT_CHUNK = 8             # photos per pycolmap call: a progress step, and where an interrupt is seen
 MATCH_CHUNK = 64              # pairs per pycolmap call
+MAPPING_THREADS = 1           # with 2, one database gave other models run to run; with 1 as fast on 2 cores
 NAMES_SHOWN = 5               # photos named where some are left out
 
 
@@ -132,7 +133,8 @@ def make_scene(photos: Path, scene: Path | None = None, given: dict | None = Non
                threads: int = -1) -> SfMResult:
     """The COLMAP scene of the photos in `photos` (itself or its images/), in `scene` (default: default_scene),
     made by SfM, or an earlier run's there made (or being made: it goes on) from the same photos. given: the
-    settings (SfMSettings' fields) asked for; the others are the earlier run's, else the defaults."""
+    settings (SfMSettings' fields) asked for; the others are the earlier run's, else the defaults. threads:
+    extraction's and matching's (-1: every core)."""
     progress = progress or Progress("none")
     photos, scene = Path(photos), Path(scene) if scene is not None else default_scene(Path(photos))
     root = photo_root(photos)
@@ -156,7 +158,7 @@ def make_scene(photos: Path, scene: Path | None = None, given: dict | None = Non
         _match(database, names, settings, progress, threads)
         seconds["matching"] = time.perf_counter() - start
         start = time.perf_counter()
-        models = _map(database, root, scene, names, settings, progress, threads)
+        models = _map(database, root, scene, names, settings, progress)
         seconds["mapping"] = time.perf_counter() - start
     if not models:
         raise InputError(root, "no two photos could be matched: SfM found no model (try photos that overlap more, "
@@ -376,16 +378,16 @@ def _match(database: Path, names: list[str], settings: SfMSettings, progress: Pr
             advance(len(chunk))
 
 
-def _map(database: Path, root: Path, scene: Path, names: list[str], settings: SfMSettings, progress: Progress,
-         threads: int) -> list[pycolmap.Reconstruction]:
+def _map(database: Path, root: Path, scene: Path, names: list[str], settings: SfMSettings,
+         progress: Progress) -> list[pycolmap.Reconstruction]:
     """The models SfM finds, largest first (written to a temporary folder that goes with the call)."""
     with tempfile.TemporaryDirectory(prefix=".mapping.", dir=scene) as out, \
             progress.stage("mapping", len(names), "photo") as advance:
         if settings.mapper == "global":
-            options = pycolmap.GlobalPipelineOptions(num_threads=threads, random_seed=SEED)
+            options = pycolmap.GlobalPipelineOptions(num_threads=MAPPING_THREADS, random_seed=SEED)
             models = pycolmap.global_mapping(str(database), str(root), out, options)
         else:
-            options = pycolmap.IncrementalPipelineOptions(num_threads=threads, random_seed=SEED,
+            options = pycolmap.IncrementalPipelineOptions(num_threads=MAPPING_THREADS, random_seed=SEED,
                                                           ba_global_function_tolerance=BA_TOLERANCE)
             models = pycolmap.incremental_mapping(str(database), str(root), out, options,
                                                   initial_image_pair_callback=lambda: advance(2),

@@ -1,0 +1,235 @@
+"""Structure from motion (scene/sfm.py, `dc4gs-cl sfm`, `train --scene PHOTOS`): on the shared scenes' photos,
+downsized and copied without their models, every photo registers and the cameras land where the shipped model has
+them; a stopped run goes on from its database to the scene an uninterrupted one makes; bad input is one line,
+exit 2, and nothing of a scene written."""
+from __future__ import annotations
+
+import dataclasses
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import OpenImageIO as oiio
+import pycolmap
+import pytest
+
+from dc4gs_cl.cli import main
+from dc4gs_cl.errors import InputError
+from dc4gs_cl.geometry import similarity_alignment
+from dc4gs_cl.scene import sfm
+from dc4gs_cl.scene.loader import load_scene
+from dc4gs_cl.scene.sfm import DATABASE, SETTINGS_FILE, camera_centres, make_scene
+
+from conftest import scene_path
+
+# photos scaled to this width and SIFT's features kept few: seconds a scene on 2 cores
+SIZES = {"fountain_p11": 320, "sceaux_castle": 480}
+FAST = {"max_features": 1024}
+ALIGNED = 0.01     # camera centres within this share of the scene's extent of the shipped model's
+
+
+def _downsized(source: Path, out: Path, width: int, names: list[str] | None = None) -> Path:
+    out.mkdir(parents=True)
+    for p in sorted(source.iterdir()):
+        if names is None or p.name in names:
+            buf = oiio.ImageBuf(str(p))
+            height = round(buf.spec().height * width / buf.spec().width)
+            assert oiio.ImageBufAlgo.resize(buf, roi=oiio.ROI(0, width, 0, height, 0, 1, 0, 3)).write(str(out / p.name))
+    return out
+
+
+@pytest.fixture(scope="module")
+def photo_cache(tmp_path_factory):
+    """Each shared scene's photos at its test size, made once per module."""
+    made = {}
+
+    def photos(name: str) -> Path:
+        if name not in made:
+            made[name] = _downsized(scene_path(name) / "images", tmp_path_factory.mktemp(name) / "images",
+                                    SIZES[name])
+        return made[name]
+    return photos
+
+
+def _copy(photos: Path, folder: Path) -> Path:
+    shutil.copytree(photos, folder)
+    return folder
+
+
+def _error(centres: dict, reference: dict) -> float:
+    """The largest distance of a camera centre from the reference's after the best similarity, over the
+    reference's extent (1.1 x its largest distance from the centres' mean: scene.camera.scene_extent's rule)."""
+    names = sorted(reference)
+    X, Y = np.array([centres[n] for n in names]), np.array([reference[n] for n in names])
+    s, R, t = similarity_alignment(X, Y)
+    extent = 1.1 * np.linalg.norm(Y - Y.mean(axis=0), axis=1).max()
+    return float(np.linalg.norm(s * X @ R.T + t - Y, axis=1).max() / extent)
+
+
+def test_similarity_alignment_recovers_a_similarity(rng):
+    X = rng.normal(size=(12, 3))
+    q, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+    R = q * np.sign(np.linalg.det(q))
+    s, t = rng.uniform(0.1, 10), rng.normal(size=3)
+    s2, R2, t2 = similarity_alignment(X, s * X @ R.T + t)
+    assert np.isclose(s2, s, rtol=1e-10) and np.allclose(R2, R, atol=1e-10) and np.allclose(t2, t, atol=1e-9)
+    # a mirror image is no rotation: the best rotation leaves an error
+    mirrored = X * np.array([1, 1, -1])
+    _, Rm, _ = similarity_alignment(X, mirrored)
+    assert np.isclose(np.linalg.det(Rm), 1.0)
+
+
+@pytest.mark.parametrize("name", list(SIZES))
+def test_every_photo_registers_where_the_shipped_model_has_it(name, photo_cache, tmp_path):
+    """fountain_p11's shipped poses are ground truth, sceaux_castle's COLMAP's at 3x our size."""
+    folder = _copy(photo_cache(name), tmp_path / name / "images").parent
+    result = make_scene(folder, None, FAST)
+    assert result.scene == folder and result.left_out == [] and result.models[0] == result.photos
+    reference = camera_centres(scene_path(name) / "sparse" / "0")
+    centres = camera_centres(folder / "sparse" / "0")
+    assert sorted(centres) == sorted(reference)
+    assert _error(centres, reference) < ALIGNED
+    record = json.loads((folder / SETTINGS_FILE).read_text())   # what rebuilds it
+    assert record["pycolmap"] == pycolmap.__version__ and record["models"] == result.models
+    assert record["settings"] == {**dataclasses.asdict(sfm.SfMSettings()), **FAST} and record["photos"] == sorted(
+        p.name for p in (folder / "images").iterdir())
+    scene = load_scene(folder)   # the loader reads it, undistorting the OPENCV camera
+    assert len(scene.train) + len(scene.test) == result.photos and len(scene.points) > 100
+
+
+def test_sequential_matching_registers_a_sequence(photo_cache, tmp_path):
+    folder = _copy(photo_cache("fountain_p11"), tmp_path / "photos")   # the photos in the folder itself
+    result = make_scene(folder, None, {**FAST, "exhaustive_up_to": 4, "overlap": 3})
+    assert result.scene == folder / sfm.SCENE_DIR and result.left_out == []
+    assert len(sfm.image_pairs(11, sfm.SfMSettings(exhaustive_up_to=4, overlap=3))) == 3 * 11 - 6
+    assert _error(camera_centres(result.scene / "sparse" / "0"),
+                  camera_centres(scene_path("fountain_p11") / "sparse" / "0")) < ALIGNED
+    assert (result.scene / "images" / "0000.jpg").samefile(folder / "0000.jpg")   # linked, not copied
+
+
+def test_a_stopped_run_goes_on_to_the_scene_an_uninterrupted_one_makes(photo_cache, tmp_path, monkeypatch):
+    """Features and matches already in the database are not computed again, and the scene comes out the same:
+    the photos are renumbered in name order after extraction, whichever thread wrote them first."""
+    straight = make_scene(_copy(photo_cache("fountain_p11"), tmp_path / "straight" / "images").parent, None, FAST)
+    folder = _copy(photo_cache("fountain_p11"), tmp_path / "stopped" / "images").parent
+    names = sfm.find_photos(folder / "images")
+    settings = sfm.SfMSettings(**FAST)
+    asked = {"photos": [], "pairs": []}
+    extract, match = pycolmap.extract_features, pycolmap.match_image_pairs
+
+    def extract_features(database, root, image_names, **kw):
+        asked["photos"] += image_names
+        return extract(database, root, image_names=image_names, **kw)
+
+    def match_image_pairs(database, pairing_options, **kw):
+        asked["pairs"] += Path(pairing_options.match_list_path).read_text().splitlines()
+        return match(database, pairing_options=pairing_options, **kw)
+    monkeypatch.setattr(pycolmap, "extract_features", extract_features)
+    monkeypatch.setattr(pycolmap, "match_image_pairs", match_image_pairs)
+    # the first run stopped after 5 photos' features; the second after all the features and 7 pairs' matches
+    first_pairs = [(0, j) for j in range(1, 5)] + [(1, 2), (1, 3), (2, 4)]
+    with sfm._colmap_quiet():
+        sfm._extract(folder / DATABASE, folder / "images", names[:5], None, settings, sfm.Progress("none"), -1)
+        sfm._extract(folder / DATABASE, folder / "images", names, None, settings, sfm.Progress("none"), -1)
+        with monkeypatch.context() as m:
+            m.setattr(sfm, "image_pairs", lambda n, s: first_pairs)
+            sfm._match(folder / DATABASE, names, settings, sfm.Progress("none"), -1)
+    resumed = make_scene(folder, None, FAST)
+    assert asked["photos"] == names   # each photo's features computed once
+    assert len(asked["pairs"]) == len(set(asked["pairs"])) == 55 and asked["pairs"][:7] == [
+        f"{names[a]} {names[b]}" for a, b in first_pairs]
+    assert resumed.models == straight.models
+    a, b = (pycolmap.Reconstruction(str(r.scene / "sparse" / "0")) for r in (straight, resumed))
+    assert a.num_points3D() == b.num_points3D()
+    for name, centre in camera_centres(straight.scene / "sparse" / "0").items():
+        assert np.array_equal(centre, camera_centres(resumed.scene / "sparse" / "0")[name])
+    assert np.array_equal(a.cameras[1].params, b.cameras[1].params)
+
+
+def test_a_run_stopped_while_writing_leaves_no_scene_and_goes_on(photo_cache, tmp_path, monkeypatch):
+    folder = _copy(photo_cache("fountain_p11"), tmp_path / "photos")
+
+    def stopped(self, path):
+        raise KeyboardInterrupt
+    monkeypatch.setattr(pycolmap.Reconstruction, "write", stopped)
+    with pytest.raises(KeyboardInterrupt):
+        make_scene(folder, None, FAST)
+    monkeypatch.undo()
+    scene = folder / sfm.SCENE_DIR
+    assert not (scene / "sparse").exists() and [p.name for p in scene.iterdir() if p.name.startswith(".")] == []
+    with pytest.raises(InputError, match="not a COLMAP or NeRF scene"):
+        load_scene(scene)
+    assert make_scene(folder, None, FAST).left_out == [] and (scene / "sparse" / "0" / "images.bin").is_file()
+
+
+def test_unregistered_photos_are_listed_and_masks_keep_features_off(photo_cache, tmp_path, rng):
+    folder = _copy(photo_cache("fountain_p11"), tmp_path / "scene" / "images").parent
+    noise = (rng.uniform(size=(213, 320, 3)) * 255).astype(np.uint8)
+    assert oiio.ImageBuf(noise).write(str(folder / "images" / "noise.jpg"))
+    (folder / "masks").mkdir()
+    for p in (folder / "images").iterdir():   # the right third of every photo masked out
+        mask = np.full((213, 320, 1), 255, np.uint8)
+        mask[:, 213:] = 0
+        assert oiio.ImageBuf(mask).write(str(folder / "masks" / f"{p.name}.png"))
+    result = make_scene(folder, None, FAST)
+    assert result.left_out == ["noise.jpg"] and result.photos == 12
+    assert any("1 photo not registered, trained without: noise.jpg" in line for line in result.notes())
+    with pycolmap.Database.open(str(folder / DATABASE)) as db:
+        xs = np.concatenate([db.read_keypoints(img.image_id)[:, 0] for img in db.read_all_images()])
+    assert len(xs) > 1000 and xs.max() < 213
+    scene = load_scene(folder)
+    assert len(scene.train) + len(scene.test) == 11 and scene.mask(scene.train[0]) is not None
+
+
+def test_train_makes_the_scene_then_reuses_it(photo_cache, tmp_path, capsys):
+    folder = _copy(photo_cache("fountain_p11"), tmp_path / "photos")
+    for k, run in enumerate(("first", "second")):
+        assert main(["train", "--scene", str(folder), "--out", str(tmp_path / run), "--iterations", "10",
+                     "--no-progress", "--lpips", "none", "--max-features", "1024"]) == 0
+        err = capsys.readouterr().err
+        said = [line for line in err.splitlines() if line.startswith("sfm: scene written") or "reusing" in line]
+        assert len(said) == 1 and ("reusing" in said[0]) == (k == 1) and str(folder / sfm.SCENE_DIR) in said[0]
+    assert main(["train", "--scene", str(folder), "--out", str(tmp_path / "third"), "--max-features", "512",
+                 "--iterations", "10", "--no-progress"]) == 2
+    assert "holds a scene made with other settings (max_features 1024 there, 512 now)" in capsys.readouterr().err
+
+
+def _refused(capsys, *args) -> str:
+    assert main(["sfm", *map(str, args), "--no-progress"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1
+    return err
+
+
+def test_bad_input_is_one_line_and_writes_no_scene(photo_cache, tmp_path, capsys):
+    fountain = photo_cache("fountain_p11")
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    (empty / "notes.txt").write_text("no photos here")
+    assert "no photos (.jpg" in _refused(capsys, empty)
+    two = _downsized(fountain, tmp_path / "two", 64, ["0000.jpg", "0001.jpg"])
+    assert "2 photos: SfM needs at least 3" in _refused(capsys, two)
+    cut = _copy(fountain, tmp_path / "cut")
+    data = (cut / "0004.jpg").read_bytes()
+    (cut / "0004.jpg").write_bytes(data[:len(data) // 2])
+    assert f"{cut / '0004.jpg'}: cannot decode image" in _refused(capsys, cut)
+    mixed = _copy(fountain, tmp_path / "mixed")
+    _downsized(fountain, tmp_path / "small", 160, ["0003.jpg"])
+    shutil.copy(tmp_path / "small" / "0003.jpg", mixed / "0003.jpg")
+    assert "0003.jpg: is 160x106, 0000.jpg 320x213: photos sharing a camera" in _refused(capsys, mixed)
+    for folder in (empty, two, cut, mixed):
+        assert not (folder / sfm.SCENE_DIR).exists()
+    other = tmp_path / "other"
+    shutil.copytree(scene_path("fountain_p11") / "sparse", other / "sparse")
+    assert f"{other}: holds another scene" in _refused(capsys, fountain.parent, "--out", other)
+    assert sorted(p.name for p in other.iterdir()) == ["sparse"]
+
+
+def test_photos_that_match_nothing_say_so(tmp_path, capsys, rng):
+    folder = tmp_path / "noise"
+    folder.mkdir()
+    for k in range(3):
+        assert oiio.ImageBuf((rng.uniform(size=(96, 128, 3)) * 255).astype(np.uint8)).write(str(folder / f"{k}.png"))
+    assert "no two photos could be matched" in _refused(capsys, folder, "--max-features", "256")
+    assert not (folder / sfm.SCENE_DIR / "sparse").exists()
