@@ -30,7 +30,7 @@ def run_cli(*args) -> subprocess.CompletedProcess:
 def test_help_lists_the_commands():
     out = run_cli("--help")
     assert out.returncode == 0
-    for command in ("devices", "render", "train", "eval", "view", "export", "report"):
+    for command in ("devices", "render", "train", "eval", "view", "export", "report", "sfm"):
         assert command in out.stdout
     assert "With no command, dc4gs-cl runs `dc4gs-cl train`" in " ".join(out.stdout.split())   # the bare command
     from dc4gs_cl import __version__

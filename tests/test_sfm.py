@@ -5,6 +5,7 @@ exit 2, and nothing of a scene written."""
 from __future__ import annotations
 
 import dataclasses
+import io
 import json
 import shutil
 from pathlib import Path
@@ -100,7 +101,10 @@ def test_every_photo_registers_where_the_shipped_model_has_it(name, photo_cache,
 
 def test_sequential_matching_registers_a_sequence(photo_cache, tmp_path):
     folder = _copy(photo_cache("fountain_p11"), tmp_path / "photos")   # the photos in the folder itself
-    result = make_scene(folder, None, {**FAST, "exhaustive_up_to": 4, "overlap": 3})
+    shown = io.StringIO()
+    result = make_scene(folder, None, {**FAST, "exhaustive_up_to": 4, "overlap": 3}, sfm.Progress("bar", shown))
+    for stage in ("features: 11 photos in", "matching: 27 pairs in", "mapping: 11 photos in"):   # bar, then line
+        assert f"\rsfm: {stage.split(':')[0]}:   0%" in shown.getvalue() and f"\rsfm: {stage}" in shown.getvalue()
     assert result.scene == folder / sfm.SCENE_DIR and result.left_out == []
     assert len(sfm.image_pairs(11, sfm.SfMSettings(exhaustive_up_to=4, overlap=3))) == 3 * 11 - 6
     assert _error(camera_centres(result.scene / "sparse" / "0"),

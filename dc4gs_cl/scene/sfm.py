@@ -115,17 +115,20 @@ class Progress:
         self.mode, self.stream = mode, stream or sys.stderr
 
     @contextlib.contextmanager
-    def stage(self, label: str, total: int, unit: str):
+    def stage(self, label: str, total: int, unit: str, done: int = 0):
+        """Yields advance(n): n more of the stage's `total` done; `done` of them were by an earlier run."""
         bar = None
         if self.mode == "bar":
             from tqdm import tqdm
-            bar = tqdm(total=total, desc=f"sfm: {label}", unit=unit, leave=False, dynamic_ncols=True, file=self.stream)
+            bar = tqdm(total=total, initial=done, desc=f"sfm: {label}", unit=unit, leave=False, dynamic_ncols=True,
+                       file=self.stream)
         start = time.perf_counter()
         yield (bar.update if bar is not None else lambda n=1: None)
         if bar is not None:
             bar.close()
         if self.mode != "none":
-            print(f"sfm: {label}: {total} {unit}{'s' * (total != 1)} in {time.perf_counter() - start:.1f} s",
+            earlier = f" ({done} by an earlier run)" if done else ""
+            print(f"sfm: {label}: {total} {unit}{'s' * (total != 1)}{earlier} in {time.perf_counter() - start:.1f} s",
                   file=self.stream)
 
 
@@ -294,8 +297,7 @@ def _extract(database: Path, root: Path, names: list[str], masks: Path | None, s
     # per camera, the photos of each call; a call after a camera's first takes that camera (a call makes its own)
     per_photo = settings.camera == "per-photo"
     groups = [names] if per_photo else _camera_groups(names, settings.camera).values()
-    with progress.stage("features", len(names), "photo") as advance:
-        advance(len(done.keys() & set(names)))
+    with progress.stage("features", len(names), "photo", len(done.keys() & set(names))) as advance:
         for group in groups:
             camera = -1 if per_photo else next((done[n].camera_id for n in group if n in done), -1)
             todo = [n for n in group if n not in done]
@@ -365,9 +367,8 @@ def _match(database: Path, names: list[str], settings: SfMSettings, progress: Pr
     matching = pycolmap.FeatureMatchingOptions(num_threads=threads)
     verification = pycolmap.TwoViewGeometryOptions()
     verification.ransac.random_seed = SEED
-    with progress.stage("matching", len(pairs), "pair") as advance, \
+    with progress.stage("matching", len(pairs), "pair", len(pairs) - len(todo)) as advance, \
             tempfile.TemporaryDirectory(prefix="dc4gs-pairs-") as tmp:
-        advance(len(pairs) - len(todo))
         listing = Path(tmp) / "pairs.txt"
         for at in range(0, len(todo), MATCH_CHUNK):
             chunk = todo[at:at + MATCH_CHUNK]
@@ -380,7 +381,13 @@ def _match(database: Path, names: list[str], settings: SfMSettings, progress: Pr
 
 def _map(database: Path, root: Path, scene: Path, names: list[str], settings: SfMSettings,
          progress: Progress) -> list[pycolmap.Reconstruction]:
-    """The models SfM finds, largest first (written to a temporary folder that goes with the call)."""
+    """The models SfM finds, largest first (written to a temporary folder that goes with the call); the bar counts
+    the photos registered as the mapper registers them, and ends at the largest model's."""
+    counted = [0]
+
+    def registered(n: int) -> None:
+        counted[0] += n
+        advance(n)
     with tempfile.TemporaryDirectory(prefix=".mapping.", dir=scene) as out, \
             progress.stage("mapping", len(names), "photo") as advance:
         if settings.mapper == "global":
@@ -390,9 +397,23 @@ def _map(database: Path, root: Path, scene: Path, names: list[str], settings: Sf
             options = pycolmap.IncrementalPipelineOptions(num_threads=MAPPING_THREADS, random_seed=SEED,
                                                           ba_global_function_tolerance=BA_TOLERANCE)
             models = pycolmap.incremental_mapping(str(database), str(root), out, options,
-                                                  initial_image_pair_callback=lambda: advance(2),
-                                                  next_image_callback=lambda: advance(1))
-    return sorted(models.values(), key=lambda m: -m.num_reg_images())
+                                                  initial_image_pair_callback=lambda: registered(2),
+                                                  next_image_callback=lambda: registered(1))
+        models = distinct(sorted(models.values(), key=lambda m: -m.num_reg_images()))
+        advance((models[0].num_reg_images() if models else 0) - counted[0])
+    return models
+
+
+def distinct(models: list[pycolmap.Reconstruction]) -> list[pycolmap.Reconstruction]:
+    """The models (largest first) less those whose photos a larger one holds all of: the mapper keeps its first
+    attempt however small (often 2 photos it could not grow from), though a later one holds them too."""
+    kept, held = [], []
+    for m in models:
+        names = {img.name for img in m.images.values() if img.has_pose}
+        if not any(names <= h for h in held):
+            kept.append(m)
+            held.append(names)
+    return kept
 
 
 def _result_record(result: SfMResult) -> dict:
