@@ -8,6 +8,7 @@ import dataclasses
 import io
 import json
 import shutil
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -237,3 +238,65 @@ def test_photos_that_match_nothing_say_so(tmp_path, capsys, rng):
         assert oiio.ImageBuf((rng.uniform(size=(96, 128, 3)) * 255).astype(np.uint8)).write(str(folder / f"{k}.png"))
     assert "no two photos could be matched" in _refused(capsys, folder, "--max-features", "256")
     assert not (folder / sfm.SCENE_DIR / "sparse").exists()
+
+
+def _blurred(pixels: np.ndarray, passes: int = 3, k: int = 5) -> np.ndarray:
+    """A box blur of k x k, `passes` times (about a Gaussian's), edges clamped."""
+    out = pixels.astype(np.float64)
+    for _ in range(passes):
+        for axis in (0, 1):
+            pad = [(k // 2, k // 2) if a == axis else (0, 0) for a in range(3)]
+            padded = np.pad(out, pad, mode="edge")
+            out = sum(np.take(padded, range(i, i + out.shape[axis]), axis=axis) for i in range(k)) / k
+    return out.round().astype(np.uint8)
+
+
+def test_a_video_keeps_the_sharpest_frame_of_each_window_and_registers(photo_cache, tmp_path, capsys):
+    """A clip of fountain_p11's photos, each three frames of which two are blurred (the sharp one first, second or
+    third): the sharp frames are the ones kept, and SfM registers every one of them."""
+    av = pytest.importorskip("av", reason="the video extra (PyAV) is not installed")
+    photos = sorted(photo_cache("fountain_p11").iterdir())
+    clip, sharp = tmp_path / "clip.mp4", []
+    with av.open(str(clip), "w") as container:
+        stream = container.add_stream("mpeg4", rate=10)
+        stream.width, stream.height, stream.pix_fmt = 320, 212, "yuv420p"
+        stream.options = {"qscale": "2"}
+        stream.codec_context.qmin = stream.codec_context.qmax = 2
+        for k, p in enumerate(photos):
+            pixels = np.asarray(oiio.ImageBuf(str(p)).get_pixels(oiio.UINT8))[:212]
+            for position in range(3):
+                if position == k % 3:
+                    sharp.append(3 * k + position)
+                frame = pixels if position == k % 3 else _blurred(pixels)
+                container.mux(stream.encode(av.VideoFrame.from_ndarray(np.ascontiguousarray(frame), format="rgb24")))
+        container.mux(stream.encode(None))
+    assert main(["sfm", str(clip), "--video-frames", str(len(photos)), "--max-features", "1024", "--no-progress"]) == 0
+    err = capsys.readouterr().err
+    scene = tmp_path / "clip"
+    kept = sorted(p.name for p in (scene / "images").iterdir())
+    assert kept == [f"frame_{i:06d}.jpg" for i in sharp]
+    assert "sfm: frames: 11 kept of clip.mp4" in err and "11 of 11 photos registered" in err
+    assert json.loads((scene / SETTINGS_FILE).read_text())["settings"]["exhaustive_up_to"] == 0   # sequential
+    # a second run reuses the frames and the scene; a video that does not decode is one line
+    assert main(["sfm", str(clip), "--video-frames", "11", "--no-progress"]) == 0
+    assert "reusing" in capsys.readouterr().err
+    bad = tmp_path / "bad.mp4"
+    bad.write_bytes(clip.read_bytes()[:200])
+    assert "bad.mp4: cannot decode video" in _refused(capsys, bad)
+    assert not (tmp_path / "bad").exists()
+
+
+def test_a_video_without_pyav_says_how_to_get_it(tmp_path, capsys, monkeypatch):
+    monkeypatch.setitem(sys.modules, "av", None)
+    clip = tmp_path / "clip.mp4"
+    clip.write_bytes(b"\0" * 64)
+    assert "pip install 'dc4gs-cl[video]'" in _refused(capsys, clip)
+
+
+def test_sharpest_of_windows():
+    from dc4gs_cl.scene.video_frames import sharpest_of_windows, sharpness
+    assert sharpest_of_windows([1, 5, 2, 9, 0, 3, 3], 3) == [1, 3, 5]
+    assert sharpest_of_windows([1, 2], 5) == [0, 1]
+    rng = np.random.default_rng(0)
+    image = rng.uniform(0, 255, (40, 50))
+    assert sharpness(image) > 10 * sharpness(_blurred(image[..., None].astype(np.uint8))[..., 0])

@@ -1,5 +1,6 @@
-"""`dc4gs-cl sfm PHOTOS [--out SCENE]`: a folder of photos -> a COLMAP scene (scene/sfm.py), and the same step
-inside `dc4gs-cl train --scene PHOTOS` (scene_for_training), with the same flags."""
+"""`dc4gs-cl sfm PHOTOS [--out SCENE]`: a folder of photos or a video -> a COLMAP scene (scene/sfm.py; a video's
+frames: scene/video_frames.py), and the same step inside `dc4gs-cl train --scene PHOTOS` (scene_for_training), with
+the same flags."""
 from __future__ import annotations
 
 import argparse
@@ -9,6 +10,7 @@ from pathlib import Path
 
 from ..errors import InputError
 from ..scene.sfm_settings import CAMERA_MODELS, CAMERA_MODES, MAPPERS, SfMSettings
+from ..scene.video_frames import DEFAULT_FRAMES, VIDEO_EXTENSIONS, is_video, video_scene
 
 DEFAULTS = SfMSettings()
 FLAG_HELP = {   # setting -> its flag's help; the flag is --<setting with dashes>
@@ -32,14 +34,20 @@ def add_settings(p) -> None:
         kind = type(getattr(DEFAULTS, f.name))
         p.add_argument("--" + f.name.replace("_", "-"), type=kind, choices=CHOICES.get(f.name), default=None,
                        metavar="N" if kind is int else None, help=FLAG_HELP[f.name])
+    p.add_argument("--video-frames", type=int, default=None, metavar="N",
+                   help=f"a video ({', '.join(VIDEO_EXTENSIONS)}): the frames kept, the sharpest of each of N windows "
+                        f"of consecutive frames (default {DEFAULT_FRAMES}; matched sequentially unless "
+                        "--exhaustive-up-to says otherwise; the video extra: pip install 'dc4gs-cl[video]')")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("photos", type=Path, help="folder of photos (the photos in it, or in its images/ subfolder); "
-                                             "masks/NAME.png beside them keep features off masked-out pixels")
+    p.add_argument("photos", type=Path, help="folder of photos (the photos in it, or in its images/ subfolder; "
+                                             "masks/NAME.png beside them keep features off masked-out pixels), or a "
+                                             "video")
     p.add_argument("--out", type=Path, default=None,
-                   help="scene folder (default: PHOTOS where the photos are in PHOTOS/images/, else PHOTOS/colmap); "
-                        "database.db there keeps the features and matches, so a stopped run goes on from them")
+                   help="scene folder (default: PHOTOS where the photos are in PHOTOS/images/, else PHOTOS/colmap; "
+                        "a video's beside it, named as it less the extension); database.db there keeps the features "
+                        "and matches, so a stopped run goes on from them")
     add_settings(p)
     p.add_argument("--no-progress", action="store_true", help="no progress display")
 
@@ -57,41 +65,52 @@ def _progress(no_progress: bool):
     return Progress(progress_mode(no_progress))
 
 
-def _report(result) -> None:
+def _make(source: Path, out: Path | None, args):
+    """The scene of a folder of photos or a video, said in a line per stage and one at the end."""
+    from ..scene.sfm import make_scene
+    given = given_settings(args)
+    if args.video_frames is not None and not is_video(source):
+        raise InputError(None, "--video-frames is for a video")
+    if is_video(source):
+        import time
+        from ..scene.video_frames import frames_from_video
+        out = out or video_scene(source)
+        start = time.perf_counter()
+        kept = frames_from_video(source, out, args.video_frames or DEFAULT_FRAMES)
+        print(f"sfm: frames: {len(kept)} kept of {source.name} in {time.perf_counter() - start:.1f} s", file=sys.stderr)
+        given.setdefault("exhaustive_up_to", 0)   # a video's frames: each matched with the next --overlap
+        source = out
+    result = make_scene(source, out, given, _progress(args.no_progress))
     for line in result.notes():
         print(line, file=sys.stderr)
     print(result.summary(), file=sys.stderr)
+    return result
 
 
 def cmd_sfm(args) -> int:
-    from ..scene.sfm import make_scene
-    given = given_settings(args)
-    if not args.photos.is_dir():
-        raise InputError(args.photos, "folder of photos not found")
-    result = make_scene(args.photos, args.out, given, _progress(args.no_progress))
-    _report(result)
-    print(f"scene: {result.scene}")
+    given_settings(args)
+    if not (args.photos.is_dir() or is_video(args.photos)):
+        raise InputError(args.photos, "not a folder of photos nor a video (" + ", ".join(VIDEO_EXTENSIONS) + ")")
+    print(f"scene: {_make(args.photos, args.out, args).scene}")
     return 0
 
 
 def scene_for_training(args, processes: int) -> None:
-    """train --scene PHOTOS: args.scene set to the scene SfM makes of them (or made before); SfM flags with any
-    other scene are refused, as they would do nothing."""
+    """train --scene PHOTOS (or a video): args.scene set to the scene SfM makes of them (or made before); SfM flags
+    with any other scene are refused, as they would do nothing."""
     given = given_settings(args)
     scene = Path(args.scene) if args.scene else None
     from ..scene.builtin import BUILTIN_SCENE
-    if scene is None or args.scene == BUILTIN_SCENE or not _is_photo_folder(scene):
-        if given:
-            raise InputError(None, f"--{next(iter(given)).replace('_', '-')} is for a --scene of photos (SfM makes the "
-                                   "scene); this scene has its own cameras")
+    if scene is None or args.scene == BUILTIN_SCENE or not (is_video(scene) or _is_photo_folder(scene)):
+        if given or args.video_frames is not None:
+            flag = next(iter(given)).replace("_", "-") if given else "video-frames"
+            raise InputError(None, f"--{flag} is for a --scene of photos or a video (SfM makes the scene); this "
+                                   "scene has its own cameras")
         return
     if processes > 1:
-        raise InputError(scene, "a folder of photos: make its scene first, in one process (dc4gs-cl sfm "
+        raise InputError(scene, "photos or a video: make the scene first, in one process (dc4gs-cl sfm "
                                 f"{scene}), then train that scene")
-    from ..scene.sfm import make_scene
-    result = make_scene(scene, None, given, _progress(args.no_progress))
-    _report(result)
-    args.scene = str(result.scene)
+    args.scene = str(_make(scene, None, args).scene)
 
 
 def _is_photo_folder(path: Path) -> bool:
