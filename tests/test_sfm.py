@@ -113,6 +113,24 @@ def test_sequential_matching_registers_a_sequence(photo_cache, tmp_path):
     assert (result.scene / "images" / "0000.jpg").samefile(folder / "0000.jpg")   # linked, not copied
 
 
+def test_a_camera_per_folder_or_per_photo(photo_cache, tmp_path):
+    """Per folder, each folder's photos share a camera (here of another size than the other folder's); per photo,
+    each has its own."""
+    photos = photo_cache("fountain_p11")
+    names = sorted(p.name for p in photos.iterdir())
+    folder = tmp_path / "two"
+    _downsized(photos, folder / "images" / "a", 320, names[:6])
+    _downsized(photos, folder / "images" / "b", 288, names[6:])
+    result = make_scene(folder, None, {**FAST, "camera": "per-folder"})
+    rec = pycolmap.Reconstruction(str(folder / "sparse" / "0"))
+    assert result.left_out == [] and sorted((c.width, c.height) for c in rec.cameras.values()) == [(288, 192),
+                                                                                                   (320, 213)]
+    assert sorted(camera_centres(folder / "sparse" / "0")) == [f"a/{n}" for n in names[:6]] + [
+        f"b/{n}" for n in names[6:]]
+    result = make_scene(_copy(photos, tmp_path / "each" / "images").parent, None, {**FAST, "camera": "per-photo"})
+    assert result.left_out == [] and pycolmap.Reconstruction(str(result.scene / "sparse" / "0")).num_cameras() == 11
+
+
 def test_a_stopped_run_goes_on_to_the_scene_an_uninterrupted_one_makes(photo_cache, tmp_path, monkeypatch):
     """Features and matches already in the database are not computed again, and the scene comes out the same:
     the photos are renumbered in name order after extraction, whichever thread wrote them first."""

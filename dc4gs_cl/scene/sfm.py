@@ -89,14 +89,15 @@ def default_scene(folder: Path) -> Path:
     return folder if photo_root(folder) != folder else folder / SCENE_DIR
 
 
-def find_photos(root: Path) -> list[str]:
-    """The photos under `root` (relative POSIX paths, sorted: the capture's order), leaving out hidden entries
-    and the folders a scene made beside them holds (colmap/, masks/)."""
+def find_photos(root: Path, scene: Path | None = None) -> list[str]:
+    """The photos under `root` (relative POSIX paths, sorted: the capture's order), leaving out hidden entries,
+    the folders a scene made beside them holds (colmap/, masks/) and the scene folder, where it is inside."""
     names = []
     for dirpath, dirnames, filenames in os.walk(root):
         here = Path(dirpath)
         dirnames[:] = sorted(d for d in dirnames if not d.startswith(".")
-                             and not (here == root and d in (SCENE_DIR, MASKS_DIR)))
+                             and not (here == root and d in (SCENE_DIR, MASKS_DIR))
+                             and (scene is None or here / d != scene))
         names += [(here / f).relative_to(root).as_posix() for f in filenames
                   if not f.startswith(".") and f.lower().endswith(PHOTO_EXTENSIONS)]
     return sorted(names)
@@ -141,7 +142,7 @@ def make_scene(photos: Path, scene: Path | None = None, given: dict | None = Non
     progress = progress or Progress("none")
     photos, scene = Path(photos), Path(scene) if scene is not None else default_scene(Path(photos))
     root = photo_root(photos)
-    names = find_photos(root)
+    names = find_photos(root, scene)
     settings = SfMSettings(**{**_saved_settings(scene), **(given or {})})
     record = {"settings": dataclasses.asdict(settings), "photos": names}
     earlier = _earlier_run(scene, record)
