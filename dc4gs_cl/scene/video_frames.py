@@ -4,7 +4,8 @@ named by their frame number (so their names sort in time order) into SCENE/image
 SCENE/frames.json says which video and target they are of; a second run with the same reuses them.
 
 Decoding through PyAV (the video extra: FFmpeg's libraries in its wheel), two passes over the video: the first
-scores every frame, the second writes the chosen ones, so that no more than one frame is held at a time."""
+scores every frame, the second writes the chosen ones, so that no more than one frame is held at a time. The
+module's own imports need neither PyAV nor OpenImageIO (the command line takes its names)."""
 from __future__ import annotations
 
 import json
@@ -16,7 +17,6 @@ import numpy as np
 
 from ..errors import InputError
 from ..files import replace_folder, staging_folder, write_json
-from .images import write_jpeg
 
 VIDEO_EXTENSIONS = (".mp4", ".mov", ".m4v", ".mkv", ".avi", ".webm")
 DEFAULT_FRAMES = 100       # frames kept from a video (SfM's photos)
@@ -69,6 +69,7 @@ def _frames(video: Path):
 
 def frames_from_video(video: Path, scene: Path, target: int = DEFAULT_FRAMES) -> list[str]:
     """SCENE/images/ holding the sharpest frame of each of `target` windows of the video; the names written."""
+    from .images import write_jpeg   # OpenImageIO: only here, the command line imports this module without it
     if target < 3:
         raise InputError(None, f"--video-frames {target} must be at least 3")
     record = {"video": video.name, "bytes": video.stat().st_size, "target": target}
