@@ -183,7 +183,9 @@ def test_a_run_stopped_while_writing_leaves_no_scene_and_goes_on(photo_cache, tm
     assert not (scene / "sparse").exists() and [p.name for p in scene.iterdir() if p.name.startswith(".")] == []
     with pytest.raises(InputError, match="not a COLMAP or NeRF scene"):
         load_scene(scene)
+    (scene / ".mapping.killed").mkdir()   # what a run killed outright leaves
     assert make_scene(folder, None, FAST).left_out == [] and (scene / "sparse" / "0" / "images.bin").is_file()
+    assert not (scene / ".mapping.killed").exists()
 
 
 def test_unregistered_photos_are_listed_and_masks_keep_features_off(photo_cache, tmp_path, rng):

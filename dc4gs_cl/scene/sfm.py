@@ -149,13 +149,14 @@ def make_scene(photos: Path, scene: Path | None = None, given: dict | None = Non
     if earlier is not None:
         return earlier
     masks = _masks(photos, names)
+    start = time.perf_counter()   # the photos' check counts as the features' time: both read every photo
     _check_photos(root, names, settings)
     scene.mkdir(parents=True, exist_ok=True)
+    _remove_leftovers(scene)
     database = scene / DATABASE
     seconds = {}
     with _colmap_quiet():
         write_json(scene / SETTINGS_FILE, record)   # what database.db holds features of
-        start = time.perf_counter()
         _extract(database, root, names, masks, settings, progress, threads)
         seconds["features"] = time.perf_counter() - start
         start = time.perf_counter()
@@ -174,6 +175,19 @@ def make_scene(photos: Path, scene: Path | None = None, given: dict | None = Non
                        [n for n in names if n not in registered])
     _write_scene(largest, root, photos, scene, names, masks, {**record, **_result_record(result)})
     return result
+
+
+LEFTOVERS = (".mapping.*", ".database.*.db", ".sparse.*.staging", ".images.*.staging", ".masks.*.staging")
+
+
+def _remove_leftovers(scene: Path) -> None:
+    """What a killed run left of its temporary folders and files (theirs are removed on any other exit)."""
+    for pattern in LEFTOVERS:
+        for p in scene.glob(pattern):
+            if p.is_dir():
+                shutil.rmtree(p, ignore_errors=True)
+            else:
+                p.unlink(missing_ok=True)
 
 
 def _saved_settings(scene: Path) -> dict:
