@@ -131,6 +131,22 @@ def test_a_camera_per_folder_or_per_photo(photo_cache, tmp_path):
     assert result.left_out == [] and pycolmap.Reconstruction(str(result.scene / "sparse" / "0")).num_cameras() == 11
 
 
+def test_several_models_the_largest_kept_and_each_counted(photo_cache, tmp_path):
+    """Two scenes' photos in one folder (a camera per folder): two models; the photos of the other are listed."""
+    folder = tmp_path / "two_scenes"
+    shutil.copytree(photo_cache("fountain_p11"), folder / "images" / "fountain")
+    _downsized(photo_cache("sceaux_castle"), folder / "images" / "sceaux", 320,
+               sorted(p.name for p in photo_cache("sceaux_castle").iterdir())[:10])
+    result = make_scene(folder, None, {**FAST, "camera": "per-folder"})
+    assert result.models == [11, 10] and result.left_out == [f"sceaux/{n}" for n in sorted(
+        p.name for p in (folder / "images" / "sceaux").iterdir())]
+    assert result.notes()[0] == "sfm: 2 models of 11, 10 photos: the largest is trained"
+    assert result.notes()[1].startswith("sfm: 10 photos not registered, trained without: sceaux/") and \
+        result.notes()[1].endswith(", ...")
+    assert sorted(camera_centres(folder / "sparse" / "0")) == [f"fountain/{p.name}" for p in sorted(
+        photo_cache("fountain_p11").iterdir())]
+
+
 def test_a_stopped_run_goes_on_to_the_scene_an_uninterrupted_one_makes(photo_cache, tmp_path, monkeypatch):
     """Features and matches already in the database are not computed again, and the scene comes out the same:
     the photos are renumbered in name order after extraction, whichever thread wrote them first."""
