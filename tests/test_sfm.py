@@ -265,6 +265,8 @@ def test_bad_input_is_one_line_and_writes_no_scene(photo_cache, tmp_path, capsys
     shutil.copytree(scene_path("fountain_p11") / "sparse", other / "sparse")
     assert f"{other}: holds another scene" in _refused(capsys, fountain.parent, "--out", other)
     assert sorted(p.name for p in other.iterdir()) == ["sparse"]
+    (tmp_path / "theirs" / "images").mkdir(parents=True)
+    assert "holds images not made by dc4gs-cl sfm" in _refused(capsys, fountain.parent, "--out", tmp_path / "theirs")
 
 
 def test_photos_that_match_nothing_say_so(tmp_path, capsys, rng):
@@ -316,6 +318,8 @@ def test_a_video_keeps_the_sharpest_frame_of_each_window_and_registers(photo_cac
     # a second run reuses the frames and the scene; a video that does not decode is one line
     assert main(["sfm", str(clip), "--video-frames", "11", "--no-progress"]) == 0
     assert "reusing" in capsys.readouterr().err
+    (tmp_path / "other" / "images").mkdir(parents=True)   # a folder's photos are never replaced by frames
+    assert "holds images not made from a video" in _refused(capsys, clip, "--out", tmp_path / "other")
     bad = tmp_path / "bad.mp4"
     bad.write_bytes(clip.read_bytes()[:200])
     assert "bad.mp4: cannot decode video" in _refused(capsys, bad)

@@ -148,6 +148,9 @@ def make_scene(photos: Path, scene: Path | None = None, given: dict | None = Non
     earlier = _earlier_run(scene, record)
     if earlier is not None:
         return earlier
+    if root != scene / "images" and (scene / "images").exists() and not (scene / SETTINGS_FILE).is_file():
+        raise InputError(scene / "images", "holds images not made by dc4gs-cl sfm (never replaced): give another "
+                                           "output folder")
     masks = _masks(photos, names)
     start = time.perf_counter()   # the photos' check counts as the features' time: both read every photo
     _check_photos(root, names, settings)

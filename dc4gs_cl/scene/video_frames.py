@@ -83,6 +83,9 @@ def frames_from_video(video: Path, scene: Path, target: int = DEFAULT_FRAMES) ->
             return saved["names"]
         raise InputError(scene, f"holds frames of another video or --video-frames ({done}): give another output "
                                 "folder, or remove it")
+    if (scene / "images").exists():   # never replaced: not made from a video here
+        raise InputError(scene / "images", "holds images not made from a video by dc4gs-cl: give another output "
+                                           "folder")
     scores = [sharpness(frame.to_ndarray(format="gray")) for _, frame in _frames(video)]
     if not scores:
         raise InputError(video, "holds no frames")
