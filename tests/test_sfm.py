@@ -82,11 +82,11 @@ def test_similarity_alignment_recovers_a_similarity(rng):
     assert np.isclose(np.linalg.det(Rm), 1.0)
 
 
-@pytest.mark.parametrize("name", list(SIZES))
-def test_every_photo_registers_where_the_shipped_model_has_it(name, photo_cache, tmp_path):
+@pytest.mark.parametrize("name, mapper", [(name, "incremental") for name in SIZES] + [("fountain_p11", "global")])
+def test_every_photo_registers_where_the_shipped_model_has_it(name, mapper, photo_cache, tmp_path):
     """fountain_p11's shipped poses are ground truth, sceaux_castle's COLMAP's at 3x our size."""
     folder = _copy(photo_cache(name), tmp_path / name / "images").parent
-    result = make_scene(folder, None, FAST)
+    result = make_scene(folder, None, {**FAST, "mapper": mapper})
     assert result.scene == folder and result.left_out == [] and result.models[0] == result.photos
     reference = camera_centres(scene_path(name) / "sparse" / "0")
     centres = camera_centres(folder / "sparse" / "0")
@@ -94,8 +94,8 @@ def test_every_photo_registers_where_the_shipped_model_has_it(name, photo_cache,
     assert _error(centres, reference) < ALIGNED
     record = json.loads((folder / SETTINGS_FILE).read_text())   # what rebuilds it
     assert record["pycolmap"] == pycolmap.__version__ and record["models"] == result.models
-    assert record["settings"] == {**dataclasses.asdict(sfm.SfMSettings()), **FAST} and record["photos"] == sorted(
-        p.name for p in (folder / "images").iterdir())
+    assert record["settings"] == {**dataclasses.asdict(sfm.SfMSettings()), **FAST, "mapper": mapper}
+    assert record["photos"] == sorted(p.name for p in (folder / "images").iterdir())
     scene = load_scene(folder)   # the loader reads it, undistorting the OPENCV camera
     assert len(scene.train) + len(scene.test) == result.photos and len(scene.points) > 100
 

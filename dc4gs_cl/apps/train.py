@@ -36,7 +36,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="when the output is not a terminal (a log file, a job scheduler), one progress line every N "
                         f"iterations instead of a bar ({DEFAULT_LINE_EVERY})")
     p.add_argument("--profile", action="store_true", help="print per-stage device time per iteration at the end")
-    add_sfm_settings(p.add_argument_group("structure from motion (a --scene folder of photos, see `dc4gs-cl sfm`)"))
+    add_sfm_settings(p.add_argument_group("structure from motion (a --scene folder of photos or a video, see "
+                                          "`dc4gs-cl sfm`)"))
 
 
 def _add_flag(into, flag: Flag, group: FlagGroup) -> None:
