@@ -65,9 +65,9 @@ def _add_lpips(p: argparse.ArgumentParser) -> None:
                         "pip install 'dc4gs-cl[lpips]'; else skipped with a line saying so); none: skip it")
 
 
-DESCRIPTION = ("Train 3D Gaussian Splatting scenes (COLMAP, NeRF / instant-ngp) with DC4GS density control on any "
-               "OpenCL device (AMD, Intel and NVIDIA GPUs; any CPU through PoCL), evaluate, render, view and export "
-               "them.")
+DESCRIPTION = ("Train 3D Gaussian Splatting scenes (COLMAP, NeRF / instant-ngp, or photos and videos through SfM) "
+               "with DC4GS density control on any OpenCL device (AMD, Intel and NVIDIA GPUs; any CPU through PoCL), "
+               "evaluate, render, view and export them.")
 EPILOG = (f"With no command, dc4gs-cl runs `dc4gs-cl train`: the built-in scene (procedural, no data needed), "
           f"{BUILTIN_ITERATIONS:,} iterations (5 to 9 minutes on 2 CPU cores), into output/builtin-<date-time>. "
           "`dc4gs-cl COMMAND --help` gives each command's options.")
