@@ -4,6 +4,7 @@ them; a stopped run goes on from its database to the scene an uninterrupted one 
 exit 2, and nothing of a scene written."""
 from __future__ import annotations
 
+import argparse
 import dataclasses
 import io
 import json
@@ -16,6 +17,7 @@ import OpenImageIO as oiio
 import pycolmap
 import pytest
 
+from dc4gs_cl.apps.sfm import scene_for_training
 from dc4gs_cl.cli import main
 from dc4gs_cl.errors import InputError
 from dc4gs_cl.geometry import similarity_alignment
@@ -98,6 +100,10 @@ def test_every_photo_registers_where_the_shipped_model_has_it(name, mapper, phot
     assert record["photos"] == sorted(p.name for p in (folder / "images").iterdir())
     scene = load_scene(folder)   # the loader reads it, undistorting the OPENCV camera
     assert len(scene.train) + len(scene.test) == result.photos and len(scene.points) > 100
+    # train --scene of it again, with the same SfM flags: reused where it is
+    args = argparse.Namespace(scene=str(folder), video_frames=None, no_progress=True, **FAST, mapper=mapper)
+    scene_for_training(args, 1)
+    assert args.scene == str(folder)
 
 
 def test_sequential_matching_registers_a_sequence(photo_cache, tmp_path):

@@ -114,5 +114,6 @@ def scene_for_training(args, processes: int) -> None:
 
 
 def _is_photo_folder(path: Path) -> bool:
-    from ..scene.sfm import is_photo_folder
-    return is_photo_folder(path)
+    """Photos with no scene yet, or a scene SfM made (it says whether the flags given agree with it)."""
+    from ..scene.sfm import SETTINGS_FILE, is_photo_folder
+    return is_photo_folder(path) or (path / SETTINGS_FILE).is_file()
