@@ -152,6 +152,9 @@ def _train_locked(args, run: RunFolder, group) -> int:
     print(f"device: {describe(rt.device)}{processes}\nscene: {cfg.scene} ({len(scene.train)} train / {len(scene.test)} "
           f"test views, {view_sizes(scene.train + scene.test)}), strategy {trainer.strategy.label}, "
           f"{cfg.iterations:,} iterations, {trainer.model.n:,} initial Gaussians\noutput: {run}", file=sys.stderr)
+    if group.size > 1:
+        print("stop: SIGUSR1 to mpirun stops every process after a checkpoint (SIGTERM or Ctrl-C to it "
+              "ends them at once: the run then resumes from its last checkpoint)", file=sys.stderr)
     if trainer.cap is not None:
         print(f"cap: {trainer.cap:,} Gaussians: {trainer.cap_memory(rt)}", file=sys.stderr)
     start, first = time.perf_counter(), trainer.iteration

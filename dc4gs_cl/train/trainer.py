@@ -41,7 +41,9 @@ from ..scene.camera import Camera, Scene
 from .log import SAMPLE_EVERY, TrainingLog
 from .schedule import Schedule
 
-STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+# SIGUSR1 too: MPI launchers forward it untouched, where SIGTERM and SIGINT make Open MPI's mpirun kill its
+# processes a quarter of a second later (Slurm's --signal=USR1@SECONDS sends it ahead of a job's time limit)
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGUSR1)
 
 
 class Stopped(KeyboardInterrupt):
@@ -326,8 +328,8 @@ class Trainer:
     def run(self, progress: str = "bar", line_every: int = DEFAULT_LINE_EVERY, viewer=None) -> None:
         """Train to cfg.iterations, evaluating the test views at the schedule's evaluation points before the
         last (the caller evaluates the last, with renders), and logging to the run folder's metrics file.
-        progress: "bar", "lines" (one every line_every iterations) or "none" (train/log.py). Ctrl-C (SIGINT)
-        or SIGTERM (what job schedulers send) stops at the next iteration boundary after a checkpoint,
+        progress: "bar", "lines" (one every line_every iterations) or "none" (train/log.py). Ctrl-C (SIGINT),
+        SIGTERM (what job schedulers send) or SIGUSR1 stops at the next iteration boundary after a checkpoint,
         raising Stopped. viewer: a viewer.Viewer shown the model between iterations (live training)."""
         run_folder = self._folder_for("run() (its metrics file, checkpoints and model)")
         stop = {"signal": None}
