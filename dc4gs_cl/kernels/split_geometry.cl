@@ -19,6 +19,8 @@
 
 #include "project.h"
 
+REQUIRE_DEFINED(DISTORTION);   // the candidates go through the view's lens model (project_point)
+
 // Branch-free past the bound check: every work-item computes a line and the tests (`line`) only choose what it
 // writes (zeros where there is no line), so the compiler vectorises across work-items (2x faster on PoCL than
 // returning early).
