@@ -83,3 +83,29 @@ def test_a_radial_map_turning_back_inside_the_image_is_refused():
         from_colmap("OPENCV_FISHEYE", [100.0, 100.0, 320.0, 240.0, 0.0, 0.0, 0.0, 0.0001], 640, 480, "c", "b.png")
     # no distortion at all: a pinhole
     assert from_colmap("OPENCV", [300.0, 300.0, 320.0, 240.0, 0, 0, 0, 0], 640, 480, "c", "c.png")[1] is None
+
+
+def test_a_fisheye_capture_of_the_builtin_scene_trains_the_scene_itself(rt):
+    """The built-in scene's views through a fisheye (ground truth ray cast through the lens model) train a model that
+    renders the scene's pinhole test views about as well as a run on the pinhole photos does, same seed and
+    iterations (measured: 24.27 against 24.36 dB; trained as if the photos were pinholes: 21.06)."""
+    from dataclasses import replace
+
+    from dc4gs_cl.config import TrainConfig
+    from dc4gs_cl.evaluation.metrics import psnr
+    from dc4gs_cl.scene.loader import load_scene
+    from dc4gs_cl.train.trainer import Trainer
+
+    pinhole = load_scene("builtin", resolution=2)
+    fisheye = replace(pinhole, train=[distorted_camera(c, "fisheye") for c in pinhole.train],
+                      test=[distorted_camera(c, "fisheye") for c in pinhole.test])
+    assert fisheye.train[0].distortion.kind == FISHEYE and fisheye.train[0].fx < pinhole.train[0].fx
+    scores = []
+    for scene in (pinhole, fisheye):
+        trainer = Trainer(TrainConfig(scene="builtin", iterations=300, resolution=2), scene, rt)
+        for _ in range(300):
+            trainer.step()
+        scores.append(np.mean([psnr(trainer.renderer.render(trainer.params, c, trainer.sh_degree,
+                                                            pinhole.background).image(rt), pinhole.image(c))
+                               for c in pinhole.test]))
+    assert scores[1] > scores[0] - 0.5, scores

@@ -117,13 +117,36 @@ def distort_hessian(dist: Distortion, u: np.ndarray) -> np.ndarray:
 
 
 def undistort(dist: Distortion, d: np.ndarray, start: np.ndarray, iterations: int = 50) -> np.ndarray:
-    """(..., 2) undistorted points whose D is d, by Newton's method from `start`; NaN where it did not converge."""
+    """(..., 2) undistorted points whose D is d, by Newton's method from `start` (at most `iterations` steps); NaN
+    where it did not converge."""
     u = np.array(start, np.float64)
     for _ in range(iterations):
         step = np.linalg.solve(distort_jacobian(dist, u), (distort(dist, u) - d)[..., None])[..., 0]
         u = u - step
+        if not np.abs(step).max(initial=0.0) > 1e-15:   # converged (or NaN: then the check below fails)
+            break
     ok = np.linalg.norm(distort(dist, u) - d, axis=-1) <= 1e-9 * (1 + np.linalg.norm(d, axis=-1))
     return np.where(ok[..., None], u, np.nan)
+
+
+def field_reach(kind: int, k) -> tuple[np.ndarray, np.ndarray, bool]:
+    """The radial map up to where it stops growing (or MAX_FIELD_ANGLE): undistorted radii r, the distorted radii they
+    reach (increasing), and whether it grows all the way to MAX_FIELD_ANGLE."""
+    angle = np.linspace(0.0, MAX_FIELD_ANGLE, FIELD_SAMPLES)
+    r = np.tan(angle)
+    rho, drho, _ = radial_profile(kind, k, r * r)
+    growing = (rho + 2 * r * r * drho > 0) & (r * rho >= 0)
+    last = FIELD_SAMPLES if growing.all() else int(np.argmin(growing))
+    return r[:last], (r * rho)[:last], bool(growing.all())
+
+
+def undistort_points(dist: Distortion, d: np.ndarray) -> np.ndarray:
+    """(..., 2) the undistorted points of distorted ones: Newton's method from the radial map's inverse (its table of
+    field_reach); NaN where it does not converge."""
+    r, reach, _ = field_reach(dist.kind, dist.k)
+    rd = np.linalg.norm(d, axis=-1)
+    start = d * (np.interp(rd, reach, r) / np.maximum(rd, 1e-300))[..., None]
+    return undistort(dist, d, start)
 
 
 def from_colmap(model: str, params, width: int, height: int, where, name: str
@@ -144,33 +167,25 @@ def from_colmap(model: str, params, width: int, height: int, where, name: str
     coefficients = ", ".join(f"{n}={value[n]:g}" for n in names if n[0] in "kp")
     problem = f"image {name!r}: the {model} distortion ({coefficients}) cannot be rendered directly: "
 
-    # where the radial map d = r rho(r^2) stops growing, along the axis' angle
-    angle = np.linspace(0.0, MAX_FIELD_ANGLE, FIELD_SAMPLES)
-    r = np.tan(angle)
-    rho, drho, _ = radial_profile(kind, k, r * r)
-    growing = (rho + 2 * r * r * drho > 0) & (r * rho >= 0)
-    last = FIELD_SAMPLES - 1 if growing.all() else int(np.argmin(growing)) - 1
+    r, reach, grows = field_reach(kind, k)   # where the radial map d = r rho(r^2) stops growing
     # the image's border in distorted normalised coordinates, taken back to undistorted ones
     edge = np.linspace(0.0, 1.0, 65)
     px = np.concatenate([edge * width, np.full_like(edge, width), edge[::-1] * width, np.zeros_like(edge)])
     py = np.concatenate([np.zeros_like(edge), edge * height, np.full_like(edge, height), edge[::-1] * height])
     d = np.stack([(px - intrinsics[2]) / fx, (py - intrinsics[3]) / fy], -1)
-    rd = np.linalg.norm(d, axis=-1)
-    reach = r[: last + 1] * rho[: last + 1]
-    if last < 1 or rd.max() >= reach[-1]:
-        if growing.all():
+    if len(r) < 2 or np.linalg.norm(d, axis=-1).max() >= reach[-1]:
+        if grows:
             raise InputError(where, problem + f"the image's corner lies more than {np.degrees(MAX_FIELD_ANGLE):.0f} "
                                               "deg from the axis, past what a projection through x/z reaches")
-        raise InputError(where, problem + f"its radial map turns back {np.degrees(angle[max(last, 0)]):.1f} deg from "
+        raise InputError(where, problem + f"its radial map turns back {np.degrees(np.arctan(r[-1])):.1f} deg from "
                                           "the axis, short of the image's corner")
-    radial_start = np.interp(rd, reach, r[: last + 1]) / np.maximum(rd, 1e-300)
-    u = undistort(dist, d, d * radial_start[:, None])
+    u = undistort_points(dist, d)
     if not np.isfinite(u).all():
         raise InputError(where, problem + "the image's border cannot be mapped back to the camera's rays")
     rays = u[None, :, :] * np.linspace(0.0, 1.0, 33)[:, None, None]
     if not (np.linalg.det(distort_jacobian(dist, rays)) > 0).all():
         raise InputError(where, problem + "the map folds over (det dD/du <= 0) inside the image")
     lim = FOV_CLAMP * np.abs(u).max(axis=0)
-    r2_max = min(r[last] ** 2, (FOV_CLAMP * np.linalg.norm(u, axis=-1).max()) ** 2)
+    r2_max = min(r[-1] ** 2, (FOV_CLAMP * np.linalg.norm(u, axis=-1).max()) ** 2)
     return intrinsics, Distortion(model, kind, k, p, (float(lim[0]), float(lim[1])), float(r2_max))
 
