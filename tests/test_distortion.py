@@ -22,7 +22,8 @@ COEFFICIENTS = {"SIMPLE_RADIAL": [-0.1], "RADIAL": [-0.1, 0.02], "OPENCV": [-0.1
 def colmap_params(model: str, rng) -> list[float]:
     f = rng.uniform(280, 320) if DIRECT_MODELS[model][1] != FISHEYE else rng.uniform(140, 160)
     names = DIRECT_MODELS[model][0]
-    given = {"f": f, "fx": f, "fy": f * rng.uniform(0.95, 1.05), "cx": rng.uniform(150, 170), "cy": rng.uniform(110, 130)}
+    given = {"f": f, "fx": f, "fy": f * rng.uniform(0.95, 1.05), "cx": rng.uniform(150, 170),
+             "cy": rng.uniform(110, 130)}
     scale = rng.uniform(0.5, 1.5)
     return [given[n] for n in names if n in given] + [c * scale for c in COEFFICIENTS[model]]
 
