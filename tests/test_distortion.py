@@ -110,3 +110,24 @@ def test_a_fisheye_capture_of_the_builtin_scene_trains_the_scene_itself(rt):
                                                             pinhole.background).image(rt), pinhole.image(c))
                                for c in pinhole.test]))
     assert scores[1] > scores[0] - 0.5, scores
+
+
+def test_a_run_through_a_lens_resumes_to_the_same_model(rt, tmp_path):
+    """With DC4GS (the split candidates through the lens too): an interrupted run resumed from its checkpoint ends
+    bit for bit where the straight run does."""
+    from dataclasses import replace
+
+    from helpers import straight_and_resumed
+
+    from dc4gs_cl.config import DC4GSConfig, TrainConfig
+    from dc4gs_cl.scene.loader import load_scene
+
+    scene = load_scene("builtin", resolution=4)
+    scene = replace(scene, train=[distorted_camera(c, "opencv") for c in scene.train],
+                    test=[distorted_camera(c, "opencv") for c in scene.test])
+    cfg = TrainConfig(scene="builtin", iterations=120, resolution=4, densify_from=20, densify_every=20,
+                      dc4gs=DC4GSConfig(dcc=True, dcs=True))
+    straight, resumed = straight_and_resumed(cfg, scene, rt, tmp_path, 50)
+    a, b = straight.model.download(), resumed.model.download()
+    assert a.n > len(scene.points)   # densified, DCS' split positions from the view through the lens
+    assert all(np.array_equal(a.params[k], b.params[k]) and np.array_equal(a.m[k], b.m[k]) for k in a.params)
