@@ -132,6 +132,13 @@ def view_sizes(cameras: list[Camera], shown: int = 3) -> str:
     return text + (f" and {len(common) - shown} more sizes" if len(common) > shown else "")
 
 
+def lens_models(cameras: list[Camera]) -> str:
+    """The lens models the views render through, for the scene's summary line: "" when all are pinholes, else
+    ", OPENCV rendered directly" (the models, by name)."""
+    models = sorted({c.distortion.model for c in cameras if c.distortion is not None})
+    return f", {' and '.join(models)} rendered directly" if models else ""
+
+
 def unique_file_stems(where: Path, cameras: list[Camera]) -> None:
     """InputError (about `where`: the file listing the views) naming the first two views whose outputs would share
     a file name (Camera.file_stem): an image listed twice, or names that differ only in their folders' separators or
