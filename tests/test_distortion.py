@@ -68,7 +68,7 @@ def test_local_jacobian_error_and_tile_box_at_the_field_edge(rng, lens):
     tool = load_tool("distortion_error")
     cam = distorted_camera(Camera.look_at("edge", (0.0, -4.0, 0.0), (0.0, 0.0, 0.0), 640, 480, fov_x=1.2), lens)
     for fraction in (0.9, 1.0):
-        for size, cov_tol in ((2.0, 2e-3), (8.0, 2e-2)):
+        for size, cov_tol in ((2.0, 3e-3), (8.0, 3e-2)):   # the tool's worst of 8 orientations: 1.1e-3, 1.6e-2
             res = tool.study(cam, fraction, size, rng)
             assert res["box miss"] == 0.0, (fraction, size, res)
             assert res["cov rel"] < cov_tol and res["mean px"] < 0.05 * size, (fraction, size, res)
