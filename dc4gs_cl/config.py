@@ -133,6 +133,11 @@ TRAIN_FLAGS = (   # in the order `train --help` lists them (the first group's fl
         Flag("--alpha-mask", "alpha_mask", "images' alpha channel masks pixels out (no loss, no densification "
                                            "statistics) instead of being composited onto the background; a masks/ "
                                            "folder beside images/ is always used", bool),
+        Flag("--undistort", "undistort", "undistort distorted photos to a pinhole and train on those (cropped and "
+                                         "resampled), instead of rendering their camera model directly (the default "
+                                         "for COLMAP's SIMPLE_RADIAL, RADIAL, OPENCV, FULL_OPENCV, OPENCV_FISHEYE, "
+                                         "RADIAL_FISHEYE and SIMPLE_RADIAL_FISHEYE and NeRF transforms' k1..k4, p1, "
+                                         "p2 and fisheye); other models need it", bool),
         Flag("--split-threshold", "split_threshold", "split Gaussians whose split criterion reaches this (default: "
                                                      "the strategy's, 2e-4 for 3dgs and pixelgs, 4e-4 for absgs); a "
                                                      "higher one splits less. With DCC the criterion is DC-weighted "
@@ -309,6 +314,7 @@ class TrainConfig:
     test_split: str = "llff"              # which images are held out (scene.camera.split_train_test)
     white_background: bool = False
     alpha_mask: bool = False               # images' alpha masks pixels out instead of being composited
+    undistort: bool = False                # distorted photos undistorted to pinholes, not rendered through their model
     seed: int = 0
     sh_degree: int = SH_MAX_DEGREE
     save_at: tuple[int, ...] = ()          # PLYs at these iterations (the last one is always saved)
@@ -412,6 +418,7 @@ class TrainConfig:
             raise ValueError(f"expected a JSON object, got {type(d).__name__}")
         known = {f.name for f in fields(TrainConfig)}
         out = {k: v for k, v in d.items() if k in known}
+        out.setdefault("undistort", True)   # settings from before direct rendering: those runs trained undistorted
         nested = {}
         for group in SETTING_GROUPS:
             values = out.get(group, {})

@@ -321,7 +321,7 @@ class RunFolder:
         return load_scene(scene or cfg.scene, resolution=resolution or cfg.resolution,
                           cache_dir=self.images_cache, test_every=cfg.test_every,
                           test_split=cfg.test_split, white_background=white_background or cfg.white_background,
-                          alpha_mask=cfg.alpha_mask)
+                          alpha_mask=cfg.alpha_mask, undistort=cfg.undistort)
 
     # models ----------------------------------------------------------------------------------------------
     def save_model(self, iteration: int, model: GaussianModel) -> Path:
