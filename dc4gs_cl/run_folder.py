@@ -58,7 +58,7 @@ METRICS = "metrics.jsonl"
 EXPOSURE = "exposure.json"
 # The numbers a metrics row may hold (train/log.py writes them; report plots them), and stage_ms: stage -> ms
 METRIC_NUMBERS = ("loss", "train_psnr", "gaussians", "it_per_s", "elapsed_s", "test_psnr", "test_ssim", "test_lpips",
-                  "test_lpips_alex", "test_views")
+                  "test_lpips_alex", "test_views", "test_psnr_corrected", "test_ssim_corrected")
 RUN_FILES = (CONFIG, "cfg_args", "cameras.json", CHECKPOINT, PREVIOUS_CHECKPOINT, CORRUPT_CHECKPOINT, RESULTS, PER_VIEW,
              METRICS, EXPOSURE, "results.corrupt.json", "per_view.corrupt.json")
 MODELS, MODEL_KEY = "point_cloud", "iteration_"   # + N: the folder of the model saved at iteration N

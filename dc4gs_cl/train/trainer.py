@@ -343,7 +343,7 @@ class Trainer:
         if log is not None:
             log.pause()
         result = evaluate(self.rt, self.renderer, self.params, self.scene, self.scene.test, self.sh_degree, render_dir,
-                          self.lpips, self.lpips_note)
+                          self.lpips, self.lpips_note, self.cfg.corrected_metrics)
         if self.rt.profiling:
             self.rt.stage_times()   # the evaluation's renders are not training time
         if log is not None:
