@@ -3,6 +3,7 @@ against a float64 reference (itself checked by finite differences), its Adam ste
 bit-reproducible, resumed bit for bit, the mean correction the identity, nothing of it in the model, two launches
 and no blocking sync more an iteration; and the corrected metrics' protocol on a view whose answer is known."""
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -110,7 +111,7 @@ def test_no_step_and_a_void_frame(rt, rng):
     assert not np.array_equal(ex.download()["T"], state["T"])   # the count of finished groups was left at 0
 
 
-def train(tmp_path, name, *args) -> "Path":
+def train(tmp_path, name, *args) -> Path:
     from dc4gs_cl.cli import main
     out = tmp_path / name
     assert main(["train", "--out", str(out), "-r", "4", "--iterations", "60", "--no-progress", "--lpips", "none",
