@@ -372,7 +372,8 @@ class TrainConfig:
             ("checkpoint_every", self.checkpoint_every < 1, f"{self.checkpoint_every} must be at least 1"),
             ("batch", self.batch < 1, f"{self.batch} must be at least 1"),
             # the corrections step once a view (their gradient is not summed over a batch's views)
-            ("exposure", self.exposure and self.batch > 1, f"needs --batch 1 (here {self.batch})"),
+            ("exposure", self.exposure and self.batch > 1,
+             f"needs --batch 1, one process (here a batch of {self.batch})"),
             *((name, value is not None and value < least, f"{value} must be >= {least}")
               for name, value, least in (("densify_until", self.densify_until, 0),
                                          ("densify_from", self.densify_from, 0),

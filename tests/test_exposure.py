@@ -208,5 +208,5 @@ def test_exposure_with_a_batch_is_refused_in_one_line(tmp_path, capsys):
     from dc4gs_cl.cli import main
     assert main(["train", "--out", str(tmp_path / "o"), "-r", "8", "--exposure", "--batch", "2"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "--exposure needs --batch 1" in err[0], err
+    assert len(err) == 1 and "--exposure needs --batch 1, one process" in err[0], err
     assert not (tmp_path / "o").exists()
