@@ -143,6 +143,22 @@ def test_training_with_exposure_is_reproducible_anchored_and_kept_out_of_the_mod
     assert [p.name for p in (a / "point_cloud/iteration_60").iterdir()] == ["point_cloud.ply"]
 
 
+
+def test_eval_labels_its_corrected_metrics(tmp_path, capsys):
+    """eval --corrected-metrics: results.json holds the corrected means beside the raw ones, the output says so;
+    train's results are raw alone by default."""
+    from dc4gs_cl.cli import main
+    run = train(tmp_path, "run", "--exposure")
+    raw = json.loads((run / "results.json").read_text())["ours_60"]
+    assert "PSNR corrected" not in raw
+    capsys.readouterr()
+    assert main(["eval", "--model", str(run), "--corrected-metrics", "--no-renders", "--lpips", "none"]) == 0
+    out = capsys.readouterr().out
+    result = json.loads((run / "results.json").read_text())["ours_60"]
+    assert result["PSNR"] == raw["PSNR"] and np.isfinite(result["PSNR corrected"]) and "SSIM corrected" in result
+    assert "corrected (a colour correction fitted on each view's left half" in out and "corrected PSNR" in out
+
+
 def test_a_run_with_exposure_resumes_bit_for_bit(rt, tmp_path):
     from dc4gs_cl.scene.loader import load_scene
     scene = load_scene("builtin", resolution=4)
