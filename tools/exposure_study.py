@@ -68,6 +68,10 @@ def main(argv=None) -> int:
     p.add_argument("--gain", type=float, nargs=2, default=(0.6, 1.5))
     p.add_argument("--offset", type=float, default=0.1)
     p.add_argument("--centred", action="store_true", help="the gains' mean 1, the offsets' 0 (changed_photos)")
+    p.add_argument("--lr", type=float, nargs=2, default=None, metavar=("INIT", "FINAL"),
+                   help="--exposure-lr-init and --exposure-lr-final (default: train's)")
+    p.add_argument("--exposure-only", action="store_true",
+                   help="only the runs with --exposure (those without do not depend on its settings)")
     p.add_argument("--device", default=None)
     args = p.parse_args(argv)
     rt = Runtime(args.device)
@@ -80,15 +84,17 @@ def main(argv=None) -> int:
           f"U(-{args.offset}, {args.offset}){', centred' if args.centred else ''}; test PSNR, dB: raw (corrected), "
           "a column a seed", file=sys.stderr)
     rows = {}
+    rates = {} if args.lr is None else {"lr_exposure": args.lr[0], "lr_exposure_final": args.lr[1]}
     for photos, sc in scenes.items():
-        for exposure in (False, True):
+        for exposure in (True,) if args.exposure_only else (False, True):
             name = f"{photos} photos, {'with' if exposure else 'without'} --exposure"
             rows[name] = np.array([test_psnr(rt, TrainConfig(scene=args.scene, iterations=args.iterations,
                                                              resolution=args.resolution, seed=seed, exposure=exposure,
-                                                             corrected_metrics=True), sc) for seed in args.seeds])
+                                                             corrected_metrics=True, **rates), sc)
+                                   for seed in args.seeds])
             print(f"  {name:<40} " + "  ".join(f"{raw:6.2f} ({fixed:6.2f})" for raw, fixed in rows[name]) +
                   f"   mean {rows[name][:, 0].mean():6.2f} ({rows[name][:, 1].mean():6.2f})", flush=True)
-    base = rows["unchanged photos, without --exposure"].mean(0)
+    base = rows.get("unchanged photos, without --exposure", np.full((1, 2), np.nan)).mean(0)
     for name, values in rows.items():
         raw, fixed = values.mean(0) - base
         print(f"{name:<40} raw {raw:+.2f} dB (corrected {fixed:+.2f} dB) against unchanged photos without --exposure")

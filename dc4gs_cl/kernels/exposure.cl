@@ -15,7 +15,7 @@
 //                      momentum) and re-anchors: the mean of T over the photos minus the identity is subtracted
 //                      from each, so the mean correction stays the identity. So the sums' order is fixed by the
 //                      shape and the image alone, whichever group finishes last: runs are bit-reproducible.
-// keep [P] uchar (masked = 1; 0 = masked out): masked pixels add nothing. A void frame (FRAME_VOID) changes
+// keep [P] uchar, read where masked != 0 (0: the pixel is masked out): masked pixels add nothing. A void frame (FRAME_VOID) changes
 // nothing: the view runs again. Work shape: WG items a group (a power of two), PER_ITEM pixels an item.
 
 #include "adam.h"

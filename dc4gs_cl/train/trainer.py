@@ -3,8 +3,9 @@ density control (a strategy, densify/); checkpoints through the run folder, so t
 run resumes to the same model.
 
 One iteration (docs/architecture.md draws it module by module):
-    render (render/) -> loss and dL/dimage (backward/loss.py) -> what the strategy gathers this view and where
-    it folds it (plain data; its split geometry, for DCS) -> rasterizer backward into per-Gaussian sums
+    render (render/) -> loss and dL/dimage (backward/loss.py; with --exposure, of the render corrected by its
+    photo's affine, backward/exposure.py, which steps the corrections) -> what the strategy gathers this view and
+    where it folds it (plain data; its split geometry, for DCS) -> rasterizer backward into per-Gaussian sums
     (backward/), the view's statistics folded into the strategy's window on the way -> projection backward
     with Adam's step fused in, where the recipe steps (a batch: each view's gradients added, one step on their
     mean) -> the strategy's step after it (MCMC's position noise) -> the strategy densifies and limits opacities
@@ -172,10 +173,12 @@ class Trainer:
             lrs = self.schedule.learning_rates(it, self.scene.extent, self.actions.opacity_steps)
             adam = self.model.adam
             step_args = (adam.step_value(lrs), adam.m, adam.v, self.strategy.regularizers(self.model.n))
-        if self.exposure is not None:
-            stepping = self.actions.optimiser_step
-            self.exposure_steps += stepping
-            self.exposure_step = one_group_step(self.schedule.exposure_lr(it), self.exposure_steps * stepping)
+        if self.exposure is not None:   # the corrections step where the Gaussians do (t = 0: no step)
+            t = 0
+            if self.actions.optimiser_step:
+                self.exposure_steps += 1
+                t = self.exposure_steps
+            self.exposure_step = one_group_step(self.schedule.exposure_lr(it), t)
         summed = None if self.batch is None else self.batch.start(self.model.n)
         for cam, background in self.group.share(views):
             self._queue_fitting(it, cam, background, step_args, summed)
