@@ -81,7 +81,9 @@ def main(argv=None) -> int:
     cam = scene.train[0]
     print(f"device: {describe(rt.device)}; scene {args.scene} ({len(scene.train)} train / {len(scene.test)} test "
           f"views, {cam.width}x{cam.height}), {args.iterations} iterations, gains U{tuple(args.gain)}, offsets "
-          f"U(-{args.offset}, {args.offset}){', centred' if args.centred else ''}; test PSNR, dB: raw (corrected), "
+          f"U(-{args.offset}, {args.offset}){', centred' if args.centred else ''}"
+          f"{'' if args.lr is None else f', --exposure-lr-init {args.lr[0]:g} --exposure-lr-final {args.lr[1]:g}'}; "
+          "test PSNR, dB: raw (corrected), "
           "a column a seed", file=sys.stderr)
     rows = {}
     rates = {} if args.lr is None else {"lr_exposure": args.lr[0], "lr_exposure_final": args.lr[1]}
@@ -94,7 +96,9 @@ def main(argv=None) -> int:
                                    for seed in args.seeds])
             print(f"  {name:<40} " + "  ".join(f"{raw:6.2f} ({fixed:6.2f})" for raw, fixed in rows[name]) +
                   f"   mean {rows[name][:, 0].mean():6.2f} ({rows[name][:, 1].mean():6.2f})", flush=True)
-    base = rows.get("unchanged photos, without --exposure", np.full((1, 2), np.nan)).mean(0)
+    if args.exposure_only:   # the differences need the runs without it
+        return 0
+    base = rows["unchanged photos, without --exposure"].mean(0)
     for name, values in rows.items():
         raw, fixed = values.mean(0) - base
         print(f"{name:<40} raw {raw:+.2f} dB (corrected {fixed:+.2f} dB) against unchanged photos without --exposure")
