@@ -148,7 +148,7 @@ def test_training_with_exposure_is_reproducible_anchored_and_kept_out_of_the_mod
 
 def test_eval_labels_its_corrected_metrics(tmp_path, capsys):
     """eval --corrected-metrics: results.json holds the corrected means beside the raw ones, the output says so;
-    train's results are raw alone by default."""
+    train's results are raw alone by default; train --corrected-metrics puts them in metrics.jsonl and report."""
     from dc4gs_cl.cli import main
     run = train(tmp_path, "run", "--exposure")
     raw = json.loads((run / "results.json").read_text())["ours_60"]
@@ -159,6 +159,13 @@ def test_eval_labels_its_corrected_metrics(tmp_path, capsys):
     result = json.loads((run / "results.json").read_text())["ours_60"]
     assert result["PSNR"] == raw["PSNR"] and np.isfinite(result["PSNR corrected"]) and "SSIM corrected" in result
     assert "corrected (a colour correction fitted on each view's left half" in out and "corrected PSNR" in out
+    from dc4gs_cl.apps.report import RunMetrics, summary_html
+    train(tmp_path, "corrected", "--exposure", "--corrected-metrics")
+    from dc4gs_cl.run_folder import RunFolder
+    rows = [r for r in RunFolder(tmp_path / "corrected").read_metrics() if "test_psnr" in r]
+    assert rows and all(np.isfinite(r["test_psnr_corrected"]) for r in rows)   # each evaluation's, in metrics.jsonl
+    assert "test PSNR, corrected" in summary_html([RunMetrics.read(tmp_path / "corrected")])
+    assert "corrected" not in summary_html([RunMetrics.read(run)])
 
 
 def test_a_run_with_exposure_resumes_bit_for_bit(rt, tmp_path):
