@@ -1,6 +1,6 @@
 """train --exposure (backward/exposure.py, kernels/exposure.cl): the 3x4 affine correction per photo and its gradients
 against a float64 reference (itself checked by finite differences), its Adam step and anchor; in training:
-bit-reproducible, resumed bit for bit, the mean correction the identity, nothing of it in the model, two launches
+bit-reproducible, resumed bit for bit, the mean correction the identity, nothing of it in the model, three launches
 and no blocking sync more an iteration; and the corrected metrics' protocol on a view whose answer is known."""
 import json
 from pathlib import Path
@@ -181,9 +181,9 @@ def test_a_run_with_exposure_resumes_bit_for_bit(rt, tmp_path):
     assert straight.exposure_steps == resumed.exposure_steps == straight.model.adam.steps["means"] > 40
 
 
-def test_exposure_adds_two_launches_and_no_blocking_sync(rt):
-    """The same state and views stepped with and without --exposure: exactly 2 launches more a view
-    (exposure_apply, exposure_backward), not one sync more."""
+def test_exposure_adds_three_launches_and_no_blocking_sync(rt):
+    """The same state and views stepped with and without --exposure: exactly 3 launches more a view
+    (exposure_apply, exposure_backward, exposure_step), not one sync more."""
     from dc4gs_cl.apps.bench import frozen_trainer
     from dc4gs_cl.scene.loader import load_scene
     from dc4gs_cl.train import Trainer
@@ -200,7 +200,7 @@ def test_exposure_adds_two_launches_and_no_blocking_sync(rt):
             trainer.step()
         counts.append((rt.launches - launches, rt.syncs - syncs))
     (plain_launches, plain_syncs), (launches, syncs) = counts
-    assert launches == plain_launches + 2 * len(scene.train) and syncs == plain_syncs
+    assert launches == plain_launches + 3 * len(scene.train) and syncs == plain_syncs
 
 
 def test_corrected_metrics_on_a_view_whose_colours_are_a_known_affine_of_the_render(rt, rng):

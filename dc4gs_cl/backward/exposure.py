@@ -1,6 +1,7 @@
 """train --exposure on the device (kernels/exposure.cl): a 3x4 affine colour correction per training photo, applied
 to the render before the loss; its gradient (summed over the image in a fixed order), the render's gradient through
-it, and Adam's step on every photo's correction with the anchor that keeps their mean the identity."""
+it, and Adam's step on every photo's correction with the anchor that keeps their mean the identity: three launches a
+view (exposure_apply, exposure_backward, exposure_step)."""
 from __future__ import annotations
 
 import numpy as np
@@ -19,7 +20,7 @@ CPU_SHAPE, GPU_SHAPE = {"WG": 1, "PER_ITEM": 2048}, {"WG": 256, "PER_ITEM": 16}
 
 class Exposure(Stage):
     """The photos' corrections T [photos][12] and Adam's moments on the device (`state`: "T", "m", "v")."""
-    FILE, KERNELS = "exposure.cl", ("exposure_apply", "exposure_backward")
+    FILE, KERNELS = "exposure.cl", ("exposure_apply", "exposure_backward", "exposure_step")
 
     def __init__(self, ctx: StageContext, photos: int, shape: dict | None = None):
         super().__init__(ctx)
@@ -29,12 +30,10 @@ class Exposure(Stage):
         shape = shape or (CPU_SHAPE if self.rt.caps.is_cpu else GPU_SHAPE)
         wg = min(shape["WG"], max(1, self.rt.caps.max_work_group_size))
         self.shape = {"WG": 1 << (wg.bit_length() - 1), "PER_ITEM": shape["PER_ITEM"]}
-        self.k_apply, self.k_backward = (self.kernels(self.shape)[name] for name in self.KERNELS)
+        self.k_apply, self.k_backward, self.k_step = (self.kernels(self.shape)[name] for name in self.KERNELS)
         self.state = DeviceArrays(self.rt, {"T": PARAMS, "m": PARAMS, "v": PARAMS}, photos)
         self.state.upload({"T": np.tile(IDENTITY, (photos, 1)), "m": np.zeros((photos, PARAMS), np.float32),
                            "v": np.zeros((photos, PARAMS), np.float32)})
-        self.done = self.rt.buffer(4)           # exposure_backward's count of finished groups, 0 between views
-        self.rt.fill(self.done, np.uint32(0), 4)
         self.grad = self.rt.buffer(4 * PARAMS)  # the last view's dL/dT (tests, --check-finite)
         self.no_mask = self.rt.buffer(4)        # bound where a view has no mask (never read)
 
@@ -54,10 +53,11 @@ class Exposure(Stage):
         groups = -(-pixels // (wg * per_item))
         partial = self.ws.get("exposure.partial", 4 * PARAMS * groups)
         state = self.state.buffers
-        self.rt.launch(stage, self.k_backward, groups * wg, wg, np.int32(pixels), np.int32(view),
-                       np.int32(self.photos), state["T"], state["m"], state["v"], step, image, grad,
-                       np.int32(keep is not None), keep if keep is not None else self.no_mask, self.ctx.frame,
-                       partial, self.done, self.grad)
+        self.rt.launch(stage, self.k_backward, groups * wg, wg, np.int32(pixels), np.int32(view), state["T"], image,
+                       grad, np.int32(keep is not None), keep if keep is not None else self.no_mask, self.ctx.frame,
+                       partial)
+        self.rt.launch(stage, self.k_step, 1, 1, np.int32(groups), np.int32(view), np.int32(self.photos), state["T"],
+                       state["m"], state["v"], step, self.ctx.frame, partial, self.grad)
         self.check(lambda: {"dL_dT": self.rt.to_host(self.grad, PARAMS),
                             "exposure": self.state.download()["T"]})
 

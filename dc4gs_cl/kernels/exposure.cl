@@ -7,14 +7,15 @@
 //
 //   exposure_apply     x [P][3], photo `view`'s T -> out [P][3] = A x + b
 //   exposure_backward  g [P][3] (dL/dout, from the loss) in place -> dL/dx = A^T g (0 at masked pixels);
-//                      dL/dT = sum over kept pixels of (g_i x_j, g_i): each work-group sums its pixel range
-//                      (each item a contiguous run of PER_ITEM pixels, then a tree over the group's items) into
-//                      partial [groups][12]; the last group to finish (an integer counter, done, no float
-//                      atomics) adds the partials in group order into grad_t [12], steps Adam on every photo's
-//                      T (one dense Adam over [N][12], as the Inria code's: a photo not seen moves by its
-//                      momentum) and re-anchors: the mean of T over the photos minus the identity is subtracted
-//                      from each, so the mean correction stays the identity. So the sums' order is fixed by the
-//                      shape and the image alone, whichever group finishes last: runs are bit-reproducible.
+//                      dL/dT over each work-group's pixels (each item a contiguous run of PER_ITEM pixels, then a
+//                      tree over the group's items) -> partial [groups][12]
+//   exposure_step      one work-item: the partials added in group order -> grad_t [12]; then (a stepping
+//                      iteration) Adam on every photo's T (one dense Adam over [N][12], as the Inria code's: a
+//                      photo not seen moves by its momentum) and the anchor: the mean of T over the photos minus
+//                      the identity subtracted from each, so that the mean correction stays the identity. A kernel
+//                      of its own, not the last group of exposure_backward: OpenCL 1.2 makes no group's writes
+//                      visible to another within a launch. The sums' order is fixed by the shape and the image
+//                      alone: runs are bit-reproducible.
 // keep [P] uchar, read where masked != 0 (0: the pixel is masked out): masked pixels add nothing. A void frame (FRAME_VOID) changes
 // nothing: the view runs again. Work shape: WG items a group (a power of two), PER_ITEM pixels an item.
 
@@ -37,15 +38,13 @@ __kernel void exposure_apply(const int pixels, const int view, __global const fl
 }
 
 __kernel __attribute__((reqd_work_group_size(WG, 1, 1)))
-void exposure_backward(const int pixels, const int view, const int photos, __global float *restrict corrections,
-                       __global float *restrict m, __global float *restrict v, const AdamStep step,
+void exposure_backward(const int pixels, const int view, __global const float *restrict corrections,
                        __global const float *restrict x, __global float *restrict g,
                        const int masked, __global const uchar *restrict keep, __global const uint *frame,
-                       __global float *restrict partial, __global uint *done, __global float *restrict grad_t) {
+                       __global float *restrict partial) {
     __local float red[PARAMS * WG];
-    __local int last;
-    if (FRAME_VOID(frame)) return;   // every item: nothing changes, the counter stays 0
-    const int lid = get_local_id(0), group = get_group_id(0), groups = get_num_groups(0);
+    if (FRAME_VOID(frame)) return;   // every item: nothing changes
+    const int lid = get_local_id(0), group = get_group_id(0);
     __global const float *T = corrections + PARAMS * view;
     float s[PARAMS];
     for (int q = 0; q < PARAMS; ++q) s[q] = 0.0f;
@@ -68,24 +67,21 @@ void exposure_backward(const int pixels, const int view, const int photos, __glo
             for (int q = 0; q < PARAMS; ++q) red[q * WG + lid] += red[q * WG + lid + stride];
         barrier(CLK_LOCAL_MEM_FENCE);
     }
-    if (lid == 0) {
+    if (lid == 0)
         for (int q = 0; q < PARAMS; ++q) partial[PARAMS * group + q] = red[q * WG];
-        mem_fence(CLK_GLOBAL_MEM_FENCE);   // the partials visible before the count says they are there
-        last = atomic_inc(done) == (uint)(groups - 1);
-    }
-    barrier(CLK_LOCAL_MEM_FENCE);
-    if (!last || lid != 0) return;   // `last` is the same for all a group's items; no barrier follows
+}
 
-    // the last group's first item (serial: 12 sums over the groups, 12 floats a photo; no barrier in a branch):
-    // the partials in group order (volatile: written by other groups, not cached)
-    __global volatile const float *parts = partial;
+__kernel void exposure_step(const int groups, const int view, const int photos, __global float *restrict corrections,
+                            __global float *restrict m, __global float *restrict v, const AdamStep step,
+                            __global const uint *frame, __global const float *restrict partial,
+                            __global float *restrict grad_t) {
+    if (FRAME_VOID(frame)) return;   // the view runs again: nothing changes
     float total[PARAMS];
-    for (int q = 0; q < PARAMS; ++q) {
+    for (int q = 0; q < PARAMS; ++q) {   // the partials in group order
         float t = 0.0f;
-        for (int k = 0; k < groups; ++k) t += parts[PARAMS * k + q];
+        for (int k = 0; k < groups; ++k) t += partial[PARAMS * k + q];
         total[q] = grad_t[q] = t;
     }
-    *done = 0u;   // ready for the next view
     if (!(step.stepping & 1u)) return;   // no optimiser step this iteration: the gradient alone
     // Adam on every photo's T, four floats at a time (slot 0 of the step: the corrections' own rate)
     for (int k = 0; k < photos * PARAMS / 4; ++k) {
