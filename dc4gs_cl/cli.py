@@ -3,7 +3,8 @@ from each command's own arguments (its module in apps/) and the options commands
 
 Exit codes: 0 done; 2 bad input (InputError) or a device problem (DeviceError); 1 an output that cannot be
 written (OutputError: disk full, read-only folder; earlier outputs stay intact); 3 a NaN or Inf found by
---check-finite; 130 interrupted (Ctrl-C), 143 terminated (SIGTERM), both after a checkpoint when training;
+--check-finite; 130 interrupted (Ctrl-C), 143 terminated (SIGTERM), both after a checkpoint when training, as is
+138 (SIGUSR1, which training alone takes: what MPI launchers forward without ending their processes);
 141 the reader of the output went away (a closed pipe), silently.
 Each of these ends in one line on stderr; anything else is a bug and keeps its traceback.
 """

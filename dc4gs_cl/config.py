@@ -22,7 +22,8 @@ from .scene.camera import TEST_SPLITS
 
 RECIPE_ITERATIONS = 30_000   # the 3DGS schedule is written for this many iterations; shorter runs scale it
 BUILTIN_ITERATIONS = 5_000   # the default run on the built-in scene: 5 to 9 minutes on 2 CPU cores
-OUTPUT_SETTINGS = ("save_at", "checkpoint_every", "eval_at")   # settings that do not change the trained model
+# settings that do not change the trained model
+OUTPUT_SETTINGS = ("save_at", "checkpoint_every", "eval_at", "corrected_metrics")
 DEFAULT_LINE_EVERY = 100     # --log-every: iterations between progress lines when the output is not a terminal
 # The strategies' names, spelled here so that settings are checked without importing the strategies (device
 # code); densify.STRATEGIES holds a class for each, in this order (tests/test_structure.py checks)
@@ -133,6 +134,11 @@ TRAIN_FLAGS = (   # in the order `train --help` lists them (the first group's fl
         Flag("--alpha-mask", "alpha_mask", "images' alpha channel masks pixels out (no loss, no densification "
                                            "statistics) instead of being composited onto the background; a masks/ "
                                            "folder beside images/ is always used", bool),
+        Flag("--undistort", "undistort", "undistort distorted photos to a pinhole and train on those (cropped and "
+                                         "resampled), instead of rendering their camera model directly (the default "
+                                         "for COLMAP's SIMPLE_RADIAL, RADIAL, OPENCV, FULL_OPENCV, OPENCV_FISHEYE, "
+                                         "RADIAL_FISHEYE and SIMPLE_RADIAL_FISHEYE and NeRF transforms' k1..k4, p1, "
+                                         "p2 and fisheye); other models need it", bool),
         Flag("--split-threshold", "split_threshold", "split Gaussians whose split criterion reaches this (default: "
                                                      "the strategy's, 2e-4 for 3dgs and pixelgs, 4e-4 for absgs); a "
                                                      "higher one splits less. With DCC the criterion is DC-weighted "
@@ -145,7 +151,15 @@ TRAIN_FLAGS = (   # in the order `train --help` lists them (the first group's fl
                                                  "Gaussians. A step that would takes its clone and split candidates "
                                                  "by their criterion over its threshold, highest first; pruning goes "
                                                  "on as usual (default: no cap)", int),
-        Flag("--antialiased", "antialiased", ANTIALIASED_HELP + " (default off)", bool))),
+        Flag("--antialiased", "antialiased", ANTIALIASED_HELP + " (default off)", bool),
+        Flag("--exposure", "exposure", "learn a 3x4 affine colour correction per training photo (the Inria code's "
+                                       "exposure compensation), applied to the render before the loss, their mean "
+                                       "held at the identity; test views are rendered without one. In the run "
+                                       "folder's exposure.json, never in the model (default off)", bool),
+        Flag("--corrected-metrics", "corrected_metrics", "also score the test views after a colour correction "
+                                                         "fitted on each view's left half, on its right half (the "
+                                                         "Inria code's protocol), labelled corrected beside the raw "
+                                                         "metrics (default off)", bool))),
     FlagGroup("the 3DGS recipe (the Inria code's names; the schedule's iterations are scaled to runs shorter than "
               f"{RECIPE_ITERATIONS:,} unless given here)", (
         Flag("--position-lr-init", "lr_means", "position learning rate at the start, times the scene's extent "
@@ -158,6 +172,9 @@ TRAIN_FLAGS = (   # in the order `train --help` lists them (the first group's fl
         Flag("--opacity-lr", "lr_opacity", "opacity learning rate ({default:g})", float),
         Flag("--scaling-lr", "lr_scales", "log-scale learning rate ({default:g})", float),
         Flag("--rotation-lr", "lr_quats", "quaternion learning rate ({default:g})", float),
+        Flag("--exposure-lr-init", "lr_exposure", "--exposure: the corrections' learning rate at the start "
+                                                  "({default:g})", float),
+        Flag("--exposure-lr-final", "lr_exposure_final", "... at the end, decayed log-linearly ({default:g})", float),
         Flag("--lambda-dssim", "lambda_dssim", "the SSIM term's weight in the loss, 0 to 1 ({default:g})", float),
         Flag("--random-background", "random_background", "render onto a random colour each iteration (default: the "
                                                          "scene's background)", bool),
@@ -309,6 +326,7 @@ class TrainConfig:
     test_split: str = "llff"              # which images are held out (scene.camera.split_train_test)
     white_background: bool = False
     alpha_mask: bool = False               # images' alpha masks pixels out instead of being composited
+    undistort: bool = False                # distorted photos undistorted to pinholes, not rendered through their model
     seed: int = 0
     sh_degree: int = SH_MAX_DEGREE
     save_at: tuple[int, ...] = ()          # PLYs at these iterations (the last one is always saved)
@@ -324,6 +342,8 @@ class TrainConfig:
     lr_opacity: float = 0.05
     lr_scales: float = 5e-3
     lr_quats: float = 1e-3
+    lr_exposure: float = 0.01              # --exposure's corrections (the Inria code's exposure_lr_init, _final)
+    lr_exposure_final: float = 0.001
     lambda_dssim: float = LAMBDA_DSSIM     # L = (1 - lambda_dssim) L1 + lambda_dssim (1 - SSIM)
     random_background: bool = False        # each iteration renders onto a random colour (the target unchanged)
     # overrides of the strategy's schedule, which is otherwise scaled to the run (train.schedule)
@@ -337,6 +357,8 @@ class TrainConfig:
     max_gaussians: int | None = None       # densification never grows the model past this many Gaussians
     low_memory: bool = False               # backward sums with float atomics, no per-pair slots (not bit-reproducible)
     dc4gs: DC4GSConfig = DC4GSConfig()     # off unless dcc or dcs
+    exposure: bool = False                 # a colour correction per training photo (backward/exposure.py)
+    corrected_metrics: bool = False        # test views also scored after a fitted correction (evaluation)
 
     def __post_init__(self):
         problems = flagged_problems([
@@ -355,6 +377,9 @@ class TrainConfig:
              f"{self.split_threshold} must be a positive number"),
             ("checkpoint_every", self.checkpoint_every < 1, f"{self.checkpoint_every} must be at least 1"),
             ("batch", self.batch < 1, f"{self.batch} must be at least 1"),
+            # the corrections step once a view (their gradient is not summed over a batch's views)
+            ("exposure", self.exposure and self.batch > 1,
+             f"needs --batch 1, one process (here a batch of {self.batch})"),
             *((name, value is not None and value < least, f"{value} must be >= {least}")
               for name, value, least in (("densify_until", self.densify_until, 0),
                                          ("densify_from", self.densify_from, 0),
@@ -412,6 +437,7 @@ class TrainConfig:
             raise ValueError(f"expected a JSON object, got {type(d).__name__}")
         known = {f.name for f in fields(TrainConfig)}
         out = {k: v for k, v in d.items() if k in known}
+        out.setdefault("undistort", True)   # settings from before direct rendering: those runs trained undistorted
         nested = {}
         for group in SETTING_GROUPS:
             values = out.get(group, {})

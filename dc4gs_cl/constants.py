@@ -14,6 +14,7 @@ EWA_DILATION = 0.3             # px^2 added to the 2D covariance's diagonal (low
 ANTIALIAS_GRAD_EPS = 1e-6      # antialiased mode: d compensation / d its square = 0.5 / (compensation + this), as
                                # gsplat's, finite for a Gaussian thin enough that its compensation is 0
 FOV_CLAMP = 1.3                # x/z, y/z clamped to this times the half-field-of-view tangent
+FISHEYE_SERIES_R2 = 1e-2       # a fisheye's radial profile by its Taylor series below this |u|^2 (float32 cancels)
 RADIUS_SIGMAS = 3.0            # screen radius = ceil(RADIUS_SIGMAS * sqrt(largest eigenvalue))
 MIN_EIGEN_GAP = 0.1            # lambda_max = mid + sqrt(max(MIN_EIGEN_GAP, mid^2 - det))
 ALPHA_MAX = 0.99               # alpha = min(ALPHA_MAX, opacity * exp(power))
@@ -73,6 +74,7 @@ def kernel_defines() -> dict[str, int | float | str]:
     """The constants every kernel sees, as -D name=value pairs (the runtime writes floats as C float literals)."""
     d: dict[str, int | float | str] = {
         "TILE_SIZE": TILE_SIZE, "NEAR_PLANE": NEAR_PLANE, "EWA_DILATION": EWA_DILATION, "FOV_CLAMP": FOV_CLAMP,
+        "FISHEYE_SERIES_R2": FISHEYE_SERIES_R2,
         "ANTIALIAS_GRAD_EPS": ANTIALIAS_GRAD_EPS,
         "RADIUS_SIGMAS": RADIUS_SIGMAS, "MIN_EIGEN_GAP": MIN_EIGEN_GAP, "ALPHA_MAX": ALPHA_MAX,
         "ALPHA_MIN": ALPHA_MIN, "TRANSMITTANCE_MIN": TRANSMITTANCE_MIN,

@@ -15,6 +15,9 @@ CAMERA = Record("CAMERA", [
     ("fx", 1), ("fy", 1), ("cx", 1), ("cy", 1),   # pixels
     ("campos", 3),       # camera centre in world coordinates
     Field("width", 1, "int"), Field("height", 1, "int"),
+    ("dist", 8),         # the lens model's k1..k6, p1, p2 (kernels/distortion.h; 0 for a pinhole)
+    ("lim", 2),          # its clamp box |x/z|, |y/z| and culling radius |u|^2 (scene/distortion.Distortion)
+    ("r2_max", 1),
 ])
 
 # Adam's step, fused into project_backward.cl (kernels/adam.h). The host owns the logic (step counts,
@@ -33,8 +36,15 @@ STRUCTS = {"Camera": CAMERA, "AdamStep": ADAM_STEP}
 
 def camera_value(cam) -> np.void:
     """A scene.camera.Camera as the kernels' Camera argument."""
+    d = cam.distortion
+    lens = {} if d is None else {"dist": d.k + d.p, "lim": d.lim, "r2_max": d.r2_max}
     return CAMERA.pack(R=np.asarray(cam.R, np.float64).reshape(9), t=cam.t, fx=cam.fx, fy=cam.fy, cx=cam.cx,
-                       cy=cam.cy, campos=cam.center, width=cam.width, height=cam.height)
+                       cy=cam.cy, campos=cam.center, width=cam.width, height=cam.height, **lens)
+
+
+def distortion_define(cam) -> dict[str, int]:
+    """The -D DISTORTION of the kernels that project through this camera (scene/distortion.py: 0, a pinhole)."""
+    return {"DISTORTION": 0 if cam.distortion is None else cam.distortion.kind}
 
 
 def param_group_defines() -> dict[str, int]:

@@ -10,6 +10,8 @@ go through this module; every file is written atomically (files.py).
                                           resumed from when checkpoint.npz is corrupt
     point_cloud/iteration_N/point_cloud.ply   the model saved at iteration N (standard 3DGS PLY)
     results.json, per_view.json           test-view metrics keyed by "ours_N"
+    exposure.json                         train --exposure: each training photo's colour correction at the last
+                                          checkpoint (for inspection; the checkpoint holds them for --resume)
     metrics.jsonl                         the run's metrics over iterations, a JSON object per line, appended
                                           while training (train/log.py); `dc4gs-cl report` draws them
     <split>/ours_N/{renders,gt}/          rendered views beside their ground truth
@@ -53,16 +55,18 @@ ITERATION_KEY = "ours_"   # + N: the results' key and the views' folder of the m
 RENDERS, GROUND_TRUTH = "renders", "gt"   # a views folder's renders and the images they are compared with
 UNDISTORTED = "undistorted"   # the scene's undistorted images, cached
 METRICS = "metrics.jsonl"
+EXPOSURE = "exposure.json"
 # The numbers a metrics row may hold (train/log.py writes them; report plots them), and stage_ms: stage -> ms
 METRIC_NUMBERS = ("loss", "train_psnr", "gaussians", "it_per_s", "elapsed_s", "test_psnr", "test_ssim", "test_lpips",
-                  "test_lpips_alex", "test_views")
+                  "test_lpips_alex", "test_views", "test_psnr_corrected", "test_ssim_corrected")
 RUN_FILES = (CONFIG, "cfg_args", "cameras.json", CHECKPOINT, PREVIOUS_CHECKPOINT, CORRUPT_CHECKPOINT, RESULTS, PER_VIEW,
-             METRICS, "results.corrupt.json", "per_view.corrupt.json")
+             METRICS, EXPOSURE, "results.corrupt.json", "per_view.corrupt.json")
 MODELS, MODEL_KEY = "point_cloud", "iteration_"   # + N: the folder of the model saved at iteration N
 RUN_DIRS = (MODELS, "test", "train")
 META = "meta"           # the checkpoint entry holding the JSON metadata
 CHECKSUM = "sha256"     # the metadata key holding checkpoint_checksum(arrays, meta)
-STATE_GROUPS = ("param", "m", "v", "window")   # TrainingState's array groups, "<group>/<name>", in its fields' order
+# TrainingState's array groups, "<group>/<name>", in its fields' order
+STATE_GROUPS = ("param", "m", "v", "window", "exposure")
 
 
 def checkpoint_checksum(arrays: dict[str, np.ndarray], meta: dict) -> str:
@@ -117,14 +121,17 @@ class TrainingState:
     camera_stack: list[int]
     train_cameras: list[str]        # their names: a run resumed with other images is refused
     loss_sums: tuple[list[float], int] | None   # the loss's running sums and calls (None before metrics.jsonl)
+    exposure: dict[str, np.ndarray] | None = None   # --exposure: the corrections "T" and their moments "m", "v"
+    exposure_steps: int = 0                         # ... and their Adam's step count
 
     def entries(self) -> tuple[dict[str, np.ndarray], dict]:
         """The named arrays and metadata that RunFolder.write_checkpoint writes."""
-        groups = dict(zip(STATE_GROUPS, (self.params, self.m, self.v, self.window)))
+        groups = dict(zip(STATE_GROUPS, (self.params, self.m, self.v, self.window, self.exposure or {})))
         arrays = {f"{group}/{k}": a for group, named in groups.items() for k, a in named.items()}
         meta = {"iteration": self.iteration, "config": self.config.to_json(), "adam_steps": self.adam_steps,
                 "rng": self.rng, "camera_stack": self.camera_stack, "train_cameras": self.train_cameras,
-                "gaussians": len(self.params["means"]), "loss_sums": self.loss_sums}
+                "gaussians": len(self.params["means"]), "loss_sums": self.loss_sums,
+                **({"exposure_steps": self.exposure_steps} if self.exposure is not None else {})}
         return arrays, meta
 
 
@@ -140,7 +147,7 @@ class Checkpoint:
         none. loss_stats: how many running sums the loss keeps (loss.STAT_KEYS)."""
         meta = self.meta
         named = lambda group: {k.split("/", 1)[1]: a for k, a in self.arrays.items() if k.startswith(group + "/")}
-        params, m, v, window = map(named, STATE_GROUPS)
+        params, m, v, window, exposure = map(named, STATE_GROUPS)
         try:
             loss_sums = meta.get("loss_sums")
             if loss_sums is not None:   # checkpoints before metrics.jsonl have none
@@ -150,7 +157,7 @@ class Checkpoint:
                     raise ValueError(f"loss_sums holds {len(sums)} sums")
             state = TrainingState(TrainConfig.from_json(meta["config"]), params, m, v, window, meta["iteration"],
                                   meta["adam_steps"], meta["rng"], meta["camera_stack"], meta["train_cameras"],
-                                  loss_sums)
+                                  loss_sums, exposure or None, int(meta.get("exposure_steps", 0)))
             n = meta["gaussians"]
         except (KeyError, TypeError, ValueError, InputError) as e:
             raise InputError(self.path, f"corrupt checkpoint ({e.__class__.__name__}: {e})") from None
@@ -321,7 +328,7 @@ class RunFolder:
         return load_scene(scene or cfg.scene, resolution=resolution or cfg.resolution,
                           cache_dir=self.images_cache, test_every=cfg.test_every,
                           test_split=cfg.test_split, white_background=white_background or cfg.white_background,
-                          alpha_mask=cfg.alpha_mask)
+                          alpha_mask=cfg.alpha_mask, undistort=cfg.undistort)
 
     # models ----------------------------------------------------------------------------------------------
     def save_model(self, iteration: int, model: GaussianModel) -> Path:
@@ -429,6 +436,23 @@ class RunFolder:
         if self.metrics_path.exists():
             write_atomic(self.metrics_path, lambda tmp: tmp.write_text("".join(json.dumps(r) + "\n" for r in kept)))
         return kept
+
+    # exposure --------------------------------------------------------------------------------------------
+    @property
+    def exposure_path(self) -> Path:
+        return self.path / EXPOSURE
+
+    def write_exposure(self, iteration: int, photos: list[str], corrections: np.ndarray) -> None:
+        """exposure.json: each training photo's correction [photos][12] as its 3 x 4 rows [A_i0, A_i1, A_i2, b_i]
+        (corrected = A rgb + b), at `iteration`."""
+        write_json(self.exposure_path, {
+            "iteration": iteration, "layout": "corrected rgb = A rgb + b; each row [A_i0, A_i1, A_i2, b_i]",
+            "photos": {name: np.asarray(t, np.float64).reshape(3, 4).tolist() for name, t in zip(photos, corrections)}})
+
+    def read_exposure(self) -> dict[str, np.ndarray]:
+        """exposure.json's corrections: photo name -> its 3 x 4 [A | b]."""
+        data = json.loads(self.exposure_path.read_text(encoding="utf-8"))
+        return {name: np.asarray(rows, np.float64) for name, rows in data["photos"].items()}
 
     # results ---------------------------------------------------------------------------------------------
     @property

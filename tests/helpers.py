@@ -9,7 +9,7 @@ from pathlib import Path
 from dc4gs_cl.render import Tuning
 from dc4gs_cl.render.tuning import DEAL_TILES_CPU
 from dc4gs_cl.runtime import Capabilities
-from dc4gs_cl.reference.testing import random_camera, random_model  # noqa: F401 (re-exported for the tests)
+from dc4gs_cl.reference.testing import distorted_camera, random_camera, random_model  # noqa: F401 (re-exported)
 
 # Both work shapes of every kernel run on PoCL: the CPU's (256 pixels per work-item) and the GPUs'
 # (1 pixel per work-item, cooperative work-groups, work-groups ranking 8-bit sort digits), plus one in between.

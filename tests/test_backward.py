@@ -2,7 +2,7 @@
 device kernels against the references on fresh random inputs."""
 import numpy as np
 import pytest
-from helpers import NARROW_SHAPE, SHAPES, random_camera, random_model
+from helpers import NARROW_SHAPE, SHAPES, distorted_camera, random_camera, random_model
 
 from dc4gs_cl import constants as K
 from dc4gs_cl.backward import ProjectBackward, RasterizeBackward
@@ -214,34 +214,50 @@ def test_rasterize_backward_with_a_mask_matches_reference(rt, rng, shape):
     assert_sums_match(rt, sums, layout, res.proj.n, ref)
 
 
-def projection_case(rng, n=40):
+def projection_case(rng, n=40, lens=None):
     """Gaussians well inside a camera's view (so visibility and the FOV clamp do not change under small
-    steps), plus a few beside it whose x/z is clamped, with SH colours away from the clamp at 0."""
+    steps), plus a few beside it whose x/z is clamped, with SH colours away from the clamp at 0. lens: one of
+    reference.testing.LENSES (the clamped ones then between the lens' clamp box and its culling radius)."""
     from dc4gs_cl.scene.camera import Camera
     cam = Camera.look_at("c", (0.3, -3.0, 0.8), (0.0, 0.0, 0.0), 64, 48, fov_x=0.9)
+    cam = cam if lens is None else distorted_camera(cam, lens)
     model = random_model(rng, n, sh_degree=3, spread=0.6, scale_range=(0.05, 0.3))
     model.sh[:, 0] += 2.0                                  # colours well above 0 ...
     model.sh[:5, 0, 0] = -4.0                              # ... except a few clamped channels
     # A few far to the side (x/z beyond the clamp) but large enough to reach the image.
     side = cam.R.T @ np.array([1.0, 0.0, 0.0])
-    model.means[-4:] = model.means[-4:] * 0.1 + 2.4 * side
+    if lens is None:
+        model.means[-4:] = model.means[-4:] * 0.1 + 2.4 * side
+    else:
+        depth, u = 3.0, 0.5 * (cam.distortion.lim[0] + np.sqrt(cam.distortion.r2_max))
+        model.means[-4:] = model.means[-4:] * 0.1 + cam.center + depth * (cam.R[2] + u * side)
     model.log_scales[-4:] = np.log(0.9)
     return model, cam
 
 
-@pytest.mark.parametrize("antialiased,regularized", [(False, False), (True, False), (False, True)],
-                         ids=["classic", "antialiased", "mcmc-regularized"])
-def test_project_backward_reference_matches_finite_differences(rng, antialiased, regularized):
+def clamped_x(params, cam):
+    """Which Gaussians' x/z lies beyond the Jacobian's clamp."""
+    pc = params["means"] @ cam.R.T + cam.t
+    lim = cam.distortion.lim[0] if cam.distortion is not None else K.FOV_CLAMP * 0.5 * cam.width / cam.fx
+    return np.abs(pc[:, 0] / pc[:, 2]) > lim
+
+
+LENS_CASES = {"classic": (False, False, None), "antialiased": (True, False, None),
+              "mcmc-regularized": (False, True, None),
+              "opencv": (False, False, "opencv"), "full_opencv": (False, False, "full_opencv"),
+              "fisheye": (False, False, "fisheye"), "fisheye-antialiased": (True, False, "fisheye")}
+
+
+@pytest.mark.parametrize("antialiased,regularized,lens", LENS_CASES.values(), ids=LENS_CASES.keys())
+def test_project_backward_reference_matches_finite_differences(rng, antialiased, regularized, lens):
     from dc4gs_cl.reference.project import project_backward_reference, project_reference
-    model, cam = projection_case(rng)
+    model, cam = projection_case(rng, lens=lens)
     model.log_scales[5:10] = np.log(0.01)   # sub-pixel Gaussians: the antialiased compensation far below 1
     tiles_x, tiles_y = K.tile_grid(cam.width, cam.height)
     params = {k: getattr(model, k).astype(np.float64) for k in ("means", "log_scales", "quats", "opacity_logits", "sh")}
     base = project_reference(**params, cam=cam, sh_degree=3, tiles_x=tiles_x, tiles_y=tiles_y, antialiased=antialiased)
     visible = base["radius"] > 0
-    x_over_z = (params["means"] @ cam.R.T + cam.t)
-    clamped = np.abs(x_over_z[:, 0] / x_over_z[:, 2]) > K.FOV_CLAMP * 0.5 * cam.width / cam.fx
-    assert visible.sum() > 30 and (visible & clamped).sum() >= 1
+    assert visible.sum() > 30 and (visible & clamped_x(params, cam)).sum() >= 1
     if antialiased:
         from dc4gs_cl.reference.project import antialias_compensation
         det = lambda p: p["conic"][:, 0] * p["conic"][:, 2] - p["conic"][:, 1] ** 2   # noqa: E731 (1 / det(cov))
@@ -282,11 +298,10 @@ def test_project_backward_reference_matches_finite_differences(rng, antialiased,
         assert err < 1e-6, (key, err)
 
 
-@pytest.mark.parametrize("antialiased,regularized", [(False, False), (True, False), (False, True)],
-                         ids=["classic", "antialiased", "mcmc-regularized"])
-def test_project_backward_kernel_matches_reference(rt, rng, antialiased, regularized):
+@pytest.mark.parametrize("antialiased,regularized,lens", LENS_CASES.values(), ids=LENS_CASES.keys())
+def test_project_backward_kernel_matches_reference(rt, rng, antialiased, regularized, lens):
     from dc4gs_cl.reference.project import project_backward_reference
-    model, cam = projection_case(rng, n=3000)
+    model, cam = projection_case(rng, n=3000, lens=lens)
     model.quats[:20] = 0.0                                   # zero-norm quaternions get no gradient
     model.means[-50:] = cam.center - cam.R[2] * rng.uniform(0.5, 2, (50, 1))   # behind the camera
     model.log_scales[20:300] = np.log(rng.uniform(0.002, 0.02, (280, 1)))   # sub-pixel: compensations far below 1

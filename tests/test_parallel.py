@@ -116,17 +116,24 @@ def test_two_processes_train_as_one_process_with_a_batch_of_two(two_processes, t
 
 @needs_mpi
 def test_two_processes_stopped_and_resumed_end_where_they_would_have(two_processes, tmp_path):
-    """SIGTERM to mpirun (what a job scheduler sends): both processes stop at the same iteration after a checkpoint;
-    resumed under mpirun they end bit for bit where the uninterrupted run did; one process can resume it too."""
+    """SIGUSR1 to mpirun alone (Open MPI forwards it; SIGTERM would make it kill the processes a quarter of a second
+    later): both processes stop at the same iteration after a checkpoint, mpirun exits as one process does (138)
+    with its line; resumed under mpirun they end bit for bit where the uninterrupted run did; one process can
+    resume it too."""
     out, _ = two_processes
     stopped = tmp_path / "stopped"
     proc = mpi_train(2, *RUN, "--out", str(stopped), wait=False)
     deadline = time.time() + 300
     while not (stopped / CHECKPOINT).exists() and proc.poll() is None and time.time() < deadline:
         time.sleep(0.05)
-    os.killpg(proc.pid, signal.SIGTERM)
+    os.kill(proc.pid, signal.SIGUSR1)
     _, err = proc.communicate(timeout=300)
-    assert proc.returncode != 0
+    assert proc.returncode == 128 + signal.SIGUSR1, err
+    assert "stop: SIGUSR1 to mpirun stops every process after a checkpoint" in err
+    with np.load(stopped / CHECKPOINT) as f:
+        at = json.loads(bytes(f["meta"]).decode())["iteration"]
+    assert f"SIGUSR1 at iteration {at}; a checkpoint is in" in err and "--resume" in err, err
+    assert 0 < at < 150
     alone = tmp_path / "alone"
     shutil.copytree(stopped, alone)
     resumed = mpi_train(2, "--out", str(stopped), "--resume")

@@ -8,7 +8,7 @@ from dc4gs_cl.render import DeviceGaussians
 from dc4gs_cl.render.options import RenderOptions
 from dc4gs_cl.render.project import Project
 from dc4gs_cl.render.stage import StageContext
-from helpers import random_camera, random_model
+from helpers import distorted_camera, random_camera, random_model
 
 
 def rel_l2(a, b):
@@ -30,10 +30,19 @@ def run_projection(rt, model, cam, sh_degree, antialiased=False):
     return got, ref
 
 
-@pytest.mark.parametrize("sh_degree,antialiased", [(0, False), (1, False), (2, False), (3, False), (3, True)])
-def test_projection_matches_float64_reference(rt, rng, sh_degree, antialiased):
+@pytest.mark.parametrize("sh_degree,antialiased,lens", [(0, False, None), (1, False, None), (2, False, None),
+                                                        (3, False, None), (3, True, None), (3, False, "opencv"),
+                                                        (3, False, "full_opencv"), (3, False, "fisheye"),
+                                                        (3, True, "fisheye")])
+def test_projection_matches_float64_reference(rt, rng, sh_degree, antialiased, lens):
     model = random_model(rng, 5000, sh_degree=3, spread=2.0)
-    cam = random_camera(rng, int(rng.integers(90, 200)), int(rng.integers(60, 150)), distance=3.5)
+    width = int(rng.integers(90, 200))   # a lens' images wider than high: the fisheye's corners within its field
+    cam = random_camera(rng, width, int(rng.integers(60, 150 if lens is None else 0.9 * width)), distance=3.5)
+    if lens is not None:   # a lens model; a tenth of the centres past its field (culled however far they reach)
+        cam = distorted_camera(cam, lens)
+        u = np.sqrt(cam.distortion.r2_max) * rng.uniform(1.05, 2.0, 500)
+        model.means[-500:] = cam.center + rng.uniform(1, 4, (500, 1)) * (cam.R[2] + u[:, None] * cam.R[0])
+        model.log_scales[-500:] = np.log(rng.uniform(0.1, 1.0, (500, 1)))
     if antialiased:
         model.log_scales[:500] = np.log(rng.uniform(0.002, 0.02, (500, 1)))   # sub-pixel ones too
     got, ref = run_projection(rt, model, cam, sh_degree, antialiased)

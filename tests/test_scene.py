@@ -12,7 +12,9 @@ import OpenImageIO as oiio
 import pycolmap
 import pytest
 
+from dc4gs_cl import constants as K
 from dc4gs_cl.errors import InputError
+from dc4gs_cl.scene.distortion import FISHEYE
 from conftest import DATA_DIR
 from dc4gs_cl.scene.loader import load_scene
 
@@ -126,9 +128,15 @@ def test_real_scene_loads_and_reads(data, scene, tmp_path):
 
 @pytest.mark.parametrize("scene", ["beer", "fox_colmap"])
 def test_distorted_colmap_scenes_are_undistorted(data, scene, tmp_path):
-    """SIMPLE_RADIAL (beer) and OPENCV (fox) become PINHOLE cameras of the undistorted size, same focal."""
+    """--undistort: SIMPLE_RADIAL (beer) and OPENCV (fox) become PINHOLE cameras of the undistorted size, same
+    focal; without it they keep their lens model and the photo's whole size."""
     rec = pycolmap.Reconstruction(str(data / SCENES[scene][0] / "sparse" / "0"))
-    s = load_scene(data / SCENES[scene][0], cache_dir=tmp_path)
+    direct = load_scene(data / SCENES[scene][0], cache_dir=tmp_path)
+    for c in direct.train[:5]:
+        src = rec.cameras[rec.find_image_with_name(c.name).camera_id]
+        assert c.distortion.model == src.model.name and c.source_size == (src.width, src.height)
+        assert c.fx == pytest.approx(src.focal_length_x * c.width / src.width)
+    s = load_scene(data / SCENES[scene][0], cache_dir=tmp_path, undistort=True)
     for c in s.train[:5]:
         src = rec.cameras[rec.find_image_with_name(c.name).camera_id]
         assert src.model.name in ("SIMPLE_RADIAL", "OPENCV")
@@ -220,7 +228,7 @@ def blob_scene(root: Path, fmt: str) -> np.ndarray:
 def test_undistorted_points_land_on_pinhole_projection(tmp_path, fmt):
     root, cache = tmp_path / "scene", tmp_path / "cache"
     pts = blob_scene(root, fmt)
-    s = load_scene(root, resolution=1, cache_dir=cache, test_every=0)
+    s = load_scene(root, resolution=1, cache_dir=cache, test_every=0, undistort=True)
     cam = s.train[0]
     img = s.read_image(cam)[..., 0]
     assert img.shape == (cam.height, cam.width)
@@ -239,11 +247,48 @@ def test_undistorted_points_land_on_pinhole_projection(tmp_path, fmt):
     assert np.linalg.norm(dist.img_from_cam(corner[None])[0] - pinhole) > 3
 
 
+@pytest.mark.parametrize("fmt", ["colmap", "nerf"])
+def test_distorted_cameras_keep_their_lens_model_and_whole_photo(tmp_path, fmt):
+    """Read directly, the camera keeps the OPENCV model: the points project (the kernels' float64 reference) onto the
+    blobs' centres in the photo as it is, at every -r."""
+    from dc4gs_cl.reference.project import project_reference
+    root = tmp_path / "scene"
+    pts = blob_scene(root, fmt)
+    w, h, _ = DISTORTED
+    for r in (1, 2):
+        s = load_scene(root, resolution=r, cache_dir=tmp_path / "cache", test_every=0)
+        cam = s.train[0]
+        assert cam.distortion.model == "OPENCV" and (cam.width, cam.height) == (w // r, h // r)
+        assert not (tmp_path / "cache").exists()   # nothing undistorted
+        img = s.read_image(cam)[..., 0]
+        n = len(pts)
+        proj = project_reference(pts, np.full((n, 3), -5.0), np.tile([1.0, 0, 0, 0], (n, 1)), np.zeros(n),
+                                 np.zeros((n, 1, 3)), cam, 0, *K.tile_grid(cam.width, cam.height))
+        ii, jj = np.meshgrid(np.arange(cam.width) + 0.5, np.arange(cam.height) + 0.5)
+        for u, v in proj["mean2d"]:
+            near = (ii - u) ** 2 + (jj - v) ** 2 < (5 / r) ** 2
+            centroid = np.array([(ii * img)[near].sum(), (jj * img)[near].sum()]) / img[near].sum()
+            assert np.linalg.norm(centroid - [u, v]) < 0.5 / r
+
+
+def test_unsupported_and_non_invertible_lens_models_are_refused(tmp_path):
+    # FOV is not rendered directly: one line naming it and the models that are; --undistort takes it
+    write_colmap(tmp_path / "fov", "FOV 64 48 50 50 32 24 0.3", size=(64, 48))
+    err = raises_naming("cameras.txt", tmp_path / "fov")
+    assert "camera model FOV is not rendered directly" in str(err) and "OPENCV_FISHEYE" in str(err)
+    assert "\n" not in str(err)
+    assert load_scene(tmp_path / "fov", undistort=True, test_every=0).train[0].distortion is None
+    # k1 = -0.5 at f = 40 on 64x48: the radial map turns back (at 44 deg) before the image's corner (50 deg)
+    write_colmap(tmp_path / "fold", "SIMPLE_RADIAL 64 48 40 32 24 -0.5", size=(64, 48))
+    err = raises_naming("cameras.txt", tmp_path / "fold")
+    assert "image 'a.png': the SIMPLE_RADIAL distortion (k1=-0.5)" in str(err) and "turns back" in str(err)
+
+
 def test_undistortion_cache_reused_invalidated_and_outside_input(tmp_path, monkeypatch):
     root, cache = tmp_path / "scene", tmp_path / "cache"
     blob_scene(root, "colmap")
     before = files_under(root)
-    first = load_scene(root, cache_dir=cache, test_every=0)
+    first = load_scene(root, cache_dir=cache, test_every=0, undistort=True)
     img = first.read_image(first.train[0])
     cached = list(cache.iterdir())
     assert len(cached) == 1 and cached[0].suffix == ".png"
@@ -254,19 +299,19 @@ def test_undistortion_cache_reused_invalidated_and_outside_input(tmp_path, monke
         raise AssertionError("undistorted again instead of using the cache")
     with monkeypatch.context() as m:
         m.setattr(pycolmap, "undistort_image", no_undistort)
-        again = load_scene(root, cache_dir=cache, test_every=0)
+        again = load_scene(root, cache_dir=cache, test_every=0, undistort=True)
         assert np.array_equal(again.read_image(again.train[0]), img)
 
     # A changed source file gets a new cache entry.
     src = root / "images" / "a.png"
     os.utime(src, ns=(src.stat().st_atime_ns, src.stat().st_mtime_ns + 10**9))
-    changed = load_scene(root, cache_dir=cache, test_every=0)
+    changed = load_scene(root, cache_dir=cache, test_every=0, undistort=True)
     changed.read_image(changed.train[0])
     assert len(list(cache.iterdir())) == 2
     assert not [p for p in cache.iterdir() if p.name.startswith(".")]   # no temporary file left
 
     # Without cache_dir the cache goes to a temporary folder; the input folder is never written.
-    default = load_scene(root, test_every=0)
+    default = load_scene(root, test_every=0, undistort=True)
     default.read_image(default.train[0])
     after = files_under(root)
     assert set(after) == set(before) and after["images/a.png"] != before["images/a.png"]  # only the utime
@@ -280,7 +325,8 @@ def test_rgba_distorted_image_keeps_alpha(tmp_path):
     write_image(tmp_path / "s" / "images" / "a.png", rgba)
     write_colmap(tmp_path / "s", f"OPENCV {w} {h} {' '.join(map(str, params))}", size=None)
     for bg in (0.0, 1.0):
-        s = load_scene(tmp_path / "s", cache_dir=tmp_path / "c", test_every=0, white_background=bool(bg))
+        s = load_scene(tmp_path / "s", cache_dir=tmp_path / "c", test_every=0, white_background=bool(bg),
+                       undistort=True)
         c = s.train[0]
         img = s.read_image(c)
         assert np.allclose(img[c.height // 2, c.width // 2], [1, 0, 0], atol=0.01)
@@ -375,9 +421,13 @@ def test_blender_split_files_and_instant_ngp_split(tmp_path):
 
 def test_nerf_fisheye_and_full_opencv_are_undistorted(tmp_path):
     meta = {"fl_x": 6.0, "cx": 4, "cy": 3, "w": 8, "h": 6, "k1": 0.01, "k2": 0.0, "k3": 0.02, "k4": 0.0}
-    full = load_scene(nerf_scene(tmp_path / "a", meta, [{"file_path": "a"}]), cache_dir=tmp_path / "c", test_every=0)
-    fish = load_scene(nerf_scene(tmp_path / "b", {**meta, "is_fisheye": True}, [{"file_path": "a"}]),
-                      cache_dir=tmp_path / "c", test_every=0)
+    a, b = nerf_scene(tmp_path / "a", meta, [{"file_path": "a"}]), nerf_scene(
+        tmp_path / "b", {**meta, "is_fisheye": True}, [{"file_path": "a"}])
+    full = load_scene(a, cache_dir=tmp_path / "c", test_every=0, undistort=True)
+    fish = load_scene(b, cache_dir=tmp_path / "c", test_every=0, undistort=True)
+    # rendered directly (the default), each keeps its model
+    assert load_scene(a, test_every=0).train[0].distortion.model == "FULL_OPENCV"
+    assert load_scene(b, test_every=0).train[0].distortion.kind == FISHEYE
     for s in (full, fish):
         c = s.train[0]
         assert c.source_size == (c.width, c.height) and s.read_image(c).shape == (c.height, c.width, 3)
@@ -450,6 +500,8 @@ def test_camera_model_pycolmap_cannot_undistort(tmp_path):
     write_colmap(tmp_path, "EQUIRECTANGULAR 64 32 64 32", size=(64, 32))
     err = raises_naming("cameras.txt", tmp_path)
     assert "EQUIRECTANGULAR" in str(err)
+    err = raises_naming("cameras.txt", tmp_path, undistort=True)
+    assert "EQUIRECTANGULAR cannot be undistorted" in str(err)
 
 
 def test_malformed_cameras_txt(tmp_path):

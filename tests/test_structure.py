@@ -85,3 +85,14 @@ def test_the_strategies_are_the_settings_strategy_names():
     from dc4gs_cl.config import STRATEGY_NAMES
     from dc4gs_cl.densify import STRATEGIES
     assert tuple(STRATEGIES) == STRATEGY_NAMES
+
+
+def test_kernels_pass_no_16_wide_vector_through_a_built_in():
+    """PoCL 3.0 on a CPU with AVX-512 that its LLVM takes for one without (Zen 4 as znver3) passes float16 values
+    to and from its built-in library by two ABIs: vload16 returned garbage and every GPU-shape backward test failed
+    there, passing everywhere else. No kernel calls a built-in with a 16-wide vector (raster.h loads halves)."""
+    import re
+    wide = re.compile(r"\b(vload|vstore|vloada?_half|vstorea?_half)16\b|\bconvert_\w+16\b|\bas_\w+16\b")
+    found = [f"{p.name}:{i}" for p in sorted((ROOT / "kernels").iterdir()) if p.suffix in (".cl", ".h")
+             for i, line in enumerate(p.read_text().splitlines(), 1) if wide.search(line.split("//")[0])]
+    assert not found, found

@@ -80,13 +80,14 @@ def straight_run(tmp_path_factory):
 
 
 INTERRUPTED_RUN = ["--iterations", "240", "--checkpoint-every", "40", "--random-background"]   # its draws resume too
-STOPS = {"sigint": (signal.SIGINT, 130), "sigterm": (signal.SIGTERM, 143), "kill": (signal.SIGKILL, -signal.SIGKILL)}
+STOPS = {"sigint": (signal.SIGINT, 130), "sigterm": (signal.SIGTERM, 143), "sigusr1": (signal.SIGUSR1, 138),
+         "kill": (signal.SIGKILL, -signal.SIGKILL)}
 
 
 @pytest.mark.parametrize("how", list(STOPS))
 def test_interrupted_run_resumes_to_the_same_model(straight_run, tmp_path, how):
-    """Ctrl-C and SIGTERM (what job schedulers send) write a checkpoint and exit cleanly; a killed run resumes
-    from its last periodic checkpoint."""
+    """Ctrl-C, SIGTERM (what job schedulers send) and SIGUSR1 (what MPI launchers forward) write a checkpoint and
+    exit cleanly; a killed run resumes from its last periodic checkpoint."""
     stopped = tmp_path / "stopped"
     proc = cli(*SMALL, *INTERRUPTED_RUN, "--out", str(stopped), wait=False)
     deadline = time.time() + 120

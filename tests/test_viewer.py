@@ -10,8 +10,10 @@ import shutil
 import socket
 import subprocess
 import sys
+import threading
 import time
 import urllib.request
+import warnings
 from dataclasses import replace
 
 import numpy as np
@@ -26,7 +28,7 @@ from dc4gs_cl.reference.testing import random_camera, random_model
 
 viser = pytest.importorskip("viser", reason='viser is not installed (pip install "dc4gs-cl[viewer]")')
 from dc4gs_cl.apps.viewer import (  # noqa: E402 (after the importorskip above)
-    MOVING_SCALE, Viewer, add_arguments, cmd_view, frame_size, view_camera, viser_pose)
+    MAX_CLIENT_MESSAGE_BYTES, MOVING_SCALE, Viewer, add_arguments, cmd_view, frame_size, view_camera, viser_pose)
 
 WIDTH, HEIGHT = 128, 96
 
@@ -194,6 +196,95 @@ def test_a_fuzzing_client_leaves_the_viewer_serving(served, rng, capsys):
             raise AssertionError("no frame for a well-behaved client after the fuzzing: "
                                  f"{capsys.readouterr().err[-2000:]}")
     assert viewer._worker.is_alive()
+
+
+def send_and_listen(viewer, *messages, listen: float = 0.5):
+    """A client with the link sends these messages; the close code the viewer answered with (None: still open)."""
+    from websockets.exceptions import ConnectionClosed
+    from websockets.sync.client import connect as ws_connect
+    address = f"ws://127.0.0.1:{viewer.server.get_port()}/{viewer.token}"
+    with ws_connect(address, subprotocols=[f"viser-v{viser.__version__}"], open_timeout=10, max_size=None) as ws:
+        try:
+            for message in messages:
+                ws.send(message)
+            deadline = time.monotonic() + listen
+            while time.monotonic() < deadline:
+                ws.recv(timeout=max(1e-3, deadline - time.monotonic()))
+        except TimeoutError:
+            return None
+        except ConnectionClosed as e:
+            return e.rcvd.code if e.rcvd else None
+
+
+def wait_for_a_frame(viewer, before: set) -> None:
+    """A new client's camera message answered with a full-size frame (its view keeps the frame's camera)."""
+    from websockets.sync.client import connect as ws_connect
+    address = f"ws://127.0.0.1:{viewer.server.get_port()}/{viewer.token}"
+    with ws_connect(address, subprotocols=[f"viser-v{viser.__version__}"], open_timeout=10) as ws:
+        ws.send(camera_message())
+        deadline = time.monotonic() + 30
+        while time.monotonic() < deadline:
+            if any(v.camera is not None for k, v in list(viewer._views.items()) if k not in before):
+                return
+            with contextlib.suppress(TimeoutError):
+                ws.recv(timeout=0.2)
+    raise AssertionError("no frame for a well-behaved client")
+
+
+def test_a_client_s_messages_are_bounded_before_they_are_read(served, capsys):
+    """Camera messages of ~45 MB (a 4.6-million-element wxyz) from 8 clients took the viewer to 5.3 GB, and viser's
+    warning repeated each whole value (a 49 MB log): a message past MAX_CLIENT_MESSAGE_BYTES closes its connection
+    (1009) unparsed; one under it with a wrong-sized value draws no warning quoting it; the viewer serves on."""
+    viewer, _, _ = served
+    huge = camera_message(wxyz=[1.0] * (MAX_CLIENT_MESSAGE_BYTES // 8))
+    assert len(huge) > MAX_CLIENT_MESSAGE_BYTES
+    assert send_and_listen(viewer, camera_message(), huge) == 1009
+    with warnings.catch_warnings(record=True) as caught:   # the filters in force: the viewer's among them
+        assert send_and_listen(viewer, camera_message(wxyz=[0.5] * 3000)) is None
+    assert not [w for w in caught if "viser" in str(w.message)], [str(w.message)[:200] for w in caught]
+    assert all(len(line) < 300 for line in capsys.readouterr().err.splitlines())
+    wait_for_a_frame(viewer, set(viewer._views))
+
+
+def test_unreadable_messages_get_one_line_not_a_traceback_each(served, rng, capsys):
+    """A message that is no message (viser's decoder raises; the connection closes): a traceback for each let any
+    client fill the log. Ten such clients: one line on stderr, no traceback; the viewer serves on."""
+    viewer, _, _ = served
+    for _ in range(10):
+        assert send_and_listen(viewer, camera_message(), rng.bytes(64) + b"\xc1") == 1011
+    err = capsys.readouterr().err
+    assert err.count("viewer: closed a connection whose message could not be read") == 1, err[-3000:]
+    assert "Traceback" not in err, err[-3000:]
+    wait_for_a_frame(viewer, set(viewer._views))
+
+
+def test_many_clients_at_once_while_training_publishes(served, monkeypatch):
+    """50 then 200 clients at once gave "deque mutated during iteration" from the status update in the render
+    thread, after which no frame was rendered again: 120 clients connect and move their cameras at once while
+    another thread updates the status as training does; no thread fails and frames are still rendered."""
+    viewer, _, _ = served
+    failures = []
+    monkeypatch.setattr(threading, "excepthook", lambda args: failures.append(args.exc_value))
+    stop = threading.Event()
+
+    def training():
+        while not stop.is_set():
+            viewer._model_changed()
+    publisher = threading.Thread(target=training)
+    publisher.start()
+    try:
+        clients = [threading.Thread(target=send_and_listen, args=(viewer, *[camera_message(position=[0.1 * i, -3.0, 0])
+                                                                            for i in range(3)]),
+                                    kwargs={"listen": 0.2}) for _ in range(120)]
+        for c in clients:
+            c.start()
+        for c in clients:
+            c.join()
+    finally:
+        stop.set()
+        publisher.join()
+    assert not failures and viewer._worker.is_alive(), failures
+    wait_for_a_frame(viewer, set(viewer._views))
 
 
 def view_args(*argv: str) -> argparse.Namespace:

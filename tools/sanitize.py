@@ -41,6 +41,9 @@ import numpy as np
 import pyopencl as cl
 
 from dc4gs_cl.backward import ProjectBackward, RasterizeBackward
+from dc4gs_cl.backward.exposure import CPU_SHAPE as EXPOSURE_CPU_SHAPE
+from dc4gs_cl.backward.exposure import GPU_SHAPE as EXPOSURE_GPU_SHAPE
+from dc4gs_cl.backward.exposure import Exposure
 from dc4gs_cl.backward.loss import Loss
 from dc4gs_cl.config import TrainConfig
 from dc4gs_cl.densify import MCMC, AbsGS, DC4GSConfig, PixelGS, Strategy
@@ -51,7 +54,8 @@ from dc4gs_cl.optim.trainable import TrainableGaussians
 from dc4gs_cl.render import DeviceGaussians, Renderer, RenderOptions
 from dc4gs_cl.render.stage import StageContext
 from dc4gs_cl.runtime import Runtime, list_devices
-from dc4gs_cl.reference.testing import random_camera, random_model
+from dc4gs_cl.optim.adam import one_group_step
+from dc4gs_cl.reference.testing import distorted_camera, random_camera, random_model
 from dc4gs_cl.train.schedule import Schedule
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -341,8 +345,53 @@ def workload(shape: str) -> dict:
                 rt.queue.finish()
             except Refused:
                 pass   # the rest of this variant cannot run; the others go on
+    exposure(rt, shape, model, cam, target, keep, background)
+    lensed_views(rt, shape, model, cam, background)
     overflowed_view(rt, shape, model, cam, target, background, lrs)
     return {"launched": rt.launched}
+
+
+# --exposure's shapes (backward/exposure.py) beside the rasterizers': the mid one with partial groups
+EXPOSURE_SHAPES = {"cpu": EXPOSURE_CPU_SHAPE, "gpu": EXPOSURE_GPU_SHAPE, "mid": {"WG": 4, "PER_ITEM": 7}}
+LENSES = ("opencv", "fisheye")   # -D DISTORTION 1 and 2: projection, its backward and the split geometry
+
+
+def exposure(rt: Runtime, shape: str, model, cam, target, keep, background) -> None:
+    """--exposure around the loss, with and without a mask: the correction, the loss, the gradient through it
+    and the corrections' step (exposure_apply, exposure_backward, exposure_step)."""
+    ctx = StageContext(rt, SHAPES[shape])
+    res = Renderer(rt, SHAPES[shape]).render(DeviceGaussians(rt, model), cam, model.sh_degree, background)
+    stage, pixels = Exposure(ctx, 3, EXPOSURE_SHAPES[shape]), WIDTH * HEIGHT
+    for masked in (False, True):
+        keep_buf = rt.to_device(keep.astype(np.uint8)) if masked else None
+        dL_dimage = rt.buffer(target.nbytes)
+        corrected = stage.apply(res.raster.image, 1, pixels)
+        Loss(ctx, *LOSS_SHAPES[shape])(corrected, rt.to_device(target), WIDTH, HEIGHT, dL_dimage, keep=keep_buf,
+                                       kept=int(keep.sum()) if masked else 0)
+        stage.backward(res.raster.image, dL_dimage, 1, pixels, one_group_step(1e-3, 1), keep_buf)
+    rt.queue.finish()
+
+
+def lensed_views(rt: Runtime, shape: str, model, cam, background) -> None:
+    """A view through each of LENSES, forward and backward with DC4GS' split geometry (AbsGS + DC4GS)."""
+    for lens in LENSES:
+        view = distorted_camera(cam, lens)
+        ctx = StageContext(rt, SHAPES[shape])
+        gaussians = TrainableGaussians(rt, model)
+        res = Renderer(rt, SHAPES[shape]).render(gaussians.params, view, model.sh_degree, background)
+        strategy = SANITIZED_STRATEGIES["absgs+dc4gs"]()
+        strategy.attach(ctx, 1.0, gaussians.n)
+        dL_dimage = rt.to_device(np.full((HEIGHT, WIDTH, 3), 1e-3, np.float32))
+        try:
+            gathering = strategy.gather(1, gaussians.params, view, res)
+            sums, layout = RasterizeBackward(ctx).folding(res, dL_dimage, background, gathering.layout,
+                                                          gathering.geometry, None, gathering.window)
+            widths = group_widths(gaussians.params.sh_coeffs)
+            grads = {k: rt.buffer(4 * w * gaussians.n) for k, w in widths.items()}
+            ProjectBackward(ctx).gradients(gaussians.params, view, model.sh_degree, res, sums, layout, grads)
+            rt.queue.finish()
+        except Refused:
+            pass
 
 
 def overflowed_view(rt: Runtime, shape: str, model, cam, target, background, lrs) -> None:

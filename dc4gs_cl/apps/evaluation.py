@@ -15,6 +15,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--model", type=Path, required=True, help="a training output folder")
     p.add_argument("--iteration", type=int, default=None, help="which saved iteration (default: the last)")
     p.add_argument("--no-renders", action="store_true", help="metrics only, no PNGs under test/")
+    p.add_argument("--corrected-metrics", action="store_true",
+                   help="also score each test view's right half after a colour correction fitted on its left half "
+                        "(the Inria code's protocol for runs with --exposure), labelled corrected; the raw metrics "
+                        "are as without it")
 
 
 def cmd_eval(args) -> int:
@@ -32,7 +36,8 @@ def cmd_eval(args) -> int:
     rt = Runtime(args.device)
     result = evaluate(rt, Renderer(rt, options=RenderOptions.of_model(None, source.antialiased)),
                       DeviceGaussians(rt, model), scene, scene.test, model.sh_degree,
-                      None if args.no_renders else run.views_dir("test", iteration), lpips, lpips_note)
+                      None if args.no_renders else run.views_dir("test", iteration), lpips, lpips_note,
+                      args.corrected_metrics or source.cfg.corrected_metrics)
     for line in run.write_results(iteration, result):
         print(line, file=sys.stderr)
     print(f"iteration {iteration}: {summary(result)} over {result['views']} test views; written to "

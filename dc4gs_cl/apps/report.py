@@ -135,8 +135,10 @@ def _view_psnr(run: RunFolder, iteration: int, name: str) -> str:
 
 def summary_html(runs: list[RunMetrics]) -> str:
     lpips = any("test_lpips" in ev for r in runs for ev in r.evaluations)   # VGG's, where a run computed it
+    corrected = any("test_psnr_corrected" in ev for r in runs for ev in r.evaluations)   # --corrected-metrics
     head = ("<tr><th>run</th><th>iterations</th><th>Gaussians</th><th>test PSNR</th><th>test SSIM</th>" +
-            ("<th>test LPIPS</th>" if lpips else "") + "<th>training time</th></tr>")
+            ("<th>test LPIPS</th>" if lpips else "") +
+            ("<th>test PSNR, corrected</th>" if corrected else "") + "<th>training time</th></tr>")
     rows = []
     for r in runs:
         last, ev = r.samples[-1] if r.samples else {}, r.evaluations[-1] if r.evaluations else {}
@@ -144,6 +146,7 @@ def summary_html(runs: list[RunMetrics]) -> str:
                     f"<td>{last.get('gaussians', 0):,}</td><td>{ev.get('test_psnr', float('nan')):.2f} dB</td>"
                     f"<td>{ev.get('test_ssim', float('nan')):.4f}</td>" +
                     (f"<td>{ev.get('test_lpips', float('nan')):.4f}</td>" if lpips else "") +
+                    (f"<td>{ev.get('test_psnr_corrected', float('nan')):.2f} dB</td>" if corrected else "") +
                     f"<td>{last.get('elapsed_s', float('nan')):.0f} s</td></tr>")
     return f"<table>{head}{''.join(rows)}</table>"
 

@@ -14,7 +14,7 @@ from ..config import (BUILTIN_ITERATIONS, DEFAULT_LINE_EVERY, FLAG_OF, FLAGS, RE
 from ..errors import InputError
 from ..run_folder import CONFIG, CORRUPT_CHECKPOINT, RunFolder
 from ..scene.builtin import BUILTIN_SCENE
-from ..scene.camera import view_sizes
+from ..scene.camera import lens_models, view_sizes
 from .sfm import add_settings as add_sfm_settings, scene_for_training
 from .viewer import DEFAULT_PORT, Viewer
 
@@ -154,8 +154,12 @@ def _train_locked(args, run: RunFolder, group) -> int:
         run.write_settings(cfg, scene)
     processes = f", {group.size} processes of a batch of {cfg.batch} views" if group.size > 1 else ""
     print(f"device: {describe(rt.device)}{processes}\nscene: {cfg.scene} ({len(scene.train)} train / {len(scene.test)} "
-          f"test views, {view_sizes(scene.train + scene.test)}), strategy {trainer.strategy.label}, "
+          f"test views, {view_sizes(scene.train + scene.test)}{lens_models(scene.train + scene.test)}), strategy "
+          f"{trainer.strategy.label}, "
           f"{cfg.iterations:,} iterations, {trainer.model.n:,} initial Gaussians\noutput: {run}", file=sys.stderr)
+    if group.size > 1:
+        print("stop: SIGUSR1 to mpirun stops every process after a checkpoint (SIGTERM or Ctrl-C to it "
+              "ends them at once: the run then resumes from its last checkpoint)", file=sys.stderr)
     if trainer.cap is not None:
         print(f"cap: {trainer.cap:,} Gaussians: {trainer.cap_memory(rt)}", file=sys.stderr)
     start, first = time.perf_counter(), trainer.iteration

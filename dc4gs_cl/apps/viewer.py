@@ -14,6 +14,9 @@ that returns at once; otherwise it renders at most LIVE_FRAMES_PER_SECOND frames
 of the training thread's time for every tab together, in the training thread between two iterations, so training
 never shares the device with the viewer's thread.
 
+A client that has the link can still send anything: each message is bounded to MAX_CLIENT_MESSAGE_BYTES before
+it is read, and what it sends is checked before any render (client_frame).
+
 viser is optional (the `viewer` extra): this module imports without it and its entry points raise InputError.
 """
 from __future__ import annotations
@@ -22,12 +25,14 @@ import argparse
 import contextlib
 import errno
 import io
+import logging
 import math
 import secrets
 import socket
 import sys
 import threading
 import time
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Callable
@@ -67,6 +72,12 @@ HOME_DIRECTION = np.array([1.0, 1.0, 0.6]) / np.linalg.norm([1.0, 1.0, 0.6])  # 
 HOME_DISTANCE = 2.5              # and distance in units of its radius (the 90th percentile of the means' distances)
 Z_UP = np.array([0.0, 0.0, 1.0])
 VIEWER_EXTRA = 'pip install "dc4gs-cl[viewer]"'
+# bytes: the largest websocket message a client may send (a camera message is ~250, a GUI update less); viser
+# takes up to 50 MB, and 8 clients' camera messages of 45 MB each took the viewer from 246 MB to 5.3 GB
+MAX_CLIENT_MESSAGE_BYTES = 64 * 1024
+CLIENT_ERROR_EVERY_SECONDS = 10.0   # a client's unreadable messages: one line at most this often, with a count
+# viser's warnings that quote what a client sent, whole (a 49 MB log line): our own checks say it once instead
+VISER_CLIENT_WARNINGS = (r"\[viser\] .* does not match annotation", r"Queued a .* on a closed connection")
 
 
 def _viser():
@@ -219,8 +230,12 @@ class Viewer:
         self._pause = None             # the "Pause training" checkbox, added by the first publish()
         self._last_frame = ""
         self._warned: set[str] = set()
+        self._status_lock = threading.Lock()   # status text: set from the render, training and event-loop threads
         self.token = secrets.token_urlsafe(18)   # in the url: a connection without it is refused (_admitted)
 
+        for pattern in VISER_CLIENT_WARNINGS:
+            warnings.filterwarnings("ignore", message=pattern, category=UserWarning)
+        self._client_errors = _ClientErrors()
         with _quiet():
             self.server = viser.ViserServer(host=host, port=port, verbose=False)
         if port and self.server.get_port() != port:   # taken between check_address and viser's bind
@@ -239,7 +254,9 @@ class Viewer:
                                                     initial_value=max_side)
         self._max_side.on_update(self._frame_size_changed)
         self._add_frustums(images)
-        self.server._websock_server.on_client_connect(self._admit)   # before anything is sent: see _admit
+        # first of the connection's callbacks, before viser's own (which await): see _admit
+        self.server._websock_server._client_connect_cb.insert(0, self._admit)
+        logging.getLogger("websockets.server").addFilter(self._client_errors)
         self.server.on_client_connect(self._connected)
         self.server.on_client_disconnect(self._disconnected)
         self._worker = threading.Thread(target=self._serve, name="viewer", daemon=True)
@@ -266,6 +283,7 @@ class Viewer:
         self._worker.join()
         with _quiet():
             self.server.stop()
+        logging.getLogger("websockets.server").removeFilter(self._client_errors)
 
     def serve_forever(self) -> None:
         """Block until close() (from another thread) or Ctrl-C, whose KeyboardInterrupt propagates."""
@@ -325,7 +343,8 @@ class Viewer:
         text = f"**{model.gaussians.n:,} Gaussians**, SH degree {model.sh_degree}"
         if model.iteration is not None:
             text += f", iteration {model.iteration:,}"
-        self._status.content = text + self._last_frame
+        with self._status_lock:
+            self._status.content = text + self._last_frame
 
     # frustums ---------------------------------------------------------------------------------------------
     def _add_frustums(self, images: Callable[[Camera], np.ndarray] | None) -> None:
@@ -382,8 +401,12 @@ class Viewer:
         does) and a browser's Origin is the page's own (its Host), so that neither another site open in the
         browser nor another local user without the link can connect. Run by viser's websocket server on each
         connection before it sends the client anything or reads a message from it; a refused one is closed there.
-        (viser keeps each connection's handshake on that server, in private attributes: viser is pinned.)"""
+        (viser keeps each connection's handshake on that server, in private attributes: viser is pinned.) The first
+        of the connection's callbacks, it also bounds the messages the client may send, before any is read past
+        its first frame's header (nothing awaits between the handshake and here)."""
         websocket = self.server._websock_server._live_connections.get(connection.client_id)
+        if websocket is not None:   # a larger message closes the connection (1009) unparsed
+            websocket.protocol.max_message_size = MAX_CLIENT_MESSAGE_BYTES
         request = getattr(websocket, "request", None)
         if request is not None:
             origin, host = request.headers.get("Origin"), request.headers.get("Host")
@@ -468,6 +491,29 @@ class Viewer:
         if message not in self._warned:
             self._warned.add(message)
             print(f"viewer: {message}", file=sys.stderr)
+
+
+class _ClientErrors(logging.Filter):
+    """websockets' log of a connection whose handler failed: a client's message that is no message (viser's
+    decoder raises, and the connection closes). A traceback for every such message would let any client fill
+    the log: instead one line on stderr at most every CLIENT_ERROR_EVERY_SECONDS, counting those in between."""
+
+    def __init__(self):
+        super().__init__()
+        self.next_line, self.unsaid = 0.0, 0
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        if record.exc_info is None:
+            return True
+        self.unsaid += 1
+        now = time.monotonic()
+        if now >= self.next_line:
+            error = record.exc_info[1]
+            more = f"; {self.unsaid - 1:,} more since the last such line" if self.unsaid > 1 else ""
+            print(f"viewer: closed a connection whose message could not be read ({type(error).__name__}: "
+                  f"{' '.join(str(error).split())[:120]}){more}", file=sys.stderr)
+            self.next_line, self.unsaid = now + CLIENT_ERROR_EVERY_SECONDS, 0
+        return False
 
 
 # the command ------------------------------------------------------------------------------------------------

@@ -8,7 +8,7 @@ import numpy as np
 import pyopencl as cl
 
 from ..model import PARAM_GROUPS
-from ..records import camera_value, param_group_defines
+from ..records import camera_value, distortion_define, param_group_defines
 from ..render.gaussians import DeviceGaussians
 from ..render.renderer import RenderResult
 from ..render.stage import PER_GAUSSIAN_WG, Stage
@@ -50,7 +50,8 @@ class ProjectBackward(Stage):
         if n == 0:
             return
         k = self.kernels({"SH_COEFFS": g.sh_coeffs, "FUSED_ADAM": int(fused), "ACCUMULATE": int(accumulate),
-                          "REGULARIZED": int(regularizers is not None), **layout.defines()})["project_backward"]
+                          "REGULARIZED": int(regularizers is not None), **layout.defines(),
+                          **distortion_define(cam)})["project_backward"]
         reg = [np.float32(r) for r in regularizers] if regularizers is not None else []
         self.rt.launch_items("project_backward", k, n, PER_GAUSSIAN_WG, self.ctx.frame, np.int32(n), camera_value(cam),
                              np.int32(min(sh_degree, g.sh_degree)), *g.ordered(), res.proj.radius, sums, *reg,

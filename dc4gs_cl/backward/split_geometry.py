@@ -6,7 +6,7 @@ import numpy as np
 import pyopencl as cl
 
 from ..layout import Record
-from ..records import camera_value
+from ..records import camera_value, distortion_define
 from ..render.gaussians import DeviceGaussians
 from ..render.renderer import RenderResult
 from ..render.stage import PER_GAUSSIAN_WG, Stage
@@ -35,7 +35,8 @@ class SplitGeometry(Stage):
         else:
             buffer, window_record = window.rows, window.record
         if n:
-            variant = {"SPLIT_CANDIDATES": candidates, **record.defines(), **window_record.defines()}
+            variant = {"SPLIT_CANDIDATES": candidates, **record.defines(), **window_record.defines(),
+                       **distortion_define(cam)}
             b = g.buffers
             self.rt.launch_items("split_geometry", self.kernels(variant)["split_geometry"], n, PER_GAUSSIAN_WG,
                                  np.int32(n), camera_value(cam), np.float32(min_scale), b["means"], b["log_scales"],

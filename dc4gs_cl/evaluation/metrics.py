@@ -32,6 +32,24 @@ def ssim(rt: Runtime, image, target) -> float:
     return loss.read_stats()["ssim"]
 
 
+def fit_affine(image, target) -> np.ndarray:
+    """The 3 x 4 [A | b] minimising the squared error of A rgb + b against the target over the pixels (float64
+    least squares, the images clamped as scored)."""
+    x = _clamped(image).reshape(-1, 3).astype(np.float64)
+    y = _clamped(target).reshape(-1, 3).astype(np.float64)
+    solution, *_ = np.linalg.lstsq(np.column_stack([x, np.ones(len(x))]), y, rcond=None)
+    return solution.T
+
+
+def corrected_halves(image, target) -> tuple[np.ndarray, np.ndarray]:
+    """The Inria code's corrected-metrics protocol: a colour correction (fit_affine) fitted on the view's left half
+    (columns < W / 2), applied to its right half; (the corrected right half of the render, the target's)."""
+    half = np.asarray(image).shape[1] // 2
+    M = fit_affine(np.asarray(image)[:, :half], np.asarray(target)[:, :half])
+    right = _clamped(image)[:, half:].astype(np.float64)
+    return (right @ M[:, :3].T + M[:, 3]).astype(np.float32), np.asarray(target)[:, half:]
+
+
 def lpips_metric(choice: str | None):
     """(an lpips.Lpips or None, a note for the output). choice None: VGG where its weights are installed, else
     skipped with a line saying how to install them; "vgg" / "alex": that network, its weights required (an

@@ -18,11 +18,14 @@
 //   out tiles_touched  [N]    uint, tiles of pair_rect() (tiles.h): 0 when radius == 0, or (ALPHA_CUT) opacity < ALPHA_MIN
 // -D SH_COEFFS: coefficients stored per channel (1, 4, 9 or 16); the active degree is an argument.
 // -D ANTIALIASED: 1 scales each opacity by antialias_compensation (project.h), the antialiased mode.
+// -D DISTORTION: 0 a pinhole camera; 1, 2 the lens models of distortion.h: the centre through the model, the 2D
+//    covariance through its local Jacobian, a centre outside the model's invertible field culled (in_field).
 
 #include "project.h"
 #include "tiles.h"
 
 REQUIRE_DEFINED(ANTIALIASED);
+REQUIRE_DEFINED(DISTORTION);
 
 __kernel void project(const int n, const Camera cam, const int sh_degree, const int tiles_x, const int tiles_y,
                       __global const float *means, __global const float *log_scales,
@@ -40,6 +43,9 @@ __kernel void project(const int n, const Camera cam, const int sh_degree, const 
     float3 pc = world_to_camera(&cam, mu);
     depth[i] = pc.z;
     if (!(pc.z > NEAR_PLANE)) return;   // also rejects NaN
+#if DISTORTED
+    if (!in_field(&cam, pc)) return;
+#endif
 
     float Rq[9], M[9], T[6], TM[6];
     rotation_scale(normalized_quat(load_quat(quats, i)), load_scales(log_scales, i), Rq, M);

@@ -13,10 +13,32 @@ inline float3 world_to_camera(const Camera *cam, float3 mu) {
                     cam->R[6] * mu.x + cam->R[7] * mu.y + cam->R[8] * mu.z + cam->t[2]);
 }
 
+// -D DISTORTION (the kernels that project require it): 0 a pinhole, else the lens model of distortion.h.
+#if defined(DISTORTION) && DISTORTION
+#include "distortion.h"
+#define DISTORTED 1
+#else
+#define DISTORTED 0
+#endif
+
 // Pixel position of a camera-space point (pixel centres at +0.5): the one projection of every 2D point.
 inline float2 project_point(const Camera *cam, float3 pc) {
+#if DISTORTED
+    float2 d = distort(cam, (float2)(pc.x / pc.z, pc.y / pc.z));
+    return (float2)(cam->fx * d.x + cam->cx, cam->fy * d.y + cam->cy);
+#else
     return (float2)(cam->fx * pc.x / pc.z + cam->cx, cam->fy * pc.y / pc.z + cam->cy);
+#endif
 }
+
+#if DISTORTED
+// Whether a centre lies where the lens model is invertible (|u|^2 <= r2_max): past it a polynomial may fold
+// a point from far outside the field back into the image, so such a Gaussian is culled.
+inline int in_field(const Camera *cam, float3 pc) {
+    float ux = pc.x / pc.z, uy = pc.y / pc.z;
+    return ux * ux + uy * uy <= cam->r2_max;
+}
+#endif
 
 // Row-major rotation matrix of a normalised quaternion (w, x, y, z).
 ALWAYS_INLINE void quat_to_rotmat(float4 q, float *R) {
@@ -52,17 +74,33 @@ ALWAYS_INLINE void rotation_scale(float4 q, float3 s, float *Rq, float *M) {
 // T = J W (2x3, row-major): the EWA Jacobian J at the camera-space point pc, with x/z and y/z clamped to
 // FOV_CLAMP times the half field of view, times the world-to-camera rotation W. *t_clamped gets the
 // clamped (x/z, y/z), *free whether each was inside the limits (gradient flows only then).
+// DISTORTED: the local Jacobian of the lens model at the clamped point (as Brush's), J = diag(f) dD/du P with
+// P = d(x/z, y/z)/d(x, y, z); the limits are the host's (FOV_CLAMP times the undistorted field).
 ALWAYS_INLINE void ewa_jacobian(const Camera *cam, float3 pc, float *T, float2 *t_clamped, int2 *free) {
+#if DISTORTED
+    float lim_x = cam->lim[0], lim_y = cam->lim[1];
+#else
     float lim_x = FOV_CLAMP * 0.5f * (float)cam->width / cam->fx, lim_y = FOV_CLAMP * 0.5f * (float)cam->height / cam->fy;
+#endif
     float rz = 1.f / pc.z, ux = pc.x * rz, uy = pc.y * rz;
     float tx = CLAMPF(ux, -lim_x, lim_x), ty = CLAMPF(uy, -lim_y, lim_y);
     *t_clamped = (float2)(tx, ty);
     *free = (int2)(ux > -lim_x && ux < lim_x, uy > -lim_y && uy < lim_y);
+#if DISTORTED
+    float3 jd = distort_jacobian(cam, *t_clamped, 0, 0);
+    float a00 = cam->fx * jd.x, a01 = cam->fx * jd.y, a10 = cam->fy * jd.y, a11 = cam->fy * jd.z;
+    float j0[3] = {a00 * rz, a01 * rz, -(a00 * tx + a01 * ty) * rz}, j1[3] = {a10 * rz, a11 * rz, -(a10 * tx + a11 * ty) * rz};
+    for (int c = 0; c < 3; ++c) {
+        T[c] = j0[0] * cam->R[c] + j0[1] * cam->R[3 + c] + j0[2] * cam->R[6 + c];
+        T[3 + c] = j1[0] * cam->R[c] + j1[1] * cam->R[3 + c] + j1[2] * cam->R[6 + c];
+    }
+#else
     float j00 = cam->fx * rz, j02 = -cam->fx * tx * rz, j11 = cam->fy * rz, j12 = -cam->fy * ty * rz;
     for (int c = 0; c < 3; ++c) {
         T[c] = j00 * cam->R[c] + j02 * cam->R[6 + c];
         T[3 + c] = j11 * cam->R[3 + c] + j12 * cam->R[6 + c];
     }
+#endif
 }
 
 // 2D covariance (a, b, c) = T Sigma T^T before the dilation (callers add EWA_DILATION to a and c), with TM = T M

@@ -18,12 +18,14 @@
 // The chain: conic -> 2D covariance -> (EWA Jacobian, 3D covariance) -> camera-space position, rotation,
 // scales; projected mean -> position; colour -> SH coefficients and the view direction -> position.
 // No gradient flows through a clamped x/z or y/z, nor through a colour channel clamped at 0 or COLOR_MAX.
+// -D DISTORTION: as project.cl's; the chain goes on through the lens model's Jacobian and its derivatives.
 
 #include "project.h"
 #include "param_step.h"
 
 REQUIRE_DEFINED(ANTIALIASED);
 REQUIRE_DEFINED(REGULARIZED);
+REQUIRE_DEFINED(DISTORTION);
 
 // The gradients of visible Gaussian i's parameters; it reads them and writes nothing global. The SH
 // coefficients' gradients are basis[k] * v_colour (k below (sh_degree + 1)^2; zero above).
@@ -92,6 +94,31 @@ ALWAYS_INLINE void visible_gradients(int i, const Camera cam, int sh_degree, PAR
     for (int r = 0; r < 2; ++r)
         for (int col = 0; col < 3; ++col)
             dT[3 * r + col] = 2.f * (GTM[3 * r] * M[3 * col] + GTM[3 * r + 1] * M[3 * col + 1] + GTM[3 * r + 2] * M[3 * col + 2]);
+#if DISTORTED
+    // T = J W, J = A P (ewa_jacobian): A = diag(f) dD/du at the clamped u = t, P = [[1/z, 0, -tx/z], [0, 1/z, -ty/z]].
+    float dJ[6];   // dL/dJ = dT W^T
+    for (int r = 0; r < 2; ++r)
+        for (int col = 0; col < 3; ++col)
+            dJ[3 * r + col] = dT[3 * r] * cam.R[3 * col] + dT[3 * r + 1] * cam.R[3 * col + 1] + dT[3 * r + 2] * cam.R[3 * col + 2];
+    float rz = 1.f / pc.z, rz2 = rz * rz, tx = t_clamped.x, ty = t_clamped.y;
+    float3 hx, hy, jd = distort_jacobian(&cam, t_clamped, &hx, &hy);
+    float a00 = cam.fx * jd.x, a01 = cam.fx * jd.y, a10 = cam.fy * jd.y, a11 = cam.fy * jd.z;
+    // dL/dP[c][k] = sum_r A[r][c] dJ[r][k] (its non-constant entries); dL/d(j00, j01, j11) through A
+    float dP00 = a00 * dJ[0] + a10 * dJ[3], dP11 = a01 * dJ[1] + a11 * dJ[4];
+    float dP02 = a00 * dJ[2] + a10 * dJ[5], dP12 = a01 * dJ[2] + a11 * dJ[5];
+    float g00 = cam.fx * (dJ[0] - dJ[2] * tx) * rz, g11 = cam.fy * (dJ[4] - dJ[5] * ty) * rz;
+    float g01 = (cam.fx * (dJ[1] - dJ[2] * ty) + cam.fy * (dJ[3] - dJ[5] * tx)) * rz;
+    float dtx = free.x ? -dP02 * rz + g00 * hx.x + g01 * hx.y + g11 * hx.z : 0.f;
+    float dty = free.y ? -dP12 * rz + g00 * hy.x + g01 * hy.y + g11 * hy.z : 0.f;
+    // the mean f D(u) + c at the unclamped u: dL/du = (f v_mean)^T dD/du
+    float2 u = (float2)(pc.x * rz, pc.y * rz);
+    float3 jm = distort_jacobian(&cam, u, 0, 0);
+    dtx += v_mean.x * cam.fx * jm.x + v_mean.y * cam.fy * jm.y;
+    dty += v_mean.x * cam.fx * jm.y + v_mean.y * cam.fy * jm.z;
+    // u = (x/z, y/z) (t = u wherever t's gradient is not 0)
+    float3 dpc = (float3)(dtx * rz, dty * rz,
+                          (dP02 * tx + dP12 * ty - dP00 - dP11) * rz2 - (dtx * u.x + dty * u.y) * rz);
+#else
     // T = J W  ->  dL/dJ = dT W^T; J has entries (0,0), (0,2), (1,1), (1,2).
     float dJ00 = dT[0] * cam.R[0] + dT[1] * cam.R[1] + dT[2] * cam.R[2];
     float dJ02 = dT[0] * cam.R[6] + dT[1] * cam.R[7] + dT[2] * cam.R[8];
@@ -108,6 +135,7 @@ ALWAYS_INLINE void visible_gradients(int i, const Camera cam, int sh_degree, PAR
     dpc.z = -dJ00 * cam.fx * rz2 + dJ02 * (cam.fx * t_clamped.x * rz2 - cam.fx * rz * dtx_dz)
             - dJ11 * cam.fy * rz2 + dJ12 * (cam.fy * t_clamped.y * rz2 - cam.fy * rz * dty_dz)
             - (v_mean.x * cam.fx * pc.x + v_mean.y * cam.fy * pc.y) * rz2;
+#endif
     float3 dmu = (float3)(cam.R[0] * dpc.x + cam.R[3] * dpc.y + cam.R[6] * dpc.z,
                           cam.R[1] * dpc.x + cam.R[4] * dpc.y + cam.R[7] * dpc.z,
                           cam.R[2] * dpc.x + cam.R[5] * dpc.y + cam.R[8] * dpc.z);

@@ -22,11 +22,13 @@ REQUIRE_DEFINED(FAST_EXP);
 #define COL_BLOCK (COLS_PER_ITEM < 8 ? COLS_PER_ITEM : 8)
 #endif
 
-// A column block's values as one vector (floatB), for the backward's explicit vector adds.
+// A column block's values as one vector (floatB), for the backward's explicit vector adds. 16 wide in two halves:
+// PoCL 3.0 on a CPU with AVX-512 that its LLVM takes for one without (Zen 4 as znver3) passes a float16 to and from
+// its built-in library by two ABIs, and vload16 returned garbage (every GPU-shape backward test failed there).
 #if COL_BLOCK == 16
 typedef float16 floatB;
-#define LOADB(a) vload16(0, a)
-#define STOREB(v, a) vstore16(v, 0, a)
+#define LOADB(a) ((float16)(vload8(0, a), vload8(1, a)))
+#define STOREB(v, a) do { const float16 v_ = (v); vstore8(v_.lo, 0, a); vstore8(v_.hi, 1, a); } while (0)
 #elif COL_BLOCK == 8
 typedef float8 floatB;
 #define LOADB(a) vload8(0, a)
@@ -51,8 +53,7 @@ typedef float floatB;
 // (rasterize_backward.cl, subgroups.h).
 ALWAYS_INLINE float lane_total(const float *lane) {
 #if COL_BLOCK == 16
-    const float16 w = vload16(0, lane);
-    const float8 v = w.lo + w.hi;
+    const float8 v = vload8(0, lane) + vload8(1, lane);   // the halves (not vload16: see LOADB)
     const float4 h = v.lo + v.hi;
 #elif COL_BLOCK == 8
     const float8 v = vload8(0, lane);

@@ -3,7 +3,9 @@
 // The candidates lie on the principal axis: a = the first axis of largest scale, sigma = its scale,
 // p = R e_a; candidate k = 0 .. N-1 (N = SPLIT_CANDIDATES, odd) at mu + (k - (N-1)/2) * 6 sigma / (N+1) * p,
 // and the axis' end at mu + 3 sigma p. Projected with project_point (the projection of the centres), they
-// lie on one image line, in order. A pixel q is left of candidate k exactly when t(q) < t_k, with
+// lie on one image line, in order (through a lens model, -D DISTORTION, the axis' image bends slightly: the
+// line is the chord from the first candidate's pixel to the end's, each candidate sided by its projection onto
+// it). A pixel q is left of candidate k exactly when t(q) < t_k, with
 // t(q) = dot(q - c0, dir), c0 the first candidate's pixel and dir the unit direction to the end's pixel, so
 // every candidate's sides follow from one scalar per pixel (a pixel with t(q) == t_k counts as right, as in
 // the paper's algorithm 3).
@@ -18,6 +20,8 @@
 //       split terms for the Gaussian in this view.
 
 #include "project.h"
+
+REQUIRE_DEFINED(DISTORTION);   // the candidates go through the view's lens model (project_point)
 
 // Branch-free past the bound check: every work-item computes a line and the tests (`line`) only choose what it
 // writes (zeros where there is no line), so the compiler vectorises across work-items (2x faster on PoCL than

@@ -60,3 +60,13 @@ class Adam:
             else:
                 lr[g] = lrs[name]
         return ADAM_STEP.pack(lr=lr, c1=c1, c2=c2, beta1=cfg.beta1, beta2=cfg.beta2, eps=cfg.eps, stepping=stepping)
+
+
+def one_group_step(lr: float, t: int, config: AdamConfig = AdamConfig()) -> np.void:
+    """The records.ADAM_STEP value of a parameter set with an Adam of its own (train --exposure's corrections,
+    backward/exposure.py): its t-th step (t >= 1) at rate lr, in slot 0; t = 0: no step."""
+    lr_, c1, c2 = np.zeros(ADAM_STEP.widths()["lr"]), np.zeros(len(PARAM_GROUPS)), np.zeros(len(PARAM_GROUPS))
+    if t:
+        lr_[0], c1[0], c2[0] = lr, 1 - config.beta1 ** t, 1 - config.beta2 ** t
+    return ADAM_STEP.pack(lr=lr_, c1=c1, c2=c2, beta1=config.beta1, beta2=config.beta2, eps=config.eps,
+                          stepping=int(t > 0))

@@ -7,6 +7,7 @@ import numpy as np
 from .. import constants as K
 from ..geometry import principal_axis
 from ..scene.camera import Camera
+from ..scene.distortion import distort
 
 
 def candidate_points(means, log_scales, quats, n_candidates: int) -> tuple[np.ndarray, np.ndarray]:
@@ -21,9 +22,12 @@ def candidate_points(means, log_scales, quats, n_candidates: int) -> tuple[np.nd
 
 
 def project_pixels(points, cam: Camera) -> tuple[np.ndarray, np.ndarray]:
-    """(..., 3) world points -> pixel positions (..., 2) and depths (...)."""
+    """(..., 3) world points -> pixel positions (..., 2) (through the camera's lens model where it has one) and
+    depths (...)."""
     pc = np.asarray(points, np.float64) @ cam.R.T + cam.t
     z = pc[..., 2]
+    if cam.distortion is not None:
+        return distort(cam.distortion, pc[..., :2] / z[..., None]) * [cam.fx, cam.fy] + [cam.cx, cam.cy], z
     return np.stack([cam.fx * pc[..., 0] / z + cam.cx, cam.fy * pc[..., 1] / z + cam.cy], -1), z
 
 

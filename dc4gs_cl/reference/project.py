@@ -6,6 +6,7 @@ import numpy as np
 from .. import constants as K
 from ..geometry import quat_to_rotmat
 from ..scene.camera import Camera
+from ..scene.distortion import distort, distort_hessian, distort_jacobian
 
 
 def sh_basis(degree: int, d: np.ndarray) -> np.ndarray:
@@ -54,6 +55,36 @@ def antialias_compensation(a, b, c):
     return np.sqrt(np.maximum(s, 0.0)), s
 
 
+def _clamp_limits(cam: Camera) -> tuple[float, float]:
+    """|x/z|, |y/z| beyond which the Jacobian is taken at the limit: FOV_CLAMP x the half field (a pinhole's), the
+    lens model's own box (distortion.Distortion.lim)."""
+    if cam.distortion is not None:
+        return cam.distortion.lim
+    return K.FOV_CLAMP * 0.5 * cam.width / cam.fx, K.FOV_CLAMP * 0.5 * cam.height / cam.fy
+
+
+def _jacobian(cam: Camera, tx, ty, z) -> np.ndarray:
+    """(N, 2, 3) the projection's Jacobian at the clamped (tx, ty) = (x/z, y/z): a pinhole's, or the lens model's
+    local one diag(f) dD/du d(x/z, y/z)/d(x, y, z)."""
+    J = np.zeros((len(z), 2, 3))
+    if cam.distortion is None:
+        J[:, 0, 0], J[:, 0, 2] = cam.fx / z, -cam.fx * tx / z
+        J[:, 1, 1], J[:, 1, 2] = cam.fy / z, -cam.fy * ty / z
+        return J
+    P = np.zeros((len(z), 2, 3))
+    P[:, 0, 0], P[:, 0, 2], P[:, 1, 1], P[:, 1, 2] = 1 / z, -tx / z, 1 / z, -ty / z
+    A = np.array([cam.fx, cam.fy])[:, None] * distort_jacobian(cam.distortion, np.stack([tx, ty], -1))
+    return A @ P
+
+
+def _pixels(cam: Camera, x, y, z) -> np.ndarray:
+    """(N, 2) pixel positions of camera-space points (z > 0)."""
+    if cam.distortion is None:
+        return np.stack([cam.fx * x / z + cam.cx, cam.fy * y / z + cam.cy], 1)
+    d = distort(cam.distortion, np.stack([x / z, y / z], -1))
+    return d * [cam.fx, cam.fy] + [cam.cx, cam.cy]
+
+
 def project_reference(means, log_scales, quats, opacity_logits, sh, cam: Camera, sh_degree: int,
                       tiles_x: int, tiles_y: int, antialiased: bool = False) -> dict[str, np.ndarray]:
     """Per-Gaussian projection in float64; entries other than radius and tiles_touched are meaningful
@@ -65,15 +96,14 @@ def project_reference(means, log_scales, quats, opacity_logits, sh, cam: Camera,
     x, y, z = pc.T
     in_front = z > K.NEAR_PLANE
     zs = np.where(in_front, z, 1.0)
+    if cam.distortion is not None:   # a centre past the lens model's invertible field is culled
+        in_front &= (x / zs) ** 2 + (y / zs) ** 2 <= cam.distortion.r2_max
 
     M = quat_to_rotmat(quats) * np.exp(np.asarray(log_scales, np.float64))[:, None, :]
     sigma = M @ M.transpose(0, 2, 1)
-    lim_x, lim_y = K.FOV_CLAMP * 0.5 * cam.width / cam.fx, K.FOV_CLAMP * 0.5 * cam.height / cam.fy
+    lim_x, lim_y = _clamp_limits(cam)
     tx, ty = np.clip(x / zs, -lim_x, lim_x), np.clip(y / zs, -lim_y, lim_y)
-    J = np.zeros((len(means), 2, 3))
-    J[:, 0, 0], J[:, 0, 2] = cam.fx / zs, -cam.fx * tx / zs
-    J[:, 1, 1], J[:, 1, 2] = cam.fy / zs, -cam.fy * ty / zs
-    T = J @ R
+    T = _jacobian(cam, tx, ty, zs) @ R
     cov2d = T @ sigma @ T.transpose(0, 2, 1) + K.EWA_DILATION * np.eye(2)
     a, b, c = cov2d[:, 0, 0], cov2d[:, 0, 1], cov2d[:, 1, 1]
     det = a * c - b * b
@@ -83,7 +113,7 @@ def project_reference(means, log_scales, quats, opacity_logits, sh, cam: Camera,
     mid = 0.5 * (a + c)
     lam = mid + np.sqrt(np.maximum(K.MIN_EIGEN_GAP, mid * mid - det))
     radius = np.where(ok, np.ceil(K.RADIUS_SIGMAS * np.sqrt(np.maximum(lam, 0))), 0)
-    mean2d = np.stack([cam.fx * x / zs + cam.cx, cam.fy * y / zs + cam.cy], 1)
+    mean2d = _pixels(cam, x, y, zs)
     visible = ok & (radius > 0) & (rect_area(tile_rect_reference(mean2d, radius[:, None], tiles_x, tiles_y)) > 0)
     opacity = 1.0 / (1.0 + np.exp(-np.asarray(opacity_logits, np.float64)))
     if antialiased:   # culled Gaussians' (a, b, c) replaced by a unit covariance: their values are never read
@@ -141,7 +171,6 @@ def project_backward_reference(means, log_scales, quats, opacity_logits, sh, cam
     Jacobian (no gradient through a clamped x/z or y/z), the covariance, the rotation and scales, the SH
     colour (none where the colour clamps at 0 or COLOR_MAX) and its view direction."""
     means, sh = np.asarray(means, np.float64), np.asarray(sh, np.float64)
-    n = len(means)
     R, t = np.asarray(cam.R, np.float64), np.asarray(cam.t, np.float64)
     pc = means @ R.T + t
     x, y, z = pc.T
@@ -154,14 +183,11 @@ def project_backward_reference(means, log_scales, quats, opacity_logits, sh, cam
     s = np.exp(np.asarray(log_scales, np.float64))
     M = Rq * s[:, None, :]
     sigma = M @ M.transpose(0, 2, 1)
-    lim_x, lim_y = K.FOV_CLAMP * 0.5 * cam.width / cam.fx, K.FOV_CLAMP * 0.5 * cam.height / cam.fy
+    lim_x, lim_y = _clamp_limits(cam)
     ux, uy = x / z, y / z
     free_x, free_y = np.abs(ux) < lim_x, np.abs(uy) < lim_y
     tx, ty = np.clip(ux, -lim_x, lim_x), np.clip(uy, -lim_y, lim_y)
-    J = np.zeros((n, 2, 3))
-    J[:, 0, 0], J[:, 0, 2] = cam.fx / z, -cam.fx * tx / z
-    J[:, 1, 1], J[:, 1, 2] = cam.fy / z, -cam.fy * ty / z
-    T = J @ R
+    T = _jacobian(cam, tx, ty, z) @ R
     cov = T @ sigma @ T.transpose(0, 2, 1) + K.EWA_DILATION * np.eye(2)
     a, b, c = cov[:, 0, 0], cov[:, 0, 1], cov[:, 1, 1]
     det2 = (a * c - b * b) ** 2
@@ -188,14 +214,8 @@ def project_backward_reference(means, log_scales, quats, opacity_logits, sh, cam
 
     # camera-space position: through J (unless clamped) and the projected mean
     vm = np.asarray(v_mean2d, np.float64)
-    dtx_dx, dtx_dz = np.where(free_x, 1 / z, 0), np.where(free_x, -x / z ** 2, 0)
-    dty_dy, dty_dz = np.where(free_y, 1 / z, 0), np.where(free_y, -y / z ** 2, 0)
-    dpc = np.zeros((n, 3))
-    dpc[:, 0] = dJ[:, 0, 2] * (-cam.fx / z) * dtx_dx + vm[:, 0] * cam.fx / z
-    dpc[:, 1] = dJ[:, 1, 2] * (-cam.fy / z) * dty_dy + vm[:, 1] * cam.fy / z
-    dpc[:, 2] = (dJ[:, 0, 0] * (-cam.fx / z ** 2) + dJ[:, 0, 2] * (cam.fx * tx / z ** 2 - cam.fx / z * dtx_dz)
-                 + dJ[:, 1, 1] * (-cam.fy / z ** 2) + dJ[:, 1, 2] * (cam.fy * ty / z ** 2 - cam.fy / z * dty_dz)
-                 - (vm[:, 0] * cam.fx * x + vm[:, 1] * cam.fy * y) / z ** 2)
+    gradient = _pinhole_position_gradient if cam.distortion is None else _distorted_position_gradient
+    dpc = gradient(cam, dJ, vm, x, y, z, tx, ty, free_x, free_y)
     d_means = dpc @ R
 
     # Sigma = M M^T, M = Rq diag(s)
@@ -235,3 +255,32 @@ def project_backward_reference(means, log_scales, quats, opacity_logits, sh, cam
         out["opacity_logits"] = out["opacity_logits"] + regularizers[0] * o * (1 - o)
         out["log_scales"] = out["log_scales"] + regularizers[1] * s
     return out
+
+
+def _pinhole_position_gradient(cam, dJ, vm, x, y, z, tx, ty, free_x, free_y) -> np.ndarray:
+    """(N, 3) dL/d(camera-space position) through a pinhole's Jacobian (dL/dJ: dJ) and projected mean (vm)."""
+    n = len(z)
+    dtx_dx, dtx_dz = np.where(free_x, 1 / z, 0), np.where(free_x, -x / z ** 2, 0)
+    dty_dy, dty_dz = np.where(free_y, 1 / z, 0), np.where(free_y, -y / z ** 2, 0)
+    dpc = np.zeros((n, 3))
+    dpc[:, 0] = dJ[:, 0, 2] * (-cam.fx / z) * dtx_dx + vm[:, 0] * cam.fx / z
+    dpc[:, 1] = dJ[:, 1, 2] * (-cam.fy / z) * dty_dy + vm[:, 1] * cam.fy / z
+    dpc[:, 2] = (dJ[:, 0, 0] * (-cam.fx / z ** 2) + dJ[:, 0, 2] * (cam.fx * tx / z ** 2 - cam.fx / z * dtx_dz)
+                 + dJ[:, 1, 1] * (-cam.fy / z ** 2) + dJ[:, 1, 2] * (cam.fy * ty / z ** 2 - cam.fy / z * dty_dz)
+                 - (vm[:, 0] * cam.fx * x + vm[:, 1] * cam.fy * y) / z ** 2)
+    return dpc
+
+
+def _distorted_position_gradient(cam, dJ, vm, x, y, z, tx, ty, free_x, free_y) -> np.ndarray:
+    """(N, 3) dL/d(camera-space position) through the lens model's local Jacobian J = A P (A = diag(f) dD/du at the
+    clamped t, P = d(x/z, y/z)/d(x, y, z)) and the distorted mean f D(u) + c at the unclamped u."""
+    dist, f = cam.distortion, np.array([cam.fx, cam.fy])
+    t, u = np.stack([tx, ty], -1), np.stack([x / z, y / z], -1)
+    A = f[:, None] * distort_jacobian(dist, t)
+    dA = (dJ[:, :, :2] - dJ[:, :, 2:3] * t[:, None, :]) / z[:, None, None]
+    dP = A.transpose(0, 2, 1) @ dJ                              # dL/dP[c][k]
+    dz = (-(dP[:, 0, 0] + dP[:, 1, 1]) + dP[:, 0, 2] * tx + dP[:, 1, 2] * ty) / z ** 2
+    dt = np.einsum("nrc,nrcm->nm", f[:, None] * dA, distort_hessian(dist, t)) - dP[:, :, 2] / z[:, None]
+    dt = dt * np.stack([free_x, free_y], -1)
+    du = dt + np.einsum("nr,nrc->nc", f * vm, distort_jacobian(dist, u))
+    return np.stack([du[:, 0] / z, du[:, 1] / z, dz - (du[:, 0] * u[:, 0] + du[:, 1] * u[:, 1]) / z], 1)

@@ -9,6 +9,7 @@ import numpy as np
 from ..constants import sh_coeffs
 from ..model import GaussianModel, logit, rgb_to_sh_dc
 from ..scene.camera import Camera
+from ..scene.distortion import DIRECT_MODELS, from_colmap
 
 
 def random_model(rng: np.random.Generator, n: int, sh_degree: int = 3, spread: float = 1.0,
@@ -50,3 +51,22 @@ def gsplat_test_garden(path: str | Path, rng: np.random.Generator) -> tuple[Gaus
                    V[:3, :3].astype(np.float64), V[:3, 3].astype(np.float64))
             for i, (V, K) in enumerate(zip(data["viewmats"], data["Ks"]))]
     return model, cams
+
+
+# Lenses for tests and benchmarks: a COLMAP model, its distortion coefficients in COLMAP's order after the
+# intrinsics, and the factor on the pinhole's focal lengths (the fisheye sees a wider field).
+LENSES = {
+    "opencv": ("OPENCV", (-0.25, 0.08, 0.002, -0.001), 1.0),
+    "full_opencv": ("FULL_OPENCV", (-0.3, 0.1, 0.001, 0.002, 0.02, 0.05, 0.01, 0.003), 1.0),
+    "fisheye": ("OPENCV_FISHEYE", (0.05, -0.02, 0.004, -0.001), 0.7),
+}
+
+
+def distorted_camera(cam: Camera, lens: str) -> Camera:
+    """`cam` with one of LENSES (its focal lengths scaled by the lens' factor), as a scene reader makes it."""
+    model, coefficients, focal = LENSES[lens]
+    names, _ = DIRECT_MODELS[model]
+    given = {"f": cam.fx * focal, "fx": cam.fx * focal, "fy": cam.fy * focal, "cx": cam.cx, "cy": cam.cy}
+    params = [given[n] for n in names if n in given] + list(coefficients)
+    (fx, fy, cx, cy), dist = from_colmap(model, params, cam.width, cam.height, None, cam.name)
+    return replace(cam, fx=fx, fy=fy, cx=cx, cy=cy, distortion=dist)

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 import pyopencl as cl
 
-from ..records import camera_value
+from ..records import camera_value, distortion_define
 from ..scene.camera import Camera
 from .gaussians import DeviceGaussians
 from .stage import PER_GAUSSIAN_WG, Stage, visible_rows
@@ -41,7 +41,7 @@ class Project(Stage):
                         tiles_touched=ws.get("proj.tiles_touched", 4 * n))
         if n == 0:
             return out
-        k = self.kernels({"SH_COEFFS": g.sh_coeffs})["project"]
+        k = self.kernels({"SH_COEFFS": g.sh_coeffs, **distortion_define(cam)})["project"]
         self.rt.launch_items("project", k, n, PER_GAUSSIAN_WG,
                              np.int32(n), camera_value(cam), np.int32(min(sh_degree, g.sh_degree)),
                              np.int32(tiles_x), np.int32(tiles_y), *g.ordered(),

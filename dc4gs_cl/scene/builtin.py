@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from .camera import Camera, Scene, split_train_test
+from .distortion import undistort_points
 
 BUILTIN_SCENE = "builtin"
 
@@ -198,8 +199,10 @@ def cast_rays(o: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def _rays(cam: Camera, u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Origin (3, 1) and unit directions (3, N) of the rays through image points (u, v) (pixel units, the
-    image's top-left corner at (0, 0))."""
+    image's top-left corner at (0, 0)); through the camera's lens model where it has one."""
     d_cam = np.stack([(u.ravel() - cam.cx) / cam.fx, (v.ravel() - cam.cy) / cam.fy, np.ones(u.size)])
+    if cam.distortion is not None:
+        d_cam[:2] = undistort_points(cam.distortion, d_cam[:2].T).T
     d = (cam.R.T @ d_cam).astype(np.float32)
     return cam.center.astype(np.float32)[:, None], d / np.sqrt(_dot(d, d))
 
@@ -251,7 +254,7 @@ class _Renderer:
         self.memory: dict[tuple[str, int, int], np.ndarray] = {}
 
     def __call__(self, cam: Camera) -> np.ndarray:
-        key = (cam.name, cam.width, cam.height)
+        key = (cam.name, cam.width, cam.height, cam.distortion)
         if key not in self.memory:
             image = render(cam)
             image.flags.writeable = False  # shared by every caller: a stray in-place edit must fail loudly

@@ -2,8 +2,9 @@
 
 Conventions (../shared/docs/conventions.md): world-to-camera x_cam = R x_world + t, camera axes x right,
 y down, z forward (OpenCV / COLMAP); pinhole intrinsics in pixels with the image's top-left corner at
-(0, 0), so the centre of pixel (i, j) is (i + 0.5, j + 0.5). Every camera here is PINHOLE: distorted
-models were undistorted before a Camera is made.
+(0, 0), so the centre of pixel (i, j) is (i + 0.5, j + 0.5). A camera with a lens model (scene/distortion.py)
+carries it as `distortion` and is rendered through it; with --undistort (or a model without one) its pixels were
+undistorted to a PINHOLE before the Camera was made.
 """
 from __future__ import annotations
 
@@ -14,6 +15,7 @@ from typing import Callable
 import numpy as np
 
 from ..errors import InputError
+from .distortion import Distortion
 
 
 @dataclass(frozen=True)
@@ -30,6 +32,7 @@ class Camera:
     image_path: Path | None = None  # file the pixels come from (None: a generated scene)
     source_size: tuple[int, int] | None = None  # (width, height) the file must have
     mask_path: Path | None = None   # its mask (scene/masks.py), of the source size; None: every pixel counts
+    distortion: Distortion | None = None   # the lens model rendered through (resolution-free); None: a pinhole
 
     def at_resolution(self, resolution: int | None, max_width: int | None = None) -> "Camera":
         """This camera after the CLI's -r: 1/resolution of its size, or (None) its size but at most
@@ -127,6 +130,13 @@ def view_sizes(cameras: list[Camera], shown: int = 3) -> str:
     common = sorted(counts.items(), key=lambda item: -item[1])
     text = ", ".join(f"{w}x{h} x {n}" for (w, h), n in common[:shown])
     return text + (f" and {len(common) - shown} more sizes" if len(common) > shown else "")
+
+
+def lens_models(cameras: list[Camera]) -> str:
+    """The lens models the views render through, for the scene's summary line: "" when all are pinholes, else
+    ", OPENCV rendered directly" (the models, by name)."""
+    models = sorted({c.distortion.model for c in cameras if c.distortion is not None})
+    return f", {' and '.join(models)} rendered directly" if models else ""
 
 
 def unique_file_stems(where: Path, cameras: list[Camera]) -> None:

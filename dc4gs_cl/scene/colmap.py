@@ -131,9 +131,11 @@ def check_text_counts(d: Path, rec: pycolmap.Reconstruction) -> None:
                 raise InputError(path, "ends within a line (truncated?): COLMAP ends its files with a newline")
 
 
-def read_colmap(root: Path) -> tuple[list[Camera], dict[str, pycolmap.Camera], np.ndarray, np.ndarray]:
-    """Full-size PINHOLE cameras of the registered images, the distorted cameras of the images whose
-    pixels need undistorting (by name), and the SfM points (P, 3) float64 with colours (P, 3) float32."""
+def read_colmap(root: Path, undistort: bool = False
+                ) -> tuple[list[Camera], dict[str, pycolmap.Camera], np.ndarray, np.ndarray]:
+    """Full-size cameras of the registered images (with their lens model, or undistort: PINHOLE), the distorted
+    cameras of the images whose pixels need undistorting (by name), and the SfM points (P, 3) float64 with colours
+    (P, 3) float32."""
     d = model_dir(root)
     if all((d / f"{stem}.bin").is_file() for stem in MODEL_FILES):
         check_binary_model(d)
@@ -160,7 +162,7 @@ def read_colmap(root: Path) -> tuple[list[Camera], dict[str, pycolmap.Camera], n
             raise InputError(path, f"image listed in the COLMAP model {d} not found")
         pose = img.cam_from_world()
         camera, dist = make_camera(name, path, cam, pose.rotation.matrix(), pose.translation, cameras_file,
-                                   pose_where=_model_file(d, "images"))
+                                   pose_where=_model_file(d, "images"), undistort=undistort)
         check_size(path, image_size(path), (cam.width, cam.height), cameras_file)
         cameras.append(camera)
         if dist is not None:

@@ -1,6 +1,7 @@
 """Scenes from disk: COLMAP or NeRF folders, or the built-in scene's name -> Scene with PINHOLE cameras at the
-training resolution. Images are read lazily through Scene.read_image (undistorted on first use when the camera model
-has distortion) and kept in memory once decoded."""
+training resolution, distorted ones keeping their lens model (or, undistort=True, made pinholes). Images are read
+lazily through Scene.read_image (undistorted on first use where the camera was made a pinhole) and kept in memory once
+decoded."""
 from __future__ import annotations
 
 import os
@@ -25,7 +26,7 @@ DEFAULT_MAX_WIDTH = 1600  # the Inria default: wider images train at this width 
 
 def load_scene(path: str | os.PathLike, resolution: int | None = None, cache_dir: str | os.PathLike | None = None,
                test_every: int = 8, white_background: bool = False, alpha_mask: bool = False,
-               test_split: str = "llff") -> Scene:
+               test_split: str = "llff", undistort: bool = False) -> Scene:
     """Load a COLMAP scene (sparse/0/ + images/) or a NeRF scene (transforms.json or
     transforms_train.json [+ transforms_test.json]; `path` may also be one of these files).
 
@@ -34,6 +35,8 @@ def load_scene(path: str | os.PathLike, resolution: int | None = None, cache_dir
     test_every, test_split: COLMAP and transforms.json scenes hold out every test_every-th image by name (0: none),
       from the first (llff) or from the middle of the path (interpolated; camera.split_train_test).
     alpha_mask: an image's alpha channel masks pixels out (scene/masks.py) instead of being composited.
+    undistort: distorted cameras become pinholes and their pixels are undistorted, instead of the camera keeping its
+      lens model (scene/distortion.py) for the kernels to render through.
     """
     if str(path) == BUILTIN_SCENE:
         if white_background:
@@ -47,11 +50,11 @@ def load_scene(path: str | os.PathLike, resolution: int | None = None, cache_dir
     points = colors = None
     root = path if path.is_dir() else path.parent
     if path.is_dir() and (model := colmap.model_dir(path)) is not None:
-        cameras, distorted, points, colors = colmap.read_colmap(path)
+        cameras, distorted, points, colors = colmap.read_colmap(path, undistort)
         train, test = split_train_test(cameras, test_every, test_split)
         listing = next((f for f in (model / "images.bin", model / "images.txt") if f.is_file()), model)
     elif files := nerf.transforms_files(path):
-        train, test, distorted = nerf.read_nerf(files, test_every, test_split)
+        train, test, distorted = nerf.read_nerf(files, test_every, test_split, undistort)
         listing = files[0] if len(files) == 1 else root
     else:
         raise InputError(path, "not a COLMAP or NeRF scene: expected sparse/0/ or transforms*.json")

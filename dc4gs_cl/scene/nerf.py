@@ -40,20 +40,21 @@ def transforms_files(path: Path) -> list[Path]:
     return [first, test] if first.name == "transforms_train.json" and test.is_file() else [first]
 
 
-def read_nerf(files: list[Path], test_every: int,
-              test_split: str = "llff") -> tuple[list[Camera], list[Camera], dict[str, pycolmap.Camera]]:
-    """Train and test cameras (full size, PINHOLE) and the distorted cameras by name. Blender files carry
-    their own split (transforms_val.json is ignored); transforms.json is split by split_train_test."""
+def read_nerf(files: list[Path], test_every: int, test_split: str = "llff", undistort: bool = False
+              ) -> tuple[list[Camera], list[Camera], dict[str, pycolmap.Camera]]:
+    """Train and test cameras (full size, with their lens model or, undistort, PINHOLE) and the distorted cameras
+    by name. Blender files carry their own split (transforms_val.json is ignored); transforms.json is split by
+    split_train_test."""
     distorted: dict[str, pycolmap.Camera] = {}
     if files[0].name == "transforms_train.json":
-        train = _read_transforms(files[0], distorted)
-        test = _read_transforms(files[1], distorted) if len(files) > 1 else []
+        train = _read_transforms(files[0], distorted, undistort)
+        test = _read_transforms(files[1], distorted, undistort) if len(files) > 1 else []
     else:
-        train, test = split_train_test(_read_transforms(files[0], distorted), test_every, test_split)
+        train, test = split_train_test(_read_transforms(files[0], distorted, undistort), test_every, test_split)
     return train, test, distorted
 
 
-def _read_transforms(path: Path, distorted: dict[str, pycolmap.Camera]) -> list[Camera]:
+def _read_transforms(path: Path, distorted: dict[str, pycolmap.Camera], undistort: bool) -> list[Camera]:
     try:
         meta = json.loads(path.read_text())
     except (OSError, ValueError) as e:
@@ -73,7 +74,7 @@ def _read_transforms(path: Path, distorted: dict[str, pycolmap.Camera]) -> list[
             size = (round(_number(info, "w")), round(_number(info, "h"))) if "w" in info and "h" in info else header
             check_size(image, header, size, path)
             R, t = _world_to_camera(_numbers(frame["transform_matrix"], "transform_matrix"), path, i)
-            camera, dist = make_camera(name, image, _colmap_camera(info, size, path), R, t, path)
+            camera, dist = make_camera(name, image, _colmap_camera(info, size, path), R, t, path, undistort=undistort)
             if "mask_path" in frame:   # nerfstudio's per-frame mask (scene/masks.py)
                 if not isinstance(frame["mask_path"], str):
                     raise TypeError(f"mask_path must be a string, not {json.dumps(frame['mask_path'])[:40]}")

@@ -1,4 +1,5 @@
-"""Pinhole cameras from any perspective camera model, and the pixels to match (shared by every loader).
+"""Cameras from any perspective camera model, with their lens model (scene/distortion.py) or made pinholes, and the
+pixels to match (shared by every loader).
 
 Intrinsics of the undistorted camera come from pycolmap at load time (cheap); pixels are undistorted
 lazily, the first time an image is read, and cached as lossless PNG outside the input folder.
@@ -15,34 +16,43 @@ import pycolmap
 
 from ..errors import InputError
 from .camera import Camera
+from .distortion import DIRECT_MODELS, from_colmap
 from .images import MAX_IMAGE_SIDE, read_image, write_png
 
 PINHOLE_MODELS = ("PINHOLE", "SIMPLE_PINHOLE")
 
 
 def make_camera(name: str, image_path: Path, cam: pycolmap.Camera, R: np.ndarray, t: np.ndarray,
-                where: str | os.PathLike, pose_where: str | os.PathLike | None = None
+                where: str | os.PathLike, pose_where: str | os.PathLike | None = None, undistort: bool = False
                 ) -> tuple[Camera, pycolmap.Camera | None]:
-    """A full-size PINHOLE Camera for an image taken with `cam`, and `cam` itself when its pixels
-    need undistorting (else None). `where` is the file named when the camera is unusable or cannot be
-    undistorted, `pose_where` (default `where`) the file named for a bad pose."""
+    """A full-size Camera for an image taken with `cam`: with its lens model (distortion.DIRECT_MODELS) rendered
+    directly, or (undistort) a PINHOLE, with `cam` itself returned when its pixels need undistorting (else None).
+    `where` is the file named when the camera is unusable, cannot be rendered or undistorted, `pose_where` (default
+    `where`) the file named for a bad pose."""
     check_camera(where, pose_where or where, name, cam, R, t)
-    distorted = None
-    if cam.model.name not in PINHOLE_MODELS:
-        try:
-            pinhole = pycolmap.undistort_camera(pycolmap.UndistortCameraOptions(), cam)
-        except ValueError as e:  # non-perspective models (EQUIRECTANGULAR) fail pycolmap's check
-            raise InputError(where, f"camera model {cam.model.name} cannot be undistorted ({e})") from None
-        cam, distorted = pinhole, cam
-        if not (np.isfinite(cam.params).all() and cam.focal_length_x > 0 and cam.focal_length_y > 0):
-            raise InputError(where, f"image {name!r}: the camera's distortion cannot be undone (undistorted "
-                                    f"intrinsics {np.round(cam.params, 4).tolist()})")
+    distorted, lens, model = None, None, cam.model.name
+    if model not in PINHOLE_MODELS and not undistort:
+        if model not in DIRECT_MODELS:
+            raise InputError(where, f"image {name!r}: camera model {model} is not rendered directly (supported: "
+                                    f"{', '.join(PINHOLE_MODELS + tuple(DIRECT_MODELS))}); --undistort trains it "
+                                    "undistorted to a pinhole")
+        intrinsics, lens = from_colmap(model, cam.params, int(cam.width), int(cam.height), where, name)
+    else:
+        if model not in PINHOLE_MODELS:
+            try:
+                pinhole = pycolmap.undistort_camera(pycolmap.UndistortCameraOptions(), cam)
+            except ValueError as e:  # non-perspective models (EQUIRECTANGULAR) fail pycolmap's check
+                raise InputError(where, f"camera model {model} cannot be undistorted ({e})") from None
+            cam, distorted = pinhole, cam
+            if not (np.isfinite(cam.params).all() and cam.focal_length_x > 0 and cam.focal_length_y > 0):
+                raise InputError(where, f"image {name!r}: the camera's distortion cannot be undone (undistorted "
+                                        f"intrinsics {np.round(cam.params, 4).tolist()})")
+        intrinsics = (cam.focal_length_x, cam.focal_length_y, cam.principal_point_x, cam.principal_point_y)
     size = (int(cam.width), int(cam.height))
-    return Camera(name=name, width=size[0], height=size[1],
-                  fx=float(cam.focal_length_x), fy=float(cam.focal_length_y),
-                  cx=float(cam.principal_point_x), cy=float(cam.principal_point_y),
+    fx, fy, cx, cy = (float(v) for v in intrinsics)
+    return Camera(name=name, width=size[0], height=size[1], fx=fx, fy=fy, cx=cx, cy=cy,
                   R=np.asarray(R, dtype=np.float64), t=np.asarray(t, dtype=np.float64),
-                  image_path=Path(image_path), source_size=size), distorted
+                  image_path=Path(image_path), source_size=size, distortion=lens), distorted
 
 
 def check_camera(where, pose_where, name: str, cam: pycolmap.Camera, R: np.ndarray, t: np.ndarray) -> None:

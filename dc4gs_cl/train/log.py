@@ -98,15 +98,18 @@ class TrainingLog:
 
     def evaluation(self, iteration: int, result: dict) -> dict:
         """Record a test-view evaluation (evaluate.evaluate's result) at `iteration`."""
+        from ..evaluation.evaluate import CORRECTED, summary
         row = {"iteration": iteration, "test_psnr": round(result["mean"]["PSNR"], 4),
                "test_ssim": round(result["mean"]["SSIM"], 5),
                "test_views": result["views"]}
         if result.get("lpips_key") in result["mean"]:   # test_lpips (VGG) or test_lpips_alex
             row[f"test_{result['lpips_key'].lower()}"] = round(result["mean"][result["lpips_key"]], 5)
+        if f"PSNR{CORRECTED}" in result["mean"]:   # --corrected-metrics
+            row["test_psnr_corrected"] = round(result["mean"][f"PSNR{CORRECTED}"], 4)
+            row["test_ssim_corrected"] = round(result["mean"][f"SSIM{CORRECTED}"], 5)
         if self.run_folder is not None:
             self.run_folder.append_metrics(row)
-        if self.mode != "none":
-            from ..evaluation.evaluate import summary   # unrounded, as the final line of `train` prints it
+        if self.mode != "none":   # unrounded, as the final line of `train` prints it
             line = f"iteration {iteration:,}: test views {summary(result)}, {result['views']} views"
             if self.bar is not None:
                 self.bar.write(line, file=self.stream)

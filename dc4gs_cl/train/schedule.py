@@ -71,3 +71,9 @@ class Schedule:
         if not opacity_steps:
             del lrs["opacity_logits"]
         return lrs
+
+    def exposure_lr(self, it: int) -> float:
+        """--exposure's rate at iteration it: the Inria code's, log-linear from lr_exposure to lr_exposure_final
+        over the run (no batch factor: --exposure takes one view a step)."""
+        c = self.cfg
+        return exponential_lr(it, c.lr_exposure, c.lr_exposure_final, c.iterations)

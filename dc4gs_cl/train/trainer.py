@@ -3,8 +3,9 @@ density control (a strategy, densify/); checkpoints through the run folder, so t
 run resumes to the same model.
 
 One iteration (docs/architecture.md draws it module by module):
-    render (render/) -> loss and dL/dimage (backward/loss.py) -> what the strategy gathers this view and where
-    it folds it (plain data; its split geometry, for DCS) -> rasterizer backward into per-Gaussian sums
+    render (render/) -> loss and dL/dimage (backward/loss.py; with --exposure, of the render corrected by its
+    photo's affine, backward/exposure.py, which steps the corrections) -> what the strategy gathers this view and
+    where it folds it (plain data; its split geometry, for DCS) -> rasterizer backward into per-Gaussian sums
     (backward/), the view's statistics folded into the strategy's window on the way -> projection backward
     with Adam's step fused in, where the recipe steps (a batch: each view's gradients added, one step on their
     mean) -> the strategy's step after it (MCMC's position noise) -> the strategy densifies and limits opacities
@@ -25,11 +26,13 @@ from pathlib import Path
 import numpy as np
 
 from ..backward import ProjectBackward, RasterizeBackward
+from ..backward.exposure import Exposure
 from ..backward.loss import STAT_KEYS, Loss
 from ..config import DEFAULT_LINE_EVERY, TrainConfig
 from ..densify import Actions, Strategy
 from ..errors import DeviceError, InputError
 from ..model import GaussianSet, initial_model
+from ..optim.adam import one_group_step
 from ..optim.batch_gradients import BatchGradients, batch_adam_config
 from ..optim.trainable import TrainableGaussians
 from .parallel import SingleProcess
@@ -41,7 +44,9 @@ from ..scene.camera import Camera, Scene
 from .log import SAMPLE_EVERY, TrainingLog
 from .schedule import Schedule
 
-STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+# SIGUSR1 too: MPI launchers forward it untouched, where SIGTERM and SIGINT make Open MPI's mpirun kill its
+# processes a quarter of a second later (Slurm's --signal=USR1@SECONDS sends it ahead of a job's time limit)
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGUSR1)
 
 
 class Stopped(KeyboardInterrupt):
@@ -87,6 +92,11 @@ class Trainer:
         self.loss = Loss(self.context, lambda_dssim=cfg.lambda_dssim)
         self.rasterize_backward = RasterizeBackward(self.context)
         self.project_backward = ProjectBackward(self.context)
+        # --exposure: a correction per training photo (index: its place in scene.train), its Adam's step count, and
+        # this iteration's step (counted once, however often a view runs)
+        self.exposure = Exposure(self.context, len(scene.train)) if cfg.exposure else None
+        self.photo_index = {cam.name: i for i, cam in enumerate(scene.train)}
+        self.exposure_steps, self.exposure_step = 0, one_group_step(0.0, 0)
         self.rng = np.random.default_rng(cfg.seed)
         self.iteration = 0
         self.camera_stack: list[int] = []
@@ -165,6 +175,12 @@ class Trainer:
             lrs = self.schedule.learning_rates(it, self.scene.extent, self.actions.opacity_steps)
             adam = self.model.adam
             step_args = (adam.step_value(lrs), adam.m, adam.v, self.strategy.regularizers(self.model.n))
+        if self.exposure is not None:   # the corrections step where the Gaussians do (t = 0: no step)
+            t = 0
+            if self.actions.optimiser_step:
+                self.exposure_steps += 1
+                t = self.exposure_steps
+            self.exposure_step = one_group_step(self.schedule.exposure_lr(it), t)
         summed = None if self.batch is None else self.batch.start(self.model.n)
         for cam, background in self.group.share(views):
             self._queue_fitting(it, cam, background, step_args, summed)
@@ -226,8 +242,14 @@ class Trainer:
         plan = self.rasterize_backward.plan(res, gathering.layout, gathering.window,
                                             None if capacity is None else self.carry_rows)
         counts = self.context.frame_counts_later()   # final from here on: no later kernel counts or overflows
-        self.loss(res.raster.image, target_buf, cam.width, cam.height, dL_dimage, keep=keep_buf,
+        image, pixels = res.raster.image, cam.width * cam.height
+        if self.exposure is not None:   # the loss sees the corrected render; its gradient goes back through A^T
+            image = self.exposure.apply(image, self.photo_index[cam.name], pixels)
+        self.loss(image, target_buf, cam.width, cam.height, dL_dimage, keep=keep_buf,
                   kept=np.count_nonzero(keep) if keep is not None else 0)
+        if self.exposure is not None:
+            self.exposure.backward(res.raster.image, dL_dimage, self.photo_index[cam.name], pixels,
+                                   self.exposure_step, keep_buf)
         sums, layout = self.rasterize_backward.folding(res, dL_dimage, background, gathering.layout,
                                                        gathering.geometry, keep_buf, gathering.window, plan)
         if step_args is not None and summed is None:
@@ -273,8 +295,13 @@ class Trainer:
                               adam_steps=self.model.adam.steps, rng=self.rng.bit_generator.state,
                               camera_stack=self.camera_stack, train_cameras=[c.name for c in self.scene.train],
                               # so that the first metrics sample after --resume is the same
-                              loss_sums=self.loss.running_sums())
-        self._folder_for("a checkpoint").write_checkpoint(*state.entries())
+                              loss_sums=self.loss.running_sums(),
+                              exposure=None if self.exposure is None else self.exposure.download(),
+                              exposure_steps=self.exposure_steps)
+        folder = self._folder_for("a checkpoint")
+        folder.write_checkpoint(*state.entries())
+        if self.exposure is not None:   # for inspection: what the corrections are now
+            folder.write_exposure(self.iteration, list(self.photo_index), state.exposure["T"])
 
     def resume(self) -> Checkpoint:
         """Continue from the run folder's newest intact checkpoint (returned: which file, and the corrupt ones
@@ -297,6 +324,12 @@ class Trainer:
         self.iteration = state.iteration
         if state.loss_sums is not None:
             self.loss.restore_sums(*state.loss_sums)
+        if self.exposure is not None:
+            try:
+                self.exposure.upload(state.exposure)
+            except (ValueError, TypeError):   # TypeError: none at all
+                raise InputError(path, "checkpoint holds no exposure corrections of these training photos") from None
+            self.exposure_steps = state.exposure_steps
         return checkpoint
 
     # outputs ------------------------------------------------------------------------------------------
@@ -315,7 +348,7 @@ class Trainer:
         if log is not None:
             log.pause()
         result = evaluate(self.rt, self.renderer, self.params, self.scene, self.scene.test, self.sh_degree, render_dir,
-                          self.lpips, self.lpips_note)
+                          self.lpips, self.lpips_note, self.cfg.corrected_metrics)
         if self.rt.profiling:
             self.rt.stage_times()   # the evaluation's renders are not training time
         if log is not None:
@@ -326,8 +359,8 @@ class Trainer:
     def run(self, progress: str = "bar", line_every: int = DEFAULT_LINE_EVERY, viewer=None) -> None:
         """Train to cfg.iterations, evaluating the test views at the schedule's evaluation points before the
         last (the caller evaluates the last, with renders), and logging to the run folder's metrics file.
-        progress: "bar", "lines" (one every line_every iterations) or "none" (train/log.py). Ctrl-C (SIGINT)
-        or SIGTERM (what job schedulers send) stops at the next iteration boundary after a checkpoint,
+        progress: "bar", "lines" (one every line_every iterations) or "none" (train/log.py). Ctrl-C (SIGINT),
+        SIGTERM (what job schedulers send) or SIGUSR1 stops at the next iteration boundary after a checkpoint,
         raising Stopped. viewer: a viewer.Viewer shown the model between iterations (live training)."""
         run_folder = self._folder_for("run() (its metrics file, checkpoints and model)")
         stop = {"signal": None}
