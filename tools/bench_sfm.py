@@ -2,7 +2,7 @@
 made into a scene by dc4gs-cl's SfM (scene/sfm.py), against the model the scene ships.
 
     python tools/bench_sfm.py [--scenes S ...] [--width W] [--max-features N] [--exhaustive-up-to N]
-                              [--train N] [--data DIR] [--json PATH] [--keep DIR]
+                              [--camera-model M] [--affine-shape] [--train N] [--data DIR] [--json PATH] [--keep DIR]
 
 Per scene: each stage's wall time (features, matching, mapping; writing the scene is in "total"), the registered
 fraction, the models' photo counts, and the alignment error: the largest distance of a registered camera centre
@@ -69,8 +69,8 @@ def train_psnr(scene: Path, run: Path, iterations: int) -> float:
 def bench(name: str, args, work: Path) -> dict:
     photos = work / name / "images"
     copy_photos(args.data / name / "images", photos, args.width)
-    given = {k: v for k, v in (("max_features", args.max_features), ("exhaustive_up_to", args.exhaustive_up_to))
-             if v is not None}
+    given = {k: v for k in ("max_features", "exhaustive_up_to", "camera_model", "affine_shape")
+             if (v := getattr(args, k)) is not None}
     start = time.perf_counter()
     result = make_scene(photos.parent, None, given, Progress("lines"))
     total = time.perf_counter() - start
@@ -91,6 +91,8 @@ def main() -> None:
     p.add_argument("--width", type=int, default=None, help="photos scaled to this width (default: as shipped)")
     p.add_argument("--max-features", type=int, default=None)
     p.add_argument("--exhaustive-up-to", type=int, default=None)
+    p.add_argument("--camera-model", default=None)
+    p.add_argument("--affine-shape", action="store_true", default=None)
     p.add_argument("--train", type=int, default=0, metavar="N", help="also train N iterations on both scenes")
     p.add_argument("--data", type=Path, default=DEFAULT_DATA, help=f"the shared scenes (default {DEFAULT_DATA})")
     p.add_argument("--json", type=Path, default=None)

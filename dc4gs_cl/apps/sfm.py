@@ -20,6 +20,9 @@ FLAG_HELP = {   # setting -> its flag's help; the flag is --<setting with dashes
                     "training undistorts the photos)",
     "max_image_size": f"SIFT on photos scaled to at most this many pixels a side (default {DEFAULTS.max_image_size})",
     "max_features": f"SIFT features per photo at most (default {DEFAULTS.max_features})",
+    "affine_shape": "SIFT features with affine shapes (COLMAP's estimate_affine_shape): photos taken further apart "
+                    "match, features take longer (with --camera-model SIMPLE_RADIAL it registers every photo of "
+                    "temple_sparse_ring, a ring of views 22 degrees apart)",
     "exhaustive_up_to": f"match every pair of photos up to this many photos, past it each photo with the next "
                         f"--overlap ones in name order (default {DEFAULTS.exhaustive_up_to})",
     "overlap": f"sequential matching: the photos each photo is matched with (default {DEFAULTS.overlap})",
@@ -31,8 +34,11 @@ CHOICES = {"camera": CAMERA_MODES, "camera_model": CAMERA_MODELS, "mapper": MAPP
 def add_settings(p) -> None:
     """The SfM flags (for `sfm`, and for `train` in a group of their own); each defaults to None: not given."""
     for f in fields(SfMSettings):
-        kind = type(getattr(DEFAULTS, f.name))
-        p.add_argument("--" + f.name.replace("_", "-"), type=kind, choices=CHOICES.get(f.name), default=None,
+        kind, flag = type(getattr(DEFAULTS, f.name)), "--" + f.name.replace("_", "-")
+        if kind is bool:   # a switch: on when given, else None (not given) like the others
+            p.add_argument(flag, action="store_true", default=None, help=FLAG_HELP[f.name])
+            continue
+        p.add_argument(flag, type=kind, choices=CHOICES.get(f.name), default=None,
                        metavar="N" if kind is int else None, help=FLAG_HELP[f.name])
     p.add_argument("--video-frames", type=int, default=None, metavar="N",
                    help=f"a video ({', '.join(VIDEO_EXTENSIONS)}): the frames kept, the sharpest of each of N windows "

@@ -312,6 +312,7 @@ def _extract(database: Path, root: Path, names: list[str], masks: Path | None, s
         reader.mask_path = str(masks)
     extraction = pycolmap.FeatureExtractionOptions(max_image_size=settings.max_image_size, num_threads=threads)
     extraction.sift.max_num_features = settings.max_features
+    extraction.sift.estimate_affine_shape = settings.affine_shape
     # per camera, the photos of each call; a call after a camera's first takes that camera (a call makes its own)
     per_photo = settings.camera == "per-photo"
     groups = [names] if per_photo else _camera_groups(names, settings.camera).values()

@@ -17,6 +17,7 @@ class SfMSettings:
     camera_model: str = "OPENCV"
     max_image_size: int = 3200        # SIFT on photos scaled to at most this side (px)
     max_features: int = 8192          # SIFT features per photo
+    affine_shape: bool = False        # SIFT's affine shapes: matches across wider changes of view, slower features
     exhaustive_up_to: int = 100       # every pair matched up to this many photos, sequential pairs past it
     overlap: int = 10                 # sequential matching: each photo with the next `overlap` ones
     mapper: str = "incremental"       # one of MAPPERS
