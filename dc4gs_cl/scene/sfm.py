@@ -170,8 +170,9 @@ def make_scene(photos: Path, scene: Path | None = None, given: dict | None = Non
         seconds["mapping"] = time.perf_counter() - start
     if not models:
         raise InputError(root, "no two photos could be matched: SfM found no model (try photos that overlap more, "
-                               "with texture in view; more features, --max-features; or --camera per-photo for "
-                               "photos of several cameras)")
+                               "with texture in view; more features, --max-features; for photos far apart "
+                               "--camera-model SIMPLE_RADIAL --affine-shape; or --camera per-photo for photos of "
+                               "several cameras)")
     largest = models[0]
     registered = {img.name for img in largest.images.values() if img.has_pose}
     result = SfMResult(scene, seconds, [m.num_reg_images() for m in models], len(names),
