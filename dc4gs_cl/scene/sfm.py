@@ -5,7 +5,7 @@
     SCENE/database.db                       features and matches: a killed run goes on from it
     SCENE/sfm.json                          the settings, pycolmap's version, the models, the photos left out
     SCENE/images/, SCENE/masks/             the photos (hard links, else copies) where SCENE is not PHOTOS
-    SCENE/sparse/0/                         the largest model, OPENCV camera(s): the loader undistorts them
+    SCENE/sparse/0/                         the largest model, OPENCV camera(s), rendered through directly
 
 SCENE is PHOTOS itself when the photos are in PHOTOS/images/, else PHOTOS/colmap/. sparse/ is renamed into
 place last, so a folder holding it holds a whole scene. The steps are those of the Inria code's convert.py
