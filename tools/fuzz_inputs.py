@@ -118,7 +118,8 @@ def colmap_scene(root: Path, rng, kind: str) -> Path:
     points = rng.uniform(-1, 1, (40, 3))
     text = root / "text"
     text.mkdir()
-    (text / "cameras.txt").write_text(f"1 PINHOLE {W} {H} 20 21 12 8\n2 SIMPLE_PINHOLE {W} {H} 19 12 8\n")
+    # camera 2 a lens model rendered directly (scene/distortion.py reads its coefficients)
+    (text / "cameras.txt").write_text(f"1 PINHOLE {W} {H} 20 21 12 8\n2 {LENS} {W} {H} 19 19 12 8 {LENS_K}\n")
     observations: list[list] = [[] for _ in names]
     tracks = []
     lines = []
@@ -148,6 +149,16 @@ def colmap_scene(root: Path, rng, kind: str) -> Path:
         for p in model.glob(f"{extra}.*"):
             p.unlink()
     return model
+
+
+LENS, LENS_K = "OPENCV", "-0.05 0.01 0.001 -0.001"   # colmap_scene's second camera: k1 k2 p1 p2
+
+
+def text_folding_lens(data: bytes, rng, path) -> bytes:
+    """The lens camera's k1 made so strong that its radial map turns back inside the image (a polynomial folding
+    far-off points into the picture): refused when the scene is read."""
+    k1 = float(rng.uniform(-40.0, -5.0))
+    return data.replace(f"{LENS} {W} {H} 19 19 12 8 -0.05".encode(), f"{LENS} {W} {H} 19 19 12 8 {k1}".encode())
 
 
 def read_scene(root: Path):
@@ -428,7 +439,7 @@ def exr_nan_pixels(data: bytes, rng, path) -> bytes:
 # Mutations that must never be read silently (truncation and emptiness are always detectable: each format
 # either states its length or ends in a recognisable way), and those that may change values undetectably.
 MUST_FAIL = {"truncate", "empty", "huge count", "wrong size", "non-finite pixels", "bomb", "duplicate frame",
-             "fractional bits"}
+             "fractional bits", "folding lens"}
 
 
 @dataclass
@@ -478,7 +489,8 @@ def _formats() -> list[Format]:
         Format(f"colmap {kind} {stem}", lambda root, rng, k=kind, s=stem: colmap_scene(root, rng, k) / f"{s}.{k}",
                read_from_scene,
                {**BASIC, "huge count": bin_huge_count, "non-finite": binary_non_finite(8, lambda d: 8)} if kind == "bin"
-               else {**BASIC, "huge count": text_huge_count, "non-finite": text_non_finite}, cli=train_cli)
+               else {**BASIC, "huge count": text_huge_count, "non-finite": text_non_finite,
+                     **({"folding lens": text_folding_lens} if stem == "cameras" else {})}, cli=train_cli)
         for kind in ("bin", "txt") for stem in ("cameras", "images", "points3D")]
     return images + colmap + [
         Format("ply", ply_input, read_ply_values,
