@@ -122,7 +122,6 @@ class TrainingState:
     train_cameras: list[str]        # their names: a run resumed with other images is refused
     loss_sums: tuple[list[float], int] | None   # the loss's running sums and calls (None before metrics.jsonl)
     exposure: dict[str, np.ndarray] | None = None   # --exposure: the corrections "T" and their moments "m", "v"
-    exposure_steps: int = 0                         # ... and their Adam's step count
 
     def entries(self) -> tuple[dict[str, np.ndarray], dict]:
         """The named arrays and metadata that RunFolder.write_checkpoint writes."""
@@ -130,8 +129,7 @@ class TrainingState:
         arrays = {f"{group}/{k}": a for group, named in groups.items() for k, a in named.items()}
         meta = {"iteration": self.iteration, "config": self.config.to_json(), "adam_steps": self.adam_steps,
                 "rng": self.rng, "camera_stack": self.camera_stack, "train_cameras": self.train_cameras,
-                "gaussians": len(self.params["means"]), "loss_sums": self.loss_sums,
-                **({"exposure_steps": self.exposure_steps} if self.exposure is not None else {})}
+                "gaussians": len(self.params["means"]), "loss_sums": self.loss_sums}
         return arrays, meta
 
 
@@ -157,7 +155,7 @@ class Checkpoint:
                     raise ValueError(f"loss_sums holds {len(sums)} sums")
             state = TrainingState(TrainConfig.from_json(meta["config"]), params, m, v, window, meta["iteration"],
                                   meta["adam_steps"], meta["rng"], meta["camera_stack"], meta["train_cameras"],
-                                  loss_sums, exposure or None, int(meta.get("exposure_steps", 0)))
+                                  loss_sums, exposure or None)
             n = meta["gaussians"]
         except (KeyError, TypeError, ValueError, InputError) as e:
             raise InputError(self.path, f"corrupt checkpoint ({e.__class__.__name__}: {e})") from None

@@ -92,11 +92,11 @@ class Trainer:
         self.loss = Loss(self.context, lambda_dssim=cfg.lambda_dssim)
         self.rasterize_backward = RasterizeBackward(self.context)
         self.project_backward = ProjectBackward(self.context)
-        # --exposure: a correction per training photo (index: its place in scene.train), its Adam's step count, and
-        # this iteration's step (counted once, however often a view runs)
+        # --exposure: a correction per training photo (index: its place in scene.train) and this iteration's step
+        # (its Adam counts the means' steps: once an iteration, however often a view runs)
         self.exposure = Exposure(self.context, len(scene.train)) if cfg.exposure else None
         self.photo_index = {cam.name: i for i, cam in enumerate(scene.train)}
-        self.exposure_steps, self.exposure_step = 0, one_group_step(0.0, 0)
+        self.exposure_step = one_group_step(0.0, 0)
         self.rng = np.random.default_rng(cfg.seed)
         self.iteration = 0
         self.camera_stack: list[int] = []
@@ -175,11 +175,8 @@ class Trainer:
             lrs = self.schedule.learning_rates(it, self.scene.extent, self.actions.opacity_steps)
             adam = self.model.adam
             step_args = (adam.step_value(lrs), adam.m, adam.v, self.strategy.regularizers(self.model.n))
-        if self.exposure is not None:   # the corrections step where the Gaussians do (t = 0: no step)
-            t = 0
-            if self.actions.optimiser_step:
-                self.exposure_steps += 1
-                t = self.exposure_steps
+        if self.exposure is not None:   # the corrections step where the Gaussians' means do (t = 0: no step)
+            t = self.model.adam.steps["means"] if self.actions.optimiser_step else 0
             self.exposure_step = one_group_step(self.schedule.exposure_lr(it), t)
         summed = None if self.batch is None else self.batch.start(self.model.n)
         for cam, background in self.group.share(views):
@@ -296,8 +293,7 @@ class Trainer:
                               camera_stack=self.camera_stack, train_cameras=[c.name for c in self.scene.train],
                               # so that the first metrics sample after --resume is the same
                               loss_sums=self.loss.running_sums(),
-                              exposure=None if self.exposure is None else self.exposure.download(),
-                              exposure_steps=self.exposure_steps)
+                              exposure=None if self.exposure is None else self.exposure.download())
         folder = self._folder_for("a checkpoint")
         folder.write_checkpoint(*state.entries())
         if self.exposure is not None:   # for inspection: what the corrections are now
@@ -329,7 +325,6 @@ class Trainer:
                 self.exposure.upload(state.exposure)
             except (ValueError, TypeError):   # TypeError: none at all
                 raise InputError(path, "checkpoint holds no exposure corrections of these training photos") from None
-            self.exposure_steps = state.exposure_steps
         return checkpoint
 
     # outputs ------------------------------------------------------------------------------------------
