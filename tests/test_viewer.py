@@ -438,14 +438,8 @@ TIMEOUT = 20.0                   # s, for each wait on the browser
 class DevTools:
     """The few Chrome DevTools protocol calls the test needs, over viser's own websockets dependency."""
 
-    def __init__(self, profile):
+    def __init__(self, port: int):
         from websockets.sync.client import connect
-        port_file = profile / "DevToolsActivePort"
-        deadline = time.monotonic() + TIMEOUT
-        while not port_file.is_file() or not port_file.read_text().strip():
-            assert time.monotonic() < deadline, "Chromium did not open its DevTools port"
-            time.sleep(0.05)
-        port = int(port_file.read_text().split()[0])
         with urllib.request.urlopen(f"http://127.0.0.1:{port}/json/list", timeout=TIMEOUT) as f:
             page = next(t for t in json.load(f) if t["type"] == "page")
         self.ws = connect(page["webSocketDebuggerUrl"], max_size=None, open_timeout=TIMEOUT)
@@ -465,17 +459,38 @@ class DevTools:
         return read_image(path)[..., :3]
 
 
+def start_chromium(tmp_path, tries: int = 2) -> tuple[subprocess.Popen, int]:
+    """Headless Chromium and its DevTools port. A cold start on a loaded 2-core CI machine has once taken over
+    TIMEOUT (a CI run, where the same start had just worked in the suite's previous pass): one more try with a
+    fresh profile, then the failure says what Chromium printed."""
+    for attempt in range(1, tries + 1):
+        profile, log = tmp_path / f"profile{attempt}", tmp_path / f"chromium{attempt}.log"
+        with open(log, "wb") as stderr:
+            proc = subprocess.Popen([CHROMIUM, "--headless=new", "--no-sandbox", "--remote-debugging-port=0",
+                                     f"--user-data-dir={profile}", f"--window-size={WINDOW[0]},{WINDOW[1]}",
+                                     "--use-angle=swiftshader", "--enable-unsafe-swiftshader", "about:blank"],
+                                    stdout=subprocess.DEVNULL, stderr=stderr)
+        port_file = profile / "DevToolsActivePort"
+        deadline = time.monotonic() + TIMEOUT
+        while proc.poll() is None and time.monotonic() < deadline:
+            if port_file.is_file() and port_file.read_text().strip():
+                return proc, int(port_file.read_text().split()[0])
+            time.sleep(0.05)
+        why = f"exited with {proc.returncode}" if proc.poll() is not None else f"no port after {TIMEOUT:g} s"
+        proc.kill()
+        proc.wait(timeout=10)
+        said = log.read_text(errors="replace").strip().splitlines()[-5:]
+        print(f"Chromium try {attempt}: {why}; it said:", *said, sep="\n  ")
+    pytest.fail(f"Chromium did not open its DevTools port in {tries} tries (its words are in the captured stdout)")
+
+
 @pytest.fixture
 def browser(tmp_path):
     if CHROMIUM is None:
         pytest.skip("no Chromium installed (Debian: apt-get install chromium)")
-    profile = tmp_path / "profile"
-    proc = subprocess.Popen([CHROMIUM, "--headless=new", "--no-sandbox", "--remote-debugging-port=0",
-                             f"--user-data-dir={profile}", f"--window-size={WINDOW[0]},{WINDOW[1]}",
-                             "--use-angle=swiftshader", "--enable-unsafe-swiftshader", "about:blank"],
-                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    proc, port = start_chromium(tmp_path)
     try:
-        tools = DevTools(profile)
+        tools = DevTools(port)
         tools.call("Emulation.setDeviceMetricsOverride", width=WINDOW[0], height=WINDOW[1], deviceScaleFactor=1,
                    mobile=False)
         yield tools
