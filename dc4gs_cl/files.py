@@ -16,6 +16,11 @@ import tempfile
 from pathlib import Path
 from typing import Callable
 
+try:
+    import fcntl
+except ImportError:   # Windows
+    fcntl = None
+
 from .errors import OutputError
 
 
@@ -110,3 +115,25 @@ def replace_folder(staging: Path, final: Path) -> None:
         raise OutputError(final, f"cannot write: {e.strerror or e}") from e
     if old is not None:
         shutil.rmtree(old, ignore_errors=True)
+
+
+@contextlib.contextmanager
+def exclusive_lock(lock: Path, busy: Callable[[str], Exception]):
+    """Hold the file `lock` for the block (an exclusive flock on it, the holder's PID written in it); where
+    another process holds it, raise busy(that PID). The OS lets go when the process ends, however it ends. (No
+    lock on Windows.)"""
+    try:
+        fd = os.open(lock, os.O_RDWR | os.O_CREAT, 0o644)
+    except OSError as e:
+        raise OutputError(lock.parent, f"cannot be written ({e.strerror})") from e
+    try:
+        if fcntl is not None:
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except OSError:
+                raise busy(os.pread(fd, 32, 0).decode(errors="replace").strip() or "unknown") from None
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+        yield
+    finally:
+        os.close(fd)

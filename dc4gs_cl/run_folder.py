@@ -34,14 +34,9 @@ from pathlib import Path
 
 import numpy as np
 
-try:
-    import fcntl
-except ImportError:   # Windows
-    fcntl = None
-
 from .config import TrainConfig
 from .errors import InputError, OutputError
-from .files import is_temporary, write_atomic, write_json
+from .files import exclusive_lock, is_temporary, write_atomic, write_json
 from .model import GaussianModel
 from .ply import read_ply, write_ply
 from .scene.camera import Scene
@@ -252,22 +247,14 @@ class RunFolder:
         made = not self.path.exists()
         try:
             self.path.mkdir(parents=True, exist_ok=True)
-            fd = os.open(self.path / LOCK, os.O_RDWR | os.O_CREAT, 0o644)
         except OSError as e:
-            raise OutputError(self.path, f"cannot be made or written ({e.strerror})") from e
+            raise OutputError(self.path, f"cannot be made ({e.strerror})") from e
         try:
-            if fcntl is not None:   # (not on Windows: no lock there)
-                try:
-                    fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-                except OSError:
-                    holder = os.pread(fd, 32, 0).decode(errors="replace").strip() or "unknown"
-                    raise InputError(self.path, f"is in use by another run (PID {holder}): wait for it to end, or "
-                                                "train into another --out") from None
-            os.ftruncate(fd, 0)
-            os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
-            yield self
+            with exclusive_lock(self.path / LOCK, lambda holder: InputError(
+                    self.path, f"is in use by another run (PID {holder}): wait for it to end, or train into another "
+                               "--out")):
+                yield self
         finally:
-            os.close(fd)
             if made and not (self.path / CONFIG).exists():
                 shutil.rmtree(self.path, ignore_errors=True)
 

@@ -8,6 +8,7 @@ import argparse
 import dataclasses
 import io
 import json
+import os
 import shutil
 import sys
 from pathlib import Path
@@ -20,6 +21,7 @@ import pytest
 from dc4gs_cl.apps.sfm import scene_for_training
 from dc4gs_cl.cli import main
 from dc4gs_cl.errors import InputError
+from dc4gs_cl.files import exclusive_lock
 from dc4gs_cl.geometry import similarity_alignment
 from dc4gs_cl.scene import sfm
 from dc4gs_cl.scene.loader import load_scene
@@ -291,6 +293,10 @@ def test_bad_input_is_one_line_and_writes_no_scene(photo_cache, tmp_path, capsys
     assert sorted(p.name for p in other.iterdir()) == ["sparse"]
     (tmp_path / "theirs" / "images").mkdir(parents=True)
     assert "holds images not made by dc4gs-cl sfm" in _refused(capsys, fountain.parent, "--out", tmp_path / "theirs")
+    busy = _copy(fountain, tmp_path / "busy" / "images").parent
+    with exclusive_lock(busy / sfm.LOCK, AssertionError):   # another run making the scene
+        assert f"{busy}: is being made by another run (PID {os.getpid()})" in _refused(capsys, busy)
+    assert not (busy / DATABASE).exists()
 
 
 def test_photos_that_match_nothing_say_so(tmp_path, capsys, rng):
@@ -364,3 +370,13 @@ def test_sharpest_of_windows():
     rng = np.random.default_rng(0)
     image = rng.uniform(0, 255, (40, 50))
     assert sharpness(image) > 10 * sharpness(_blurred(image[..., None].astype(np.uint8))[..., 0])
+
+
+def test_few_registered_photos_say_what_to_try():
+    from dc4gs_cl.scene.sfm_settings import SfMSettings
+    hint = "--camera-model SIMPLE_RADIAL --affine-shape"
+
+    def notes(registered, **settings):
+        return "\n".join(sfm.SfMResult(Path("s"), {}, [registered], 16, [], settings=SfMSettings(**settings)).notes())
+    assert hint in notes(2) and hint in notes(7, camera_model="SIMPLE_RADIAL")
+    assert hint not in notes(8) and hint not in notes(2, camera_model="SIMPLE_RADIAL", affine_shape=True)

@@ -30,7 +30,7 @@ import numpy as np
 import pycolmap
 
 from ..errors import InputError
-from ..files import replace_folder, staging_folder, write_json
+from ..files import exclusive_lock, replace_folder, staging_folder, write_json
 from .colmap import model_dir
 from .images import image_size, read_image
 from .masks import MASKS_DIR
@@ -41,6 +41,7 @@ PHOTO_EXTENSIONS = (".jpg", ".jpeg", ".png", ".tif", ".tiff", ".bmp")
 SCENE_DIR = "colmap"          # the scene made from a folder that holds its photos itself
 DATABASE = "database.db"
 SETTINGS_FILE = "sfm.json"
+LOCK = ".sfm.lock"            # held by the run making the scene, the holder's PID inside
 MIN_PHOTOS = 3                # two photos make a model, but leave nothing to test it on
 SEED = 0                      # RANSAC's and the mapper's: the same photos give the same scene
 BA_TOLERANCE = 1e-6           # convert.py's --Mapper.ba_global_function_tolerance
@@ -48,6 +49,7 @@ EXTRACT_CHUNK = 8             # photos per pycolmap call: a progress step, and w
 MATCH_CHUNK = 64              # pairs per pycolmap call
 MAPPING_THREADS = 1           # with 2, one database gave other models run to run; with 1 as fast on 2 cores
 NAMES_SHOWN = 5               # photos named where some are left out
+FEW_REGISTERED = 0.5          # below this fraction of the photos registered, the notes say what to try
 
 
 @dataclass
@@ -58,6 +60,7 @@ class SfMResult:
     photos: int
     left_out: list[str]                # photos the trained model does not hold
     reused: bool = False
+    settings: SfMSettings | None = None
 
     def summary(self) -> str:
         """The one line train and sfm print."""
@@ -77,6 +80,13 @@ class SfMResult:
             shown = ", ".join(self.left_out[:NAMES_SHOWN]) + (", ..." if len(self.left_out) > NAMES_SHOWN else "")
             lines.append(f"sfm: {len(self.left_out)} photo{'s' * (len(self.left_out) > 1)} not registered, "
                          f"trained without: {shown}")
+        wider = self.settings is not None and (self.settings.camera_model != "SIMPLE_RADIAL"
+                                               or not self.settings.affine_shape)
+        if wider and self.models[0] < FEW_REGISTERED * self.photos:
+            # photos with no EXIF focal length start from COLMAP's guess (1.2 x the larger side), which OPENCV's
+            # four intrinsics can drift from; one focal length and affine SIFT took temple_sparse_ring 2 -> 16 of 16
+            lines.append("sfm: fewer than half the photos registered: for photos far apart or with no EXIF focal "
+                         "length try --camera-model SIMPLE_RADIAL --affine-shape (a new --out, or remove the scene)")
         return lines
 
 
@@ -155,30 +165,35 @@ def make_scene(photos: Path, scene: Path | None = None, given: dict | None = Non
     start = time.perf_counter()   # the photos' check counts as the features' time: both read every photo
     _check_photos(root, names, settings)
     scene.mkdir(parents=True, exist_ok=True)
-    _remove_leftovers(scene)
-    database = scene / DATABASE
-    seconds = {}
-    with _colmap_quiet():
-        write_json(scene / SETTINGS_FILE, record)   # what database.db holds features of
-        _extract(database, root, names, masks, settings, progress, threads)
-        seconds["features"] = time.perf_counter() - start
-        start = time.perf_counter()
-        _match(database, names, settings, progress, threads)
-        seconds["matching"] = time.perf_counter() - start
-        start = time.perf_counter()
-        models = _map(database, root, scene, names, settings, progress)
-        seconds["mapping"] = time.perf_counter() - start
-    if not models:
-        raise InputError(root, "no two photos could be matched: SfM found no model (try photos that overlap more, "
-                               "with texture in view; more features, --max-features; for photos far apart "
-                               "--camera-model SIMPLE_RADIAL --affine-shape; or --camera per-photo for photos of "
-                               "several cameras)")
-    largest = models[0]
-    registered = {img.name for img in largest.images.values() if img.has_pose}
-    result = SfMResult(scene, seconds, [m.num_reg_images() for m in models], len(names),
-                       [n for n in names if n not in registered])
-    _write_scene(largest, root, photos, scene, names, masks, {**record, **_result_record(result)})
-    return result
+    with exclusive_lock(scene / LOCK, lambda holder: InputError(
+            scene, f"is being made by another run (PID {holder}): wait for it to end, or give another --out")):
+        earlier = _earlier_run(scene, record)   # (a run that ended between the check above and here made it)
+        if earlier is not None:
+            return earlier
+        _remove_leftovers(scene)
+        database = scene / DATABASE
+        seconds = {}
+        with _colmap_quiet():
+            write_json(scene / SETTINGS_FILE, record)   # what database.db holds features of
+            _extract(database, root, names, masks, settings, progress, threads)
+            seconds["features"] = time.perf_counter() - start
+            start = time.perf_counter()
+            _match(database, names, settings, progress, threads)
+            seconds["matching"] = time.perf_counter() - start
+            start = time.perf_counter()
+            models = _map(database, root, scene, names, settings, progress)
+            seconds["mapping"] = time.perf_counter() - start
+        if not models:
+            raise InputError(root, "no two photos could be matched: SfM found no model (try photos that overlap more, "
+                                   "with texture in view; more features, --max-features; for photos far apart "
+                                   "--camera-model SIMPLE_RADIAL --affine-shape; or --camera per-photo for photos of "
+                                   "several cameras)")
+        largest = models[0]
+        registered = {img.name for img in largest.images.values() if img.has_pose}
+        result = SfMResult(scene, seconds, [m.num_reg_images() for m in models], len(names),
+                           [n for n in names if n not in registered], settings=settings)
+        _write_scene(largest, root, photos, scene, names, masks, {**record, **_result_record(result)})
+        return result
 
 
 LEFTOVERS = (".mapping.*", ".database.*.db", ".sparse.*.staging", ".images.*.staging", ".masks.*.staging")
@@ -228,7 +243,8 @@ def _earlier_run(scene: Path, record: dict) -> SfMResult | None:
                          + f": give another output folder, or remove {scene} to make it again")
     if not whole:
         return None
-    return SfMResult(scene, {}, saved["models"], len(saved["photos"]), saved["left_out"], reused=True)
+    return SfMResult(scene, {}, saved["models"], len(saved["photos"]), saved["left_out"], reused=True,
+                     settings=SfMSettings(**record["settings"]))
 
 
 def _masks(photos: Path, names: list[str]) -> Path | None:
