@@ -16,7 +16,7 @@ from helpers import load_tool
 
 fuzz_inputs = load_tool("fuzz_inputs")
 
-CASES_PER_FORMAT = 60   # CI budget: 20 formats x 60 = 1,200 cases (about 12 s on 2 cores)
+CASES_PER_FORMAT = 60   # CI budget: 24 formats x 60 = 1,440 cases (about 15 s on 2 cores)
 
 
 @pytest.fixture
@@ -156,3 +156,12 @@ def test_config_values_of_the_wrong_type_are_named(tmp_path, rng):
         assert says in stops_naming(config, RunFolder(config.parent).read_config)
     config.write_text(json.dumps(doc))
     assert RunFolder(config.parent).read_config().iterations == 700
+
+
+def test_a_video_whose_metadata_is_no_utf8_stops_with_one_line(tmp_path):
+    """The fuzzer's finding: a flipped byte in a stream's metadata made PyAV raise UnicodeDecodeError as it
+    opened the video (a traceback); the flip replayed from its seeds."""
+    pytest.importorskip("av", reason="the video extra (PyAV) is not installed")
+    video = fuzz_inputs.video_input(tmp_path, fuzz_inputs.np.random.default_rng(565280158))
+    video.write_bytes(fuzz_inputs.flip(video.read_bytes(), fuzz_inputs.np.random.default_rng(565280207), video))
+    assert "cannot decode video ('utf-8' codec can't decode" in stops_naming(video, fuzz_inputs.read_video, video)

@@ -5,7 +5,8 @@ each case ends one of the allowed ways.
 
 Formats: images (PNG 8 and 16 bit, JPEG, EXR, with and without alpha, read through a scene), the 3DGS PLY,
 COLMAP binary and text (cameras, images, points3D), the formats `export` writes (.splat, .spz, compressed
-PLY, as `render` and `view` read them), transforms.json (Blender and instant-ngp), checkpoints and a run's
+PLY, as `render` and `view` read them), transforms.json (Blender and instant-ngp), a folder of photos and a
+video as `sfm` reads them before SfM runs (SfM itself is not run: seconds a case), checkpoints and a run's
 config.json. Every input lives under a folder whose name holds spaces and non-ASCII letters,
 and image names hold non-ASCII letters (and spaces where the format allows them).
 
@@ -27,6 +28,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import importlib.util
 import io
 import json
 import math
@@ -49,7 +51,11 @@ from dc4gs_cl.errors import InputError
 from dc4gs_cl.files import write_json
 from dc4gs_cl.ply import read_ply, write_ply
 from dc4gs_cl.run_folder import RunFolder
+from dc4gs_cl.scene.images import read_image
 from dc4gs_cl.scene.loader import load_scene
+from dc4gs_cl.scene.sfm import check_photos, find_photos
+from dc4gs_cl.scene.sfm_settings import SfMSettings
+from dc4gs_cl.scene.video_frames import frames_from_video
 from dc4gs_cl.reference.testing import random_model
 
 FOLDER = "fuzz scène ü"     # every input lives under a name with a space and non-ASCII letters
@@ -171,6 +177,48 @@ def read_scene(root: Path):
     cams = [(c.name, c.width, c.height, c.fx, c.fy, c.cx, c.cy, c.R, c.t) for c in scene.train]
     return {"cameras": cams, "points": scene.points, "colors": scene.colors,
             "images": [scene.image(c) for c in scene.train]}
+
+
+def photo_folder(root: Path, rng) -> Path:
+    """The folder of photos `sfm` and `train --scene PHOTOS` read (no sparse model); returns its first photo."""
+    for i in range(3):
+        write_image(root / "photos" / f"photo {i} é.jpg", image_pixels(rng, 3), "uint8")
+    return root / "photos" / "photo 0 é.jpg"
+
+
+def read_photo_folder(path: Path):
+    """The photos as SfM's check reads them before anything is written (each decoded whole, one size)."""
+    root = path.parent
+    names = find_photos(root)
+    check_photos(root, names, SfMSettings())
+    return {n: read_image(root / n) for n in names}
+
+
+def video_input(root: Path, rng) -> Path:
+    """A short clip (MPEG-4 part 2, as PyAV writes it) for `sfm VIDEO` / `train --scene VIDEO`."""
+    import av
+    path = root / "clip é.mp4"
+    root.mkdir(parents=True, exist_ok=True)
+    with av.open(str(path), "w") as container:
+        stream = container.add_stream("mpeg4", rate=10)
+        stream.width, stream.height, stream.pix_fmt = 4 * W, 4 * H, "yuv420p"
+        for _ in range(8):
+            pixels = np.repeat(np.repeat(image_pixels(rng, 3), 4, 0), 4, 1)
+            frame = av.VideoFrame.from_ndarray((pixels * 255 + 0.5).astype(np.uint8), format="rgb24")
+            container.mux(stream.encode(frame))
+        container.mux(stream.encode(None))
+    return path
+
+
+def read_video(path: Path):
+    """The frames a video's scene keeps (frames_from_video into a fresh folder), as their JPEGs' pixels."""
+    with tempfile.TemporaryDirectory() as scene:
+        names = frames_from_video(path, Path(scene), target=3)
+        return {n: read_image(Path(scene) / "images" / n) for n in names}
+
+
+def sfm_cli(path: Path, out: Path) -> list[str]:
+    return ["sfm", str(path if path.suffix == ".mp4" else path.parent), "--no-progress", "--out", str(out)]
 
 
 def ply_input(root: Path, rng) -> Path:
@@ -508,6 +556,9 @@ def _formats() -> list[Format]:
                cli=train_cli),
         Format("transforms_train.json (Blender)", lambda root, rng: nerf_scene(root, rng, style="blender"),
                read_from_scene, SCENE_JSON, cli=train_cli),
+        Format("photos (sfm)", photo_folder, read_photo_folder, IMAGE, cli=sfm_cli),
+        *([Format("video (sfm)", video_input, read_video, BASIC, cli=sfm_cli)] if importlib.util.find_spec("av")
+          else []),
         Format("checkpoint", checkpoint_input, read_checkpoint, BASIC, checksum=True),
         Format("config.json", config_input, lambda path: RunFolder(path.parent).read_config().to_json(), JSON,
                cli=lambda path, out: ["eval", "--model", str(path.parent)]),

@@ -163,7 +163,7 @@ def make_scene(photos: Path, scene: Path | None = None, given: dict | None = Non
                                            "output folder")
     masks = _masks(photos, names)
     start = time.perf_counter()   # the photos' check counts as the features' time: both read every photo
-    _check_photos(root, names, settings)
+    check_photos(root, names, settings)
     scene.mkdir(parents=True, exist_ok=True)
     with exclusive_lock(scene / LOCK, lambda holder: InputError(
             scene, f"is being made by another run (PID {holder}): wait for it to end, or give another --out")):
@@ -259,7 +259,7 @@ def _masks(photos: Path, names: list[str]) -> Path | None:
     return masks
 
 
-def _check_photos(root: Path, names: list[str], settings: SfMSettings) -> None:
+def check_photos(root: Path, names: list[str], settings: SfMSettings) -> None:
     """Enough photos, each decoding whole, of one size wherever they share a camera; before anything is written."""
     if not names:
         raise InputError(root, f"no photos ({', '.join(PHOTO_EXTENSIONS)}) in this folder")
@@ -272,7 +272,7 @@ def _check_photos(root: Path, names: list[str], settings: SfMSettings) -> None:
         size = image_size(root / n)
         other, other_size = first.setdefault(_camera_of(n, settings.camera), (n, size))
         if size != other_size:
-            raise InputError(root / n, f"is {size[0]}x{size[1]}, {other} {other_size[0]}x{other_size[1]}: photos "
+            raise InputError(root / n, f"is {size[0]}x{size[1]}, {root / other} {other_size[0]}x{other_size[1]}: photos "
                                        f"sharing a camera (--camera {settings.camera}) must have one size; try "
                                        "--camera per-photo")
 

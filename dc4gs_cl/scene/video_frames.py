@@ -63,7 +63,7 @@ def _frames(video: Path):
             stream = container.streams.video[0]
             stream.thread_type = "AUTO"
             yield from enumerate(container.decode(stream))
-    except av.FFmpegError as e:
+    except (av.FFmpegError, UnicodeDecodeError) as e:   # (PyAV decodes a stream's metadata as UTF-8)
         raise InputError(video, f"cannot decode video ({' '.join(str(e).split())})") from None
 
 
