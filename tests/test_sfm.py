@@ -262,6 +262,30 @@ def test_train_makes_the_scene_then_reuses_it(photo_cache, tmp_path, capsys):
     assert "holds a scene made with other settings (max_features 1024 there, 512 now)" in capsys.readouterr().err
 
 
+# a short training on each scene, the same settings and seed: 600 iterations at a quarter of fountain_p11's size
+# (192x128), after SfM of its full-size photos with the default settings (at the photo cache's 320 px, SfM makes 747
+# points, the shipped model has 4,778, and the 300-iteration runs differ by the start: 16.3 against 19.4 dB)
+COMPARED = ["--iterations", "600", "-r", "4", "--seed", "0", "--lpips", "none", "--no-progress"]
+PSNR_LOSS = 0.5   # dB the recovered scene's test views may score below the shipped scene's
+
+
+def _test_psnr(scene: Path, out: Path) -> float:
+    assert main(["train", "--scene", str(scene), "--out", str(out), *COMPARED]) == 0
+    return next(iter(json.loads((out / "results.json").read_text()).values()))["PSNR"]
+
+
+def test_training_on_the_recovered_scene_scores_as_on_the_shipped_one(tmp_path):
+    """fountain_p11's photos through SfM, then the same short training on the recovered scene and on the shipped
+    one: their test views (the same photos) score within PSNR_LOSS (above passes: the shipped poses are another
+    SfM's, no ground truth of the pixels). Measured: 19.61 dB on the recovered scene, 19.44 on the shipped one."""
+    shipped = scene_path("fountain_p11")
+    recovered = make_scene(_copy(shipped / "images", tmp_path / "recovered" / "images").parent)
+    assert recovered.models[0] == 11
+    ours, theirs = _test_psnr(recovered.scene, tmp_path / "on recovered"), _test_psnr(shipped, tmp_path / "on shipped")
+    print(f"test PSNR: {ours:.2f} dB on the recovered scene, {theirs:.2f} on the shipped one")
+    assert ours > theirs - PSNR_LOSS
+
+
 def _refused(capsys, *args) -> str:
     assert main(["sfm", *map(str, args), "--no-progress"]) == 2
     err = capsys.readouterr().err.strip()
