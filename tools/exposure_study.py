@@ -3,7 +3,7 @@ without a correction) of the same run on the unchanged photos and on the changed
 --exposure (same seed and iterations).
 
     python tools/exposure_study.py [--scene builtin] [-r K] [--iterations 2000] [--seeds 0] [--gain 0.6 1.5]
-                                   [--offset 0.1] [--device D]
+                                   [--offset 0.1] [--centred] [--unchanged-only] [--device D]
 
 The changed scene: each training photo's colours times a per-channel gain drawn from U(gain) plus a per-channel
 offset drawn from U(-offset, offset), drawn per photo from a fixed generator (test photos untouched); not clipped
@@ -72,12 +72,15 @@ def main(argv=None) -> int:
                    help="--exposure-lr-init and --exposure-lr-final (default: train's)")
     p.add_argument("--exposure-only", action="store_true",
                    help="only the runs with --exposure (those without do not depend on its settings)")
+    p.add_argument("--unchanged-only", action="store_true",
+                   help="only the photos as they are (a real capture's own exposure changes)")
     p.add_argument("--device", default=None)
     args = p.parse_args(argv)
     rt = Runtime(args.device)
     scene = load_scene(args.scene, resolution=args.resolution)
-    scenes = {"unchanged": scene, "changed": changed_photos(scene, tuple(args.gain), args.offset,
-                                                                          args.centred)}
+    scenes = {"unchanged": scene}
+    if not args.unchanged_only:
+        scenes["changed"] = changed_photos(scene, tuple(args.gain), args.offset, args.centred)
     cam = scene.train[0]
     print(f"device: {describe(rt.device)}; scene {args.scene} ({len(scene.train)} train / {len(scene.test)} test "
           f"views, {cam.width}x{cam.height}), {args.iterations} iterations, gains U{tuple(args.gain)}, offsets "
