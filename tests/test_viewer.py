@@ -24,7 +24,8 @@ from dc4gs_cl.evaluation.metrics import psnr
 from dc4gs_cl.render import DeviceGaussians, Renderer
 from dc4gs_cl.scene.camera import Camera
 from dc4gs_cl.scene.images import read_image
-from dc4gs_cl.reference.testing import random_camera, random_model
+from dc4gs_cl.reference.testing import distorted_camera, random_camera, random_model
+from dc4gs_cl.scene.distortion import undistort_points
 
 viser = pytest.importorskip("viser", reason='viser is not installed (pip install "dc4gs-cl[viewer]")')
 from dc4gs_cl.apps.viewer import (  # noqa: E402 (after the importorskip above)
@@ -70,6 +71,21 @@ def test_a_training_camera_round_trips_through_its_viser_pose(rng):
     np.testing.assert_allclose(back.R, cam.R, atol=1e-12)
     np.testing.assert_allclose(back.t, cam.t, atol=1e-12)
     np.testing.assert_allclose([back.fx, back.fy, back.cx, back.cy], [cam.fx, cam.fy, cam.cx, cam.cy], rtol=1e-12)
+
+
+@pytest.mark.parametrize("lens", ["opencv", "fisheye"])
+def test_a_lens_cameras_frustum_holds_its_photos_whole_field(rng, lens):
+    """The frustum of a camera with a lens model reaches the rays of its photo's border (undistorted), not its focal
+    length's pinhole field: a fisheye's is wider."""
+    cam = replace(random_camera(rng, WIDTH, HEIGHT), cx=0.5 * WIDTH, cy=0.5 * HEIGHT)
+    bent = distorted_camera(cam, lens)
+    _, _, fov, aspect = viser_pose(bent)
+    border = np.array([[x, y] for x in np.linspace(0, WIDTH, 33) for y in (0, HEIGHT)]
+                      + [[x, y] for x in (0, WIDTH) for y in np.linspace(0, HEIGHT, 33)])
+    rays = undistort_points(bent.distortion, (border - [bent.cx, bent.cy]) / [bent.fx, bent.fy])
+    np.testing.assert_allclose(math.tan(fov / 2), np.abs(rays[:, 1]).max(), rtol=1e-9)
+    np.testing.assert_allclose(aspect * math.tan(fov / 2), np.abs(rays[:, 0]).max(), rtol=1e-9)
+    assert fov > 2 * math.atan(0.5 * HEIGHT / bent.fy)   # both lenses here bend the border's rays outwards
 
 
 def test_frames_fit_the_canvas_in_the_largest_side():

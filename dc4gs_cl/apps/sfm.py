@@ -17,7 +17,7 @@ FLAG_HELP = {   # setting -> its flag's help; the flag is --<setting with dashes
     "camera": f"one camera shared by every photo (convert.py's), one per folder of photos, or one per photo "
               f"(default {DEFAULTS.camera})",
     "camera_model": f"COLMAP camera model the photos are fitted with (default {DEFAULTS.camera_model}, as convert.py; "
-                    "training undistorts the photos)",
+                    "training renders it directly, or undistorted photos with train's --undistort)",
     "max_image_size": f"SIFT on photos scaled to at most this many pixels a side (default {DEFAULTS.max_image_size})",
     "max_features": f"SIFT features per photo at most (default {DEFAULTS.max_features})",
     "affine_shape": "SIFT features with affine shapes (COLMAP's estimate_affine_shape): photos taken further apart "

@@ -39,7 +39,7 @@ from typing import TYPE_CHECKING, Callable
 
 import numpy as np
 
-from ..constants import MAX_ABS_MEAN
+from ..constants import FOV_CLAMP, MAX_ABS_MEAN
 from ..errors import InputError
 from ..scene.camera import Camera, scene_extent
 
@@ -130,9 +130,14 @@ def client_frame(camera, max_side, scale: float) -> Camera | None:
 
 def viser_pose(cam: Camera) -> tuple[np.ndarray, np.ndarray, float, float]:
     """(wxyz, position, vertical fov, aspect) of our camera as viser takes them (frustums, client cameras);
-    the principal point is taken as centred."""
+    the principal point is taken as centred. A camera with a lens model gets the pinhole that holds its photo's
+    whole field (the extent of the image border's rays: a fisheye's frustum is as wide as its photo, not as its
+    focal length's pinhole)."""
     wxyz = _viser().transforms.SO3.from_matrix(cam.R.T).wxyz
-    return wxyz, cam.center, 2 * math.atan(0.5 * cam.height / cam.fy), (cam.width / cam.fx) / (cam.height / cam.fy)
+    tan_x, tan_y = 0.5 * cam.width / cam.fx, 0.5 * cam.height / cam.fy
+    if cam.distortion is not None and np.isfinite(cam.distortion.lim).all():
+        tan_x, tan_y = (limit / FOV_CLAMP for limit in cam.distortion.lim)
+    return wxyz, cam.center, 2 * math.atan(tan_y), tan_x / tan_y
 
 
 def frame_size(canvas_width: int, canvas_height: int, max_side: int, scale: float = 1.0) -> tuple[int, int]:
