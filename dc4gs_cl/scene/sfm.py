@@ -272,9 +272,9 @@ def check_photos(root: Path, names: list[str], settings: SfMSettings) -> None:
         size = image_size(root / n)
         other, other_size = first.setdefault(_camera_of(n, settings.camera), (n, size))
         if size != other_size:
-            raise InputError(root / n, f"is {size[0]}x{size[1]}, {root / other} {other_size[0]}x{other_size[1]}: photos "
-                                       f"sharing a camera (--camera {settings.camera}) must have one size; try "
-                                       "--camera per-photo")
+            raise InputError(root / n, f"is {size[0]}x{size[1]}, {root / other} {other_size[0]}x{other_size[1]}: "
+                                       f"photos sharing a camera (--camera {settings.camera}) must have one size; "
+                                       "try --camera per-photo")
 
 
 def _camera_of(name: str, mode: str) -> str:
