@@ -33,6 +33,7 @@ from conftest import scene_path
 SIZES = {"fountain_p11": 320, "sceaux_castle": 480}
 FAST = {"max_features": 1024}
 ALIGNED = 0.01     # camera centres within this share of the scene's extent of the shipped model's
+RESUMED_POINTS, RESUMED_CENTRES = 0.03, 0.002   # a resumed run's scene against an uninterrupted one's
 
 
 def _downsized(source: Path, out: Path, width: int, names: list[str] | None = None) -> Path:
@@ -205,11 +206,13 @@ def test_a_stopped_run_goes_on_to_the_scene_an_uninterrupted_one_makes(photo_cac
     assert len(asked["pairs"]) == len(set(asked["pairs"])) == 55 and asked["pairs"][:7] == [
         f"{names[a]} {names[b]}" for a, b in first_pairs]
     assert resumed.models == straight.models
+    # the same scene up to RANSAC's draws: matched in other chunks, a pair may be verified on another thread, whose
+    # generator is elsewhere in its sequence (seen once in CI, 740 points against 747; usually bit for bit)
     a, b = (pycolmap.Reconstruction(str(r.scene / "sparse" / "0")) for r in (straight, resumed))
-    assert a.num_points3D() == b.num_points3D()
-    for name, centre in camera_centres(straight.scene / "sparse" / "0").items():
-        assert np.array_equal(centre, camera_centres(resumed.scene / "sparse" / "0")[name])
-    assert np.array_equal(a.cameras[1].params, b.cameras[1].params)
+    assert abs(a.num_points3D() - b.num_points3D()) <= RESUMED_POINTS * a.num_points3D()
+    centres = camera_centres(resumed.scene / "sparse" / "0")
+    assert _error(centres, camera_centres(straight.scene / "sparse" / "0")) < RESUMED_CENTRES
+    np.testing.assert_allclose(a.cameras[1].params, b.cameras[1].params, rtol=1e-2, atol=1e-3)
 
 
 def test_a_run_stopped_while_writing_leaves_no_scene_and_goes_on(photo_cache, tmp_path, monkeypatch):
@@ -222,7 +225,8 @@ def test_a_run_stopped_while_writing_leaves_no_scene_and_goes_on(photo_cache, tm
         make_scene(folder, None, FAST)
     monkeypatch.undo()
     scene = folder / sfm.SCENE_DIR
-    assert not (scene / "sparse").exists() and [p.name for p in scene.iterdir() if p.name.startswith(".")] == []
+    left = [p.name for p in scene.iterdir() if p.name.startswith(".") and p.name != sfm.LOCK]
+    assert not (scene / "sparse").exists() and left == []
     with pytest.raises(InputError, match="not a COLMAP or NeRF scene"):
         load_scene(scene)
     (scene / ".mapping.killed").mkdir()   # what a run killed outright leaves
