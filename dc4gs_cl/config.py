@@ -172,8 +172,9 @@ TRAIN_FLAGS = (   # in the order `train --help` lists them (the first group's fl
         Flag("--opacity-lr", "lr_opacity", "opacity learning rate ({default:g})", float),
         Flag("--scaling-lr", "lr_scales", "log-scale learning rate ({default:g})", float),
         Flag("--rotation-lr", "lr_quats", "quaternion learning rate ({default:g})", float),
-        Flag("--exposure-lr-init", "lr_exposure", "--exposure: the corrections' learning rate at the start "
-                                                  "({default:g})", float),
+        Flag("--exposure-lr-init", "lr_exposure", "--exposure: the corrections' learning rate at the start, "
+                                                  "reached after a delay over the run's first tenth ({default:g})",
+             float),
         Flag("--exposure-lr-final", "lr_exposure_final", "... at the end, decayed log-linearly ({default:g})", float),
         Flag("--lambda-dssim", "lambda_dssim", "the SSIM term's weight in the loss, 0 to 1 ({default:g})", float),
         Flag("--random-background", "random_background", "render onto a random colour each iteration (default: the "

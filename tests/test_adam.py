@@ -6,7 +6,7 @@ from helpers import random_model
 
 from dc4gs_cl.backward import ProjectBackward
 from dc4gs_cl.model import group_widths
-from dc4gs_cl.optim.adam import Adam, AdamConfig, exponential_lr
+from dc4gs_cl.optim.adam import Adam, AdamConfig, delayed_lr, exponential_lr
 from dc4gs_cl.optim.batch_gradients import BatchGradients, batch_adam_config
 from dc4gs_cl.render import DeviceGaussians, Renderer
 from dc4gs_cl.runtime import DeviceArrays
@@ -120,3 +120,20 @@ def test_exponential_lr_schedule():
     assert np.isclose(exponential_lr(30_000, 1.6e-4, 1.6e-6, 30_000), 1.6e-6)
     assert np.isclose(exponential_lr(15_000, 1.6e-4, 1.6e-6, 30_000), 1.6e-5)
     assert np.isclose(exponential_lr(40_000, 1.6e-4, 1.6e-6, 30_000), 1.6e-6)
+
+
+def test_delayed_lr_and_the_exposure_schedule():
+    """The Inria code's delay: delay_mult at step 0, a quarter sine up to 1 at delay_steps, 1 after and without one;
+    --exposure's rate is the log-linear schedule times it over the first EXPOSURE_DELAY of the run."""
+    from dc4gs_cl.config import TrainConfig
+    from dc4gs_cl.train.schedule import EXPOSURE_DELAY, EXPOSURE_DELAY_MULT, Schedule
+    assert delayed_lr(0, 100, 0.01) == 0.01 and delayed_lr(100, 100, 0.01) == 1.0 and delayed_lr(250, 100, 0.01) == 1.0
+    assert np.isclose(delayed_lr(50, 100, 0.01), 0.01 + 0.99 * np.sqrt(0.5)) and delayed_lr(0, 0, 0.01) == 1.0
+    cfg = TrainConfig(scene="builtin", iterations=2000, exposure=True)
+    schedule, delay = Schedule(cfg), round(EXPOSURE_DELAY * 2000)
+    assert np.isclose(schedule.exposure_lr(0), cfg.lr_exposure * EXPOSURE_DELAY_MULT)
+    for it in (delay // 3, delay, 1500):
+        assert np.isclose(schedule.exposure_lr(it), exponential_lr(it, cfg.lr_exposure, cfg.lr_exposure_final, 2000) *
+                          delayed_lr(it, delay, EXPOSURE_DELAY_MULT))
+    assert schedule.exposure_lr(delay // 3) < 0.9 * exponential_lr(delay // 3, cfg.lr_exposure, cfg.lr_exposure_final,
+                                                                   2000)

@@ -27,19 +27,27 @@ ALWAYS_INLINE void store_lanes(__global float *p, int count, float4 x) {
     if (count > 3) p[3] = x.w;
 }
 
+// Adam's moments mi, vi (four lanes) updated by gradients g, and the step they give at rates lr: what the
+// parameters lose. Apart from adam_update for a step taken in other coordinates (exposure.cl).
+ALWAYS_INLINE float4 adam_delta(const AdamStep *s, int group, float4 lr, float4 *mi, float4 *vi, float4 g) {
+    *mi = s->beta1 * *mi + (1.f - s->beta1) * g;
+    *vi = s->beta2 * *vi + (1.f - s->beta2) * g * g;
+    float4 vh = *vi / s->c2[group];   // sqrt(vh) without a builtin call (an opaque call under PoCL)
+    float4 root = vh > 0.f ? vh * rsqrt4_nocall(vh) : (float4)(0.f);
+    return (lr / s->c1[group]) * *mi / (root + s->eps);
+}
+
 // Steps `count` consecutive parameters (and their moments m, v) by gradients g with rates lr, four lanes at
 // once, if the group steps this iteration. Explicit float4 arithmetic: PoCL does not vectorise these
 // updates across work-items, and one float at a time they cost twice as much.
 ALWAYS_INLINE void adam_update(const AdamStep *s, int group, float4 lr, int count, __global float *param,
                                __global float *m, __global float *v, float4 g) {
     if (!((s->stepping >> group) & 1u)) return;
-    float4 mi = s->beta1 * load_lanes(m, count) + (1.f - s->beta1) * g;
-    float4 vi = s->beta2 * load_lanes(v, count) + (1.f - s->beta2) * g * g;
+    float4 mi = load_lanes(m, count), vi = load_lanes(v, count);
+    const float4 delta = adam_delta(s, group, lr, &mi, &vi, g);
     store_lanes(m, count, mi);
     store_lanes(v, count, vi);
-    float4 vh = vi / s->c2[group];   // sqrt(vh) without a builtin call (an opaque call under PoCL)
-    float4 root = vh > 0.f ? vh * rsqrt4_nocall(vh) : (float4)(0.f);
-    store_lanes(param, count, load_lanes(param, count) - (lr / s->c1[group]) * mi / (root + s->eps));
+    store_lanes(param, count, load_lanes(param, count) - delta);
 }
 
 #endif

@@ -28,6 +28,14 @@ def exponential_lr(step: int, lr_init: float, lr_final: float, max_steps: int) -
     return float(np.exp(np.log(lr_init) * (1 - t) + np.log(lr_final) * t))
 
 
+def delayed_lr(step: int, delay_steps: int, delay_mult: float) -> float:
+    """The factor the Inria code's lr_delay_steps and lr_delay_mult put on a rate: delay_mult at step 0, rising
+    along a quarter sine to 1 at delay_steps (1 throughout where delay_steps is 0)."""
+    if delay_steps <= 0:
+        return 1.0
+    return float(delay_mult + (1 - delay_mult) * np.sin(0.5 * np.pi * np.clip(step / delay_steps, 0.0, 1.0)))
+
+
 class Adam:
     """Moments m and v on the device (same groups and layout as the parameters), step count per group."""
 

@@ -6,12 +6,17 @@ from dataclasses import replace
 
 from ..config import RECIPE_ITERATIONS, TrainConfig
 from ..densify import STRATEGIES, Strategy
-from ..optim.adam import exponential_lr
+from ..optim.adam import delayed_lr, exponential_lr
 from ..optim.batch_gradients import batch_rate_factor
 
 MIN_DENSIFY_STEPS = 10   # a short run still densifies about this often
 SH_DEGREE_EVERY = 1_000  # one more SH degree every this many (scaled) iterations
 EVALUATE_AT = (7_000,)   # test views evaluated at these (scaled) iterations and at the end, as the Inria code
+# --exposure: the corrections' rate starts at EXPOSURE_DELAY_MULT of itself and rises to the full rate over the
+# first EXPOSURE_DELAY of the run (the Inria code's lr_delay_steps and lr_delay_mult, which it leaves at 0 for
+# exposure): the first renders are too crude for a photo's correction to be told from the model's error, and what
+# the corrections take up then, the model is densified around (README, exposure compensation)
+EXPOSURE_DELAY, EXPOSURE_DELAY_MULT = 0.1, 0.01
 
 
 # TrainConfig's settings that replace the strategy's (DensifyConfig's field of the same name) as given, unscaled
@@ -74,6 +79,7 @@ class Schedule:
 
     def exposure_lr(self, it: int) -> float:
         """--exposure's rate at iteration it: the Inria code's, log-linear from lr_exposure to lr_exposure_final
-        over the run (no batch factor: --exposure takes one view a step)."""
+        over the run, delayed over its first EXPOSURE_DELAY (no batch factor: --exposure takes one view a step)."""
         c = self.cfg
-        return exponential_lr(it, c.lr_exposure, c.lr_exposure_final, c.iterations)
+        return (exponential_lr(it, c.lr_exposure, c.lr_exposure_final, c.iterations) *
+                delayed_lr(it, round(EXPOSURE_DELAY * c.iterations), EXPOSURE_DELAY_MULT))

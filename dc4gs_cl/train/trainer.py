@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from ..backward import ProjectBackward, RasterizeBackward
-from ..backward.exposure import Exposure
+from ..backward.exposure import Exposure, colour_coordinates
 from ..backward.loss import STAT_KEYS, Loss
 from ..config import DEFAULT_LINE_EVERY, TrainConfig
 from ..densify import Actions, Strategy
@@ -94,7 +94,9 @@ class Trainer:
         self.project_backward = ProjectBackward(self.context)
         # --exposure: a correction per training photo (index: its place in scene.train) and this iteration's step
         # (its Adam counts the means' steps: once an iteration, however often a view runs)
-        self.exposure = Exposure(self.context, len(scene.train)) if cfg.exposure else None
+        self.exposure = None if not cfg.exposure else Exposure(
+            self.context, len(scene.train),
+            coords=colour_coordinates((scene.image(cam), scene.mask(cam)) for cam in scene.train))
         self.photo_index = {cam.name: i for i, cam in enumerate(scene.train)}
         self.exposure_step = one_group_step(0.0, 0)
         self.rng = np.random.default_rng(cfg.seed)
