@@ -46,7 +46,7 @@ def colour_coordinates(photos: Iterable[tuple[np.ndarray, np.ndarray | None]]) -
     cov = outer / count - np.outer(mu, mu)
     scale = np.trace(cov) / 3
     if not scale > 0:   # one colour everywhere: nothing to whiten
-        return np.concatenate([np.eye(3).reshape(9), mu]).astype(np.float32)
+        return np.concatenate([PLAIN_COORDS[:9], mu]).astype(np.float32)
     w, U = np.linalg.eigh(cov / scale)
     W = U @ np.diag(np.maximum(w, VARIANCE_FLOOR) ** -0.5) @ U.T
     return np.concatenate([W.reshape(9), mu]).astype(np.float32)

@@ -14,10 +14,9 @@
 //                      iteration) Adam on every photo's T (one dense Adam over [N][12], as the Inria code's: a
 //                      photo not seen moves by its momentum), taken in the photos' colour coordinates, and the
 //                      anchor: the mean of T over the photos minus the identity subtracted from each, so that the
-//                      mean correction stays the identity. A kernel
-//                      of its own, not the last group of exposure_backward: OpenCL 1.2 makes no group's writes
-//                      visible to another within a launch. The sums' order is fixed by the shape and the image
-//                      alone: runs are bit-reproducible.
+//                      mean correction stays the identity. A kernel of its own, not the last group of
+//                      exposure_backward: OpenCL 1.2 makes no group's writes visible to another within a launch.
+//                      The sums' order is fixed by the shape and the image alone: runs are bit-reproducible.
 // coords [12] float32: the photos' colour coordinates, W [3][3] row-major then mu [3] (backward/exposure.py
 // colour_coordinates: mu the photos' mean colour, W their colours' whitening). Adam steps a correction as
 // P = [A W^-1 | b + A mu], i.e. out = P_A (W (x - mu)) + P_b, with m and v in these coordinates: the gain and the
