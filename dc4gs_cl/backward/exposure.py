@@ -21,18 +21,21 @@ APPLY_WG = 64                                   # exposure_apply: one item a pix
 CPU_SHAPE, GPU_SHAPE = {"WG": 1, "PER_ITEM": 2048}, {"WG": 256, "PER_ITEM": 16}
 COORDS = 12                                     # colour coordinates: W [3][3] row-major, then mu [3]
 PLAIN_COORDS = np.concatenate([np.eye(3).reshape(9), np.zeros(3)]).astype(np.float32)   # Adam on T itself
-# colour_coordinates: the whitening's smallest variance, a fraction of the mean one, so that a grey or
-# one-coloured capture (a colour direction with no variance) gains at most 10x along it
-VARIANCE_FLOOR = 0.01
+# colour_coordinates: the smallest variance the whitening takes a colour direction to have, as a fraction of the
+# mean one. 1: it shrinks the directions the photos vary along more than on average (their brightness) and never
+# amplifies one they hardly vary along; there Adam's steps are mostly noise, and amplified they drifted without
+# bound (floored at 0.01, beer's corrections reached gains of 3.4 in 2,000 iterations; README, exposure)
+VARIANCE_FLOOR = 1.0
 
 
 def colour_coordinates(photos: Iterable[tuple[np.ndarray, np.ndarray | None]]) -> np.ndarray:
     """The coordinates the corrections' Adam steps in (kernels/exposure.cl, coords: W [3][3] row-major, then mu [3],
     float32) from the training photos ((H, W, 3) colours, (H, W) keep mask or None): mu their kept pixels' mean
     colour and W = (C / (tr C / 3))^(-1/2) the whitening of their colours' covariance C scaled to a mean variance of
-    1 (its eigenvalues floored at VARIANCE_FLOOR). A photo's colours are nearly collinear (the channels move
-    together, and the gain with the offset), so that Adam on T itself moves the corrections slowly and along the
-    wrong directions; in these coordinates each parameter is one of the photo's independent colour directions.
+    1, its eigenvalues floored at VARIANCE_FLOOR (so W only shrinks). A photo's colours are nearly collinear (the
+    channels move together, and the gain with the offset), so that Adam on T itself moves the corrections slowly and
+    along the wrong directions; in these coordinates its parameters are the photos' colour directions, the
+    brightness, along which they vary most, scaled to the others.
     Sums in float64 over the photos in order: the same photos give the same coordinates everywhere, resumed too."""
     count, total, outer = 0, np.zeros(3), np.zeros((3, 3))
     for image, keep in photos:

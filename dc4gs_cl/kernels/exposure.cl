@@ -18,7 +18,8 @@
 //                      exposure_backward: OpenCL 1.2 makes no group's writes visible to another within a launch.
 //                      The sums' order is fixed by the shape and the image alone: runs are bit-reproducible.
 // coords [12] float32: the photos' colour coordinates, W [3][3] row-major then mu [3] (backward/exposure.py
-// colour_coordinates: mu the photos' mean colour, W their colours' whitening). Adam steps a correction as
+// colour_coordinates: mu the photos' mean colour, W their colours' whitening, which only shrinks: the directions
+// they vary along most, their brightness, scaled down to the mean variance). Adam steps a correction as
 // P = [A W^-1 | b + A mu], i.e. out = P_A (W (x - mu)) + P_b, with m and v in these coordinates: the gain and the
 // offset, and the three channels, which an image's colours make nearly collinear for T itself, are decorrelated
 // there, so Adam's per-parameter steps move a correction straight toward its photo's (W = I, mu = 0: Adam on T).
