@@ -83,10 +83,11 @@ def test_coordinates_gradient_matches_finite_differences(rng):
 
 
 def test_colour_coordinates_whiten_the_kept_pixels(rng):
-    """mu is the kept pixels' mean colour and W takes their covariance, scaled to a mean variance of 1, to at most
-    VARIANCE_FLOOR along each of its directions, leaving those below it as they are (masked pixels, here garbage,
-    count for nothing): W never amplifies, so grey photos (no colour variance) get finite coordinates that leave the
-    missing directions alone; a fixed order makes them the same every call."""
+    """mu is the kept pixels' mean colour and W whitens their covariance, scaled to a mean variance of 1, along each
+    of its directions with at least VARIANCE_FLOOR of it, and scales those below by VARIANCE_FLOOR^(-1/2) (masked
+    pixels, here garbage, count for nothing), so that grey photos (no colour variance) get finite coordinates whose
+    gain is at most VARIANCE_FLOOR^(-1/2) (at the floor of 1: W never amplifies); a fixed order makes them the same
+    every call."""
     photos = [correlated_photo(rng, 11, 13), correlated_photo(rng, 9, 8)]
     keep = rng.random((11, 13)) > 0.3
     garbage = photos[0].copy()
@@ -99,7 +100,7 @@ def test_colour_coordinates_whiten_the_kept_pixels(rng):
     cov /= np.trace(cov) / 3
     w, U = np.linalg.eigh(cov)
     assert w.max() > 1.5 * VARIANCE_FLOOR and w.min() < VARIANCE_FLOOR   # both kinds of direction are tested
-    assert np.allclose(W @ cov @ W.T, U @ np.diag(np.minimum(w, VARIANCE_FLOOR)) @ U.T, atol=1e-4)
+    assert np.allclose(W @ cov @ W.T, U @ np.diag(np.minimum(w / VARIANCE_FLOOR, 1)) @ U.T, atol=1e-4)
     assert np.linalg.norm(W, 2) <= VARIANCE_FLOOR ** -0.5 * (1 + 1e-5)
     assert np.array_equal(coords, colour_coordinates([(garbage, keep), (photos[1], None)]))
     grey = np.repeat(rng.uniform(0, 1, (10, 10, 1)), 3, axis=2)
